@@ -1,0 +1,305 @@
+"""The ``ham`` command line: one subcommand per job.
+
+World commands live here; other concerns add theirs through ``add_commands(subparsers)`` in
+their own module (listed in ``_COMMAND_MODULES``). Errors a user can cause end with one line on
+stderr naming the bad value and what is accepted, and exit status 2: never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from ham import __version__
+from ham.errors import HamError
+
+# Modules that add subcommands; a missing optional one is skipped.
+_COMMAND_MODULES = ("ham.cli_agent", "ham.cli_mujoco", "ham.cli_reproduce", "ham.cli_envs")
+
+
+# --------------------------------------------------------------------------- shared options
+def finite_float(text: str) -> float:
+    """argparse type: a float; NaN and inf pass through so the glance check can name them."""
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+
+
+def add_world_options(p: argparse.ArgumentParser, *, objects: bool = True) -> None:
+    """Options that build a :class:`ham.world.WorldConfig` (paper defaults)."""
+    if objects:
+        p.add_argument(
+            "--objects",
+            default="paper",
+            help="object set: paper (default), mhsb, all, or a comma list of names/ids",
+        )
+    p.add_argument("--simulator", default="fast", help="fast (default) or mujoco")
+    p.add_argument(
+        "--pose",
+        default="paper",
+        choices=("paper", "authors"),
+        help="pose mapping: paper (phi = q*pi/2, default) or authors (phi = q*0.3pi, pivot shift)",
+    )
+    p.add_argument("--foam-stiffness", type=finite_float, default=None, help="Pa per m")
+    p.add_argument(
+        "--spread-sigma",
+        type=finite_float,
+        default=None,
+        help="Gaussian spread (m) like the paper's Gazebo plugin, e.g. 0.005",
+    )
+    p.add_argument("--quantize-bits", type=int, default=None, help="e.g. 12, like the real sensor")
+
+
+def world_from_args(args: argparse.Namespace, objects: str | None = None):
+    from dataclasses import replace
+
+    from ham.glance import PoseConfig
+    from ham.sensor import SensorConfig
+    from ham.world import WorldConfig
+
+    sensor = SensorConfig()
+    changes = {}
+    if args.foam_stiffness is not None:
+        changes["foam_stiffness"] = args.foam_stiffness
+    if args.spread_sigma is not None:
+        changes["spread_sigma"] = args.spread_sigma
+    if args.quantize_bits is not None:
+        changes["quantize_bits"] = args.quantize_bits
+    sensor = replace(sensor, **changes)
+    return WorldConfig(
+        objects=objects or getattr(args, "objects", "paper"),
+        simulator=args.simulator,
+        sensor=sensor,
+        pose=PoseConfig.preset(args.pose),
+    )
+
+
+def _print_json(obj) -> None:
+    json.dump(obj, sys.stdout, indent=None, allow_nan=True)
+    sys.stdout.write("\n")
+
+
+# --------------------------------------------------------------------------- objects
+def cmd_objects(args: argparse.Namespace) -> int:
+    from ham import objects
+
+    objs = objects.resolve_set(args.set)
+    rows = [
+        {
+            "id": objects.object_id(o.name),
+            "name": o.name,
+            "width": o.width,
+            "height": o.height,
+            "description": o.description,
+        }
+        for o in objs
+    ]
+    if args.out:
+        from ham.drawing import draw_objects
+
+        draw_objects(objs, args.out)
+    if args.json:
+        _print_json(rows)
+    else:
+        for r in rows:
+            print(f"{r['id']:>3}  {r['name']:<13} {r['description']}")
+        if args.out:
+            print(f"wrote {args.out}")
+    return 0
+
+
+# --------------------------------------------------------------------------- glance
+def cmd_glance(args: argparse.Namespace) -> int:
+    from ham import objects
+    from ham.world import make_simulator
+
+    obj = objects.get(args.object)
+    world = world_from_args(args, objects=obj.name)
+    sim = make_simulator(world)
+    result = sim.glance([0], [args.x], [args.phi])
+    data = result.to_json(0)
+    data.update(object=obj.name, object_id=objects.object_id(obj.name), simulator=sim.name)
+    data["q"] = [args.x, args.phi]
+    if args.out:
+        from ham.drawing import draw_glance
+
+        draw_glance(obj, data, world.sensor.size, args.out)
+    if args.json:
+        _print_json(data)
+    else:
+        print(
+            f"{obj.name} at q = ({args.x:+.3f}, {args.phi:+.3f}) -> x = {data['x'] * 100:.2f} cm, "
+            f"phi = {math.degrees(data['phi']):.1f} deg: force {data['force']:.3f} N, "
+            f"z {data['z'] * 100:.3f} cm, contact {data['contact']}, blocked {data['blocked']}"
+        )
+        if args.out:
+            print(f"wrote {args.out}")
+    return 0
+
+
+# --------------------------------------------------------------------------- table
+def cmd_table_build(args: argparse.Namespace) -> int:
+    from ham.table import build_table
+
+    world = world_from_args(args)
+    out = build_table(
+        world, args.grid, args.out, progress=not args.quiet, command="ham " + " ".join(sys.argv[1:])
+    )
+    print(f"wrote {out}")
+    return 0
+
+
+def cmd_table_info(args: argparse.Namespace) -> int:
+    from ham.table import table_info
+
+    info = table_info(args.file)
+    if args.json:
+        _print_json(info.to_dict())
+        return 0
+    print(f"{info.path}: {len(info.objects)} objects x {info.grid} x {info.grid} glances")
+    print(f"  objects:   {', '.join(info.objects)}")
+    print(f"  simulator: {info.simulator.get('simulator', '?')}  source: {info.source}")
+    print(f"  pose:      {info.world.get('pose')}")
+    print(f"  ham {info.ham_version}, created {info.created}")
+    print(f"  command:   {info.command}")
+    print(f"  checksum:  sha256 {info.checksum}")
+    return 0
+
+
+def cmd_table_show(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from ham.drawing import draw_table_grid
+    from ham.table import GlanceTable, grid_values
+
+    table = GlanceTable.load(args.file)
+    names = table.objects
+    key = args.object
+    if key.isdigit():
+        if int(key) >= len(names):
+            raise HamError(f"object {key} not in table; accepted: 0..{len(names) - 1} or {names}")
+        oi = int(key)
+    elif key in names:
+        oi = names.index(key)
+    else:
+        raise HamError(f"object {key!r} not in table; accepted: {names} or 0..{len(names) - 1}")
+    if args.n < 2:
+        raise HamError(f"--n = {args.n}; accepted: >= 2")
+    q = grid_values(table.grid)
+    pick = np.round(np.linspace(0, table.grid - 1, args.n)).astype(int)
+    p = table.pressure[oi].numpy()[np.ix_(pick, pick)]
+    draw_table_grid(p, (q[pick], q[pick]), f"{names[oi]}: glances from {args.file}", args.out)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def cmd_table_import(args: argparse.Namespace) -> int:
+    from ham.table import import_authors
+
+    out = import_authors(
+        args.file, args.out, axes=args.axes, command="ham " + " ".join(sys.argv[1:])
+    )
+    print(f"wrote {out}")
+    return 0
+
+
+# --------------------------------------------------------------------------- demo
+def cmd_demo(args: argparse.Namespace) -> int:
+    from ham.demo import run_demo
+
+    run_demo(Path(args.out), quick=args.quick)
+    return 0
+
+
+# --------------------------------------------------------------------------- parser
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="ham",
+        description="The Haptic Attention Model: haptic glances, glance tables, training, reproduction.",
+    )
+    parser.add_argument("--version", action="version", version=f"ham {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    p = sub.add_parser("objects", help="list the objects (and draw their profiles)")
+    p.add_argument("--set", default="all", help="paper, mhsb, all (default) or names/ids")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--out", help="PNG of the side profiles")
+    p.set_defaults(func=cmd_objects)
+
+    p = sub.add_parser("glance", help="one haptic glance: lower the pad until 2 N, read the image")
+    p.add_argument("--object", required=True, help="object name or id")
+    p.add_argument(
+        "--x", type=finite_float, required=True, help="normalized position q_x in [-1, 1]"
+    )
+    p.add_argument(
+        "--phi", type=finite_float, required=True, help="normalized angle q_phi in [-1, 1]"
+    )
+    p.add_argument("--json", action="store_true", help="print the result as JSON (raw pressure)")
+    p.add_argument("--out", help="PNG: the pad over the profile and the 16 x 16 image")
+    add_world_options(p, objects=False)
+    p.set_defaults(func=cmd_glance)
+
+    t = sub.add_parser("table", help="glance tables (the paper's pre-recorded data set)")
+    tsub = t.add_subparsers(dest="table_command", metavar="ACTION")
+    p = tsub.add_parser("build", help="record a grid x grid table of glances per object")
+    p.add_argument("--grid", type=int, default=201)
+    p.add_argument("--out", required=True, help="HDF5 file to write (atomically)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_world_options(p)
+    p.set_defaults(func=cmd_table_build)
+    p = tsub.add_parser("info", help="describe a table")
+    p.add_argument("file")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_table_info)
+    p = tsub.add_parser("show", help="draw a grid of a table's images for one object")
+    p.add_argument("file")
+    p.add_argument("--object", required=True, help="name or index in the table")
+    p.add_argument("--n", type=int, default=7, help="poses per axis (default 7)")
+    p.add_argument("--out", required=True, help="PNG")
+    p.set_defaults(func=cmd_table_show)
+    p = tsub.add_parser("import-authors", help="convert the authors' HDF5 data set to a table")
+    p.add_argument("file")
+    p.add_argument("--out", required=True)
+    p.add_argument("--axes", default="x,phi", help="order of their first two axes: x,phi or phi,x")
+    p.set_defaults(func=cmd_table_import)
+
+    p = sub.add_parser("demo", help="the main job on built-in defaults (what `make demo` runs)")
+    p.add_argument("--out", default="runs/demo", help="output folder (default runs/demo)")
+    p.add_argument("--quick", action="store_true", help="seconds instead of minutes (for tests)")
+    p.set_defaults(func=cmd_demo)
+
+    for name in _COMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name != name:
+                raise
+            continue
+        module.add_commands(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2 if args.command is None else 2
+    try:
+        return int(args.func(args) or 0)
+    except HamError as exc:
+        print(f"ham: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("ham: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,125 @@
+"""Pictures of the world: object profiles, a glance (pad over the profile + its image), tables.
+
+All functions write PNG files with matplotlib's Agg backend (no display needed).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from ham.errors import HamError  # noqa: E402
+from ham.objects import HapticObject  # noqa: E402
+
+
+def _save(fig, out: str | os.PathLike) -> Path:
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp.png")
+    try:
+        fig.savefig(tmp, dpi=110, bbox_inches="tight")
+    except OSError as exc:
+        raise HamError(f"cannot write picture {str(out)!r}: {exc}") from None
+    finally:
+        plt.close(fig)
+    os.replace(tmp, out)
+    return out
+
+
+def _solid(ax, obj: HapticObject, color: str = "#b08850") -> None:
+    top = obj.outline()
+    half = 0.5 * obj.width
+    poly = np.vstack([[-half, 0.0], top, [half, 0.0]]) * 100  # cm
+    ax.fill(poly[:, 0], poly[:, 1], color=color, alpha=0.85, lw=1.2, ec="k")
+
+
+def draw_objects(objs: list[HapticObject], out: str | os.PathLike) -> Path:
+    """Side profiles (x-z cross-sections) of ``objs``, one panel each, with ids and names."""
+    n = len(objs)
+    cols = min(n, 4)
+    rows = math.ceil(n / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.0 * cols, 2.3 * rows), squeeze=False)
+    from ham.objects import object_id
+
+    for ax, obj in zip(axes.flat, objs, strict=False):
+        ax.axhline(0, color="0.4", lw=2)
+        _solid(ax, obj)
+        ax.set_title(f"{object_id(obj.name)}: {obj.name}", fontsize=10)
+        ax.set_xlim(-6, 6)
+        ax.set_ylim(-0.5, 6)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (cm)")
+    for ax in axes.flat[n:]:
+        ax.axis("off")
+    axes[0, 0].set_ylabel("z (cm)")
+    fig.suptitle("Object side profiles (extruded along y)", fontsize=11)
+    return _save(fig, out)
+
+
+def draw_glance(
+    obj: HapticObject, result: dict, sensor_size: float, out: str | os.PathLike
+) -> Path:
+    """The pad at the end of a glance over the object's profile, beside its 16 x 16 image.
+
+    ``result`` is :meth:`ham.glance.GlanceResult.to_json` of one glance.
+    """
+    fig, (a0, a1) = plt.subplots(1, 2, figsize=(8.4, 3.4), gridspec_kw={"width_ratios": [1.5, 1]})
+    a0.axhline(0, color="0.4", lw=2)
+    _solid(a0, obj)
+    x, z, phi = result["x"], result["z"], result["phi"]
+    half = 0.5 * sensor_size
+    t = np.array([math.cos(phi), -math.sin(phi)])
+    up = np.array([math.sin(phi), math.cos(phi)])
+    c = np.array([x, z])
+    face = np.array([c - half * t, c + half * t])
+    body = np.array(
+        [c - half * t, c + half * t, c + half * t + 0.012 * up, c - half * t + 0.012 * up]
+    )
+    a0.fill(*(body * 100).T, color="#c0392b", alpha=0.8, ec="k", lw=1)
+    a0.plot(*(face * 100).T, color="k", lw=3)
+    a0.set_xlim(-9, 9)
+    a0.set_ylim(-0.5, 12)
+    a0.set_aspect("equal")
+    a0.set_xlabel("x (cm)")
+    a0.set_ylabel("z (cm)")
+    a0.set_title(
+        f"{obj.name}: x = {x * 100:.1f} cm, phi = {math.degrees(phi):.0f} deg\n"
+        f"F = {result['force']:.2f} N, z = {z * 100:.2f} cm"
+        + (" (blocked)" if result.get("blocked") else ""),
+        fontsize=9,
+    )
+    img = np.asarray(result["pressure"])
+    im = a1.imshow(img, cmap="inferno", origin="upper", vmin=0)
+    a1.set_title("pressure (Pa); rows: y, columns: pad u", fontsize=9)
+    a1.set_xlabel("column (u, -x ... +x)")
+    a1.set_ylabel("row (y)")
+    fig.colorbar(im, ax=a1, fraction=0.046)
+    return _save(fig, out)
+
+
+def draw_table_grid(
+    pressure: np.ndarray, q: np.ndarray, title: str, out: str | os.PathLike
+) -> Path:
+    """A picture grid of tactile images: ``pressure`` (n_x, n_phi, 16, 16) at poses ``q``."""
+    nx, nphi = pressure.shape[:2]
+    fig, axes = plt.subplots(nphi, nx, figsize=(1.3 * nx, 1.3 * nphi), squeeze=False)
+    vmax = float(pressure.max()) or 1.0
+    for i in range(nx):
+        for j in range(nphi):
+            ax = axes[nphi - 1 - j, i]
+            ax.imshow(pressure[i, j], cmap="inferno", vmin=0, vmax=vmax)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if j == 0:
+                ax.set_xlabel(f"q_x={q[0][i]:+.2f}", fontsize=7)
+            if i == 0:
+                ax.set_ylabel(f"q_phi={q[1][j]:+.2f}", fontsize=7)
+    fig.suptitle(title, fontsize=10)
+    return _save(fig, out)

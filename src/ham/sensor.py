@@ -1,0 +1,181 @@
+"""The Myrmex tactile sensor array: geometry, foam read-out, and the paper's normalization.
+
+Geometry (section "The Tactile Sensor Array - Myrmex"): 16 x 16 taxels at 5 mm pitch cover an
+8 x 8 cm (64 cm^2) sensitive face. The pad pose is its face centre ``(x, z)`` and a rotation
+``phi`` about the y axis (right-hand rule: positive ``phi`` lowers the pad's +u end).
+
+Image orientation: ``pressure[..., i, j]`` has row ``i`` along the pad's y axis and column ``j``
+along the pad's own x axis ``u`` (the world x axis when ``phi = 0``); column 0 is at
+``u = -37.5 mm``, column 15 at ``u = +37.5 mm``. Because every object is extruded along y and is
+wider (9 cm) than the pad (8 cm), all 16 rows of a raw image are equal.
+
+Read-out: the sensitive face is covered by a compliant foam of thickness ``foam_thickness``.
+Each point of the face is a spring (a Winkler foundation): its pressure is
+``foam_stiffness * c`` where ``c`` is the local compression, the depth by which the object
+pushes into the foam along the pad's direction of motion. A taxel reads the mean pressure over
+its 5 mm cell, averaged over ``supersample`` points across the cell, so that a thin edge shows
+as a line one or two taxels wide along the whole contact, as the real sensor shows it, not as
+the two blobs of the paper's Gazebo plugin. Options reproduce that plugin's Gaussian spread
+(sigma 5 mm) and the real sensor's 12-bit cells.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Literal
+
+import numpy as np
+import torch
+
+from ham.errors import HamError
+
+Normalization = Literal["l2", "l1", "none"]
+NORMALIZATIONS: tuple[str, ...] = ("l2", "l1", "none")
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """The Myrmex pad and its foam (paper defaults; the foam is our model, see module doc).
+
+    Attributes:
+        taxels: cells per side (16).
+        pitch: cell pitch (m), 5 mm.
+        foam_stiffness: pressure per metre of compression (Pa/m). 1e7 Pa/m presses a flat face
+            31 um deep at 2 N and lets a 27-degree ramp edge carry 2 N within about 1.6 mm.
+        foam_thickness: the foam's depth (m); when an object compresses it fully, it meets the
+            rigid pad and the glance stops there.
+        housing_thickness: the rigid pad body behind the foam (m); its sides stop a steeply
+            tilted pad before the foam touches.
+        supersample: read-out points across each cell along u.
+        spread_sigma: if set (m), spread the image with a Gaussian of this sigma, like the
+            paper's Gazebo plugin (0.005); ``None`` for the foam's own sharp image.
+        quantize_bits: if set, quantize each cell to this many bits like the real sensor (12).
+        full_scale: pressure (Pa) at the top quantization level.
+    """
+
+    taxels: int = 16
+    pitch: float = 0.005
+    foam_stiffness: float = 1.0e7
+    foam_thickness: float = 0.003
+    housing_thickness: float = 0.01
+    supersample: int = 4
+    spread_sigma: float | None = None
+    quantize_bits: int | None = None
+    full_scale: float = 20_000.0
+
+    def __post_init__(self) -> None:
+        _positive("taxels", self.taxels, integer=True)
+        _positive("pitch", self.pitch)
+        _positive("foam_stiffness", self.foam_stiffness)
+        _positive("foam_thickness", self.foam_thickness)
+        if not (math.isfinite(self.housing_thickness) and self.housing_thickness >= 0):
+            raise HamError(f"housing_thickness = {self.housing_thickness} must be >= 0 (m)")
+        _positive("supersample", self.supersample, integer=True)
+        if self.spread_sigma is not None:
+            _positive("spread_sigma", self.spread_sigma)
+        if self.quantize_bits is not None and not (
+            isinstance(self.quantize_bits, int) and 1 <= self.quantize_bits <= 32
+        ):
+            raise HamError(f"quantize_bits = {self.quantize_bits!r}; accepted: None or 1..32")
+        _positive("full_scale", self.full_scale)
+
+    @property
+    def size(self) -> float:
+        """Edge length of the sensitive face (m): 16 x 5 mm = 8 cm."""
+        return self.taxels * self.pitch
+
+    @property
+    def taxel_area(self) -> float:
+        """Area of one cell (m^2)."""
+        return self.pitch * self.pitch
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _positive(name: str, value: float, *, integer: bool = False) -> None:
+    ok = isinstance(value, (int, float)) and math.isfinite(value) and value > 0
+    if integer:
+        ok = ok and float(value).is_integer()
+    if not ok:
+        kind = "a positive integer" if integer else "a positive number"
+        raise HamError(f"{name} = {value!r}; accepted: {kind}")
+
+
+class Myrmex:
+    """The pad's geometry and read-out. One component, so another sensor model can stand in.
+
+    The glance controller asks the sensor two things: where its sensitive face samples the
+    world (:meth:`sample_u`) and what image a compression field makes (:meth:`image`).
+    """
+
+    def __init__(self, config: SensorConfig | None = None) -> None:
+        self.config = config or SensorConfig()
+
+    def taxel_u(self) -> np.ndarray:
+        """Cell centres along the pad's u axis (m), column order."""
+        c = self.config
+        return (np.arange(c.taxels) + 0.5) * c.pitch - 0.5 * c.size
+
+    def sample_u(self) -> np.ndarray:
+        """Read-out points along u (m): ``supersample`` evenly inside each cell, column-major."""
+        c = self.config
+        k = np.arange(c.taxels * c.supersample)
+        return (k + 0.5) * (c.pitch / c.supersample) - 0.5 * c.size
+
+    def image(self, compression: torch.Tensor) -> torch.Tensor:
+        """Pressure image (Pa), ``(B, 16, 16)``, from the compression ``(B, 16 * S)`` at sample_u."""
+        c = self.config
+        cols = compression.reshape(compression.shape[0], c.taxels, c.supersample).mean(-1)
+        img = (c.foam_stiffness * cols).unsqueeze(1).expand(-1, c.taxels, -1).contiguous()
+        return self.postprocess(img)
+
+    def postprocess(self, pressure: torch.Tensor) -> torch.Tensor:
+        """The optional Gaussian spread and quantization, applied to any raw image (B, 16, 16)."""
+        c = self.config
+        if c.spread_sigma is not None:
+            pressure = gaussian_spread(pressure, c.spread_sigma / c.pitch)
+        if c.quantize_bits is not None:
+            pressure = quantize(pressure, c.quantize_bits, c.full_scale)
+        return pressure
+
+
+def gaussian_spread(pressure: torch.Tensor, sigma_taxels: float) -> torch.Tensor:
+    """Spread each cell's pressure over its neighbours with a Gaussian (sigma in cells).
+
+    Like the Gazebo plugin, what spreads past the pad's border is lost; the kernel is normalized
+    so that an interior point keeps its total.
+    """
+    radius = max(1, int(math.ceil(3 * sigma_taxels)))
+    xs = torch.arange(-radius, radius + 1, dtype=pressure.dtype, device=pressure.device)
+    k = torch.exp(-0.5 * (xs / sigma_taxels) ** 2)
+    k = k / k.sum()
+    img = pressure.unsqueeze(1)  # (B, 1, H, W)
+    img = torch.nn.functional.conv2d(img, k.view(1, 1, -1, 1), padding=(radius, 0))
+    img = torch.nn.functional.conv2d(img, k.view(1, 1, 1, -1), padding=(0, radius))
+    return img.squeeze(1)
+
+
+def quantize(pressure: torch.Tensor, bits: int, full_scale: float) -> torch.Tensor:
+    """Quantize to ``2**bits`` levels over ``[0, full_scale]`` Pa; the top level saturates like the ADC."""
+    top = 2**bits - 1
+    levels = torch.clamp(torch.round(pressure * (top / full_scale)), 0, top)
+    return levels * (full_scale / top)
+
+
+def normalize(pressure: torch.Tensor | np.ndarray, kind: str = "l2") -> torch.Tensor | np.ndarray:
+    """Flatten each image to 256 values and scale it to unit norm (the paper: L2; authors' code: L1).
+
+    An all-zero image (no contact) stays all zero: never NaN.
+    Works on torch tensors and NumPy arrays of shape (..., 16, 16); returns (..., 256).
+    """
+    if kind not in NORMALIZATIONS:
+        raise HamError(f"normalization {kind!r}; accepted: {', '.join(NORMALIZATIONS)}")
+    if isinstance(pressure, np.ndarray):
+        return normalize(torch.from_numpy(np.ascontiguousarray(pressure)), kind).numpy()
+    flat = pressure.reshape(*pressure.shape[:-2], -1)
+    if kind == "none":
+        return flat
+    norm = flat.norm(p=2 if kind == "l2" else 1, dim=-1, keepdim=True)
+    return torch.where(norm > 0, flat / norm.clamp_min(torch.finfo(flat.dtype).tiny), 0.0)

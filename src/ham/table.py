@@ -1,0 +1,368 @@
+"""Glance tables: the paper's pre-recorded data set (section "Creation of the dataset").
+
+For every object, glances on a ``grid x grid`` lattice of normalized poses
+``q_x, q_phi in {-1, -1 + 2/(grid-1), ..., 1}`` (the paper: 201 x 201, steps 0.01 in x and
+0.01 pi in phi). A pose the agent asks for is answered by the closest grid point.
+
+File layout (HDF5, self-describing)::
+
+    /                       attrs: format, format_version, grid, q_range, objects (JSON),
+                                   world (JSON WorldConfig), geometry (JSON outlines), simulator
+                                   description (JSON), ham_version, command, created, checksum
+    /objects/<name>/pressure  (grid, grid, 16, 16) float32, raw Pa; axis 0 = q_x index, 1 = q_phi
+    /objects/<name>/force     (grid, grid) float32, N (NaN where unknown, e.g. imported data)
+    /objects/<name>/z         (grid, grid) float32, m
+    /objects/<name>/contact   (grid, grid) bool
+
+Files are written atomically: a build writes ``FILE.partial`` (resumable: finished q_x rows are
+marked in ``/progress``) and renames it to ``FILE`` only when complete and checksummed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+import ham
+from ham.errors import HamError
+from ham.world import WorldConfig, make_simulator
+
+FORMAT = "ham-glance-table"
+FORMAT_VERSION = 1
+AUTHORS_OBJECTS = ("box", "ramp_up", "convex", "ramp_down")
+
+
+def grid_values(grid: int) -> np.ndarray:
+    """The normalized pose values of a grid axis: ``grid`` points from -1 to 1."""
+    return np.linspace(-1.0, 1.0, grid)
+
+
+def nearest_index(q: torch.Tensor, grid: int) -> torch.Tensor:
+    """Index of the closest grid point to ``q`` in [-1, 1] (exact on grid points)."""
+    return torch.round((q + 1.0) * (0.5 * (grid - 1))).long().clamp_(0, grid - 1)
+
+
+def _check_grid(grid: int) -> None:
+    if not (isinstance(grid, int) and 2 <= grid <= 2001):
+        raise HamError(f"grid = {grid!r}; accepted: an integer 2..2001 (the paper uses 201)")
+
+
+def _checksum(f: h5py.File, names: list[str]) -> str:
+    h = hashlib.sha256()
+    for name in names:
+        h.update(np.ascontiguousarray(f[f"objects/{name}/pressure"][...]).tobytes())
+    return h.hexdigest()
+
+
+# --------------------------------------------------------------------------- build
+def build_table(
+    world: WorldConfig,
+    grid: int,
+    out: str | os.PathLike,
+    *,
+    batch: int | None = None,
+    progress: bool = True,
+    command: str | None = None,
+    **sim_kwargs,
+) -> Path:
+    """Record ``grid x grid`` glances per object of ``world`` into the HDF5 file ``out``.
+
+    Resumes from ``out.partial`` when one exists for the same world and grid.
+    """
+    _check_grid(grid)
+    out = Path(out)
+    if out.parent and not out.parent.exists():
+        out.parent.mkdir(parents=True, exist_ok=True)
+    partial = out.with_name(out.name + ".partial")
+    objs = world.resolve_objects()
+    names = [o.name for o in objs]
+    world_json = json.dumps(world.to_dict(), sort_keys=True)
+    sim = make_simulator(world, **sim_kwargs)
+    q = grid_values(grid)
+    # Rows of q_x per simulator call: the fast model takes whole objects, slow engines less.
+    batch = batch or (grid * grid if sim.name == "fast" else 16 * grid)
+    rows_per_call = max(1, batch // grid)
+
+    mode = "a" if partial.exists() else "w"
+    try:
+        f = h5py.File(partial, mode)
+    except OSError as exc:
+        raise HamError(f"cannot write glance table {partial}: {exc}") from None
+    with f:
+        if mode == "a" and (
+            f.attrs.get("world") != world_json or int(f.attrs.get("grid", -1)) != grid
+        ):
+            raise HamError(
+                f"{partial} is a partial build of another world or grid; delete it to start over"
+            )
+        if mode == "w":
+            f.attrs.update(
+                format=FORMAT,
+                format_version=FORMAT_VERSION,
+                grid=grid,
+                q_range=json.dumps([-1.0, 1.0]),
+                objects=json.dumps(names),
+                world=world_json,
+                geometry=json.dumps({o.name: o.outline().tolist() for o in objs}),
+                simulator=json.dumps(sim.describe(), sort_keys=True, default=str),
+                ham_version=ham.__version__,
+            )
+            f.create_dataset("progress", data=np.zeros((len(objs), grid), bool))
+            for name in names:
+                g = f.create_group(f"objects/{name}")
+                g.create_dataset("pressure", (grid, grid, 16, 16), np.float32)
+                g.create_dataset("force", (grid, grid), np.float32)
+                g.create_dataset("z", (grid, grid), np.float32)
+                g.create_dataset("contact", (grid, grid), bool)
+        done = f["progress"][...]
+        todo = int((~done).sum()) * grid  # a partly done block is redone whole
+        with tqdm(
+            total=len(objs) * grid * grid,
+            initial=len(objs) * grid * grid - todo,
+            desc=f"glance table ({sim.name})",
+            unit="glance",
+            disable=not progress,
+            file=sys.stderr,
+        ) as bar:
+            for oi, name in enumerate(names):
+                g = f[f"objects/{name}"]
+                for r0 in range(0, grid, rows_per_call):
+                    sl = slice(r0, min(r0 + rows_per_call, grid))
+                    if done[oi, sl].all():
+                        continue
+                    n = sl.stop - sl.start
+                    r = sim.glance(np.full(n * grid, oi), np.repeat(q[sl], grid), np.tile(q, n))
+                    g["pressure"][sl] = r.pressure.cpu().numpy().reshape(n, grid, 16, 16)
+                    g["force"][sl] = r.force.cpu().numpy().reshape(n, grid)
+                    g["z"][sl] = r.z.cpu().numpy().reshape(n, grid)
+                    g["contact"][sl] = r.contact.cpu().numpy().reshape(n, grid)
+                    f["progress"][oi, sl] = True  # only after the data: a crash redoes the block
+                    f.flush()
+                    bar.update(int((~done[oi, sl]).sum()) * grid)
+        f.attrs["command"] = command or " ".join(sys.argv)
+        f.attrs["created"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+        f.attrs["checksum"] = _checksum(f, names)
+        del f["progress"]
+    os.replace(partial, out)
+    return out
+
+
+# --------------------------------------------------------------------------- read
+@dataclass
+class TableInfo:
+    path: str
+    grid: int
+    objects: list[str]
+    world: dict
+    simulator: dict
+    ham_version: str
+    command: str
+    created: str
+    checksum: str
+    source: str
+
+    def to_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def _open(path: str | os.PathLike) -> h5py.File:
+    p = Path(path)
+    if not p.exists():
+        raise HamError(f"glance table {str(p)!r} does not exist")
+    try:
+        return h5py.File(p, "r")
+    except OSError as exc:
+        raise HamError(
+            f"cannot read glance table {str(p)!r}: not a complete HDF5 file ({exc})"
+        ) from None
+
+
+def _read_info(f: h5py.File, path: str) -> TableInfo:
+    a = f.attrs
+    if a.get("format") != FORMAT:
+        raise HamError(f"{path!r} is not a ham glance table (format attribute {a.get('format')!r})")
+    if int(a.get("format_version", -1)) != FORMAT_VERSION:
+        raise HamError(
+            f"{path!r} has table format version {a.get('format_version')}; accepted: {FORMAT_VERSION}"
+        )
+    try:
+        grid = int(a["grid"])
+        names = json.loads(a["objects"])
+        world = json.loads(a["world"])
+        simulator = json.loads(a.get("simulator", "{}"))
+        checksum = str(a["checksum"])
+    except (KeyError, ValueError) as exc:
+        raise HamError(f"{path!r}: glance table attributes are incomplete ({exc})") from None
+    for name in names:
+        for key, shape in (("pressure", (grid, grid, 16, 16)), ("contact", (grid, grid))):
+            ds = f.get(f"objects/{name}/{key}")
+            if ds is None or ds.shape != shape:
+                got = None if ds is None else ds.shape
+                raise HamError(f"{path!r}: objects/{name}/{key} has shape {got}, expected {shape}")
+    return TableInfo(
+        path=str(path),
+        grid=grid,
+        objects=names,
+        world=world,
+        simulator=simulator,
+        ham_version=str(a.get("ham_version", "?")),
+        command=str(a.get("command", "")),
+        created=str(a.get("created", "")),
+        checksum=checksum,
+        source=str(a.get("source", "ham")),
+    )
+
+
+def table_info(path: str | os.PathLike) -> TableInfo:
+    """The table's self-description, with its structure checked (not its checksum)."""
+    with _open(path) as f:
+        return _read_info(f, str(path))
+
+
+class GlanceTable:
+    """A loaded glance table with vectorized nearest-grid-point lookup (CPU or CUDA).
+
+    ``pressure`` is a ``(n_objects, grid, grid, 16, 16)`` float32 tensor of raw pressure.
+    """
+
+    def __init__(self, info: TableInfo, pressure: torch.Tensor, extras: dict[str, np.ndarray]):
+        self.info = info
+        self.grid = info.grid
+        self.objects = list(info.objects)
+        self.n_objects = len(self.objects)
+        self.pressure = pressure
+        self.extras = extras
+
+    @property
+    def world(self) -> WorldConfig:
+        return WorldConfig.from_dict(self.info.world)
+
+    @property
+    def device(self) -> torch.device:
+        return self.pressure.device
+
+    @classmethod
+    def load(
+        cls, path: str | os.PathLike, *, verify: bool = True, device: str = "cpu"
+    ) -> GlanceTable:
+        """Read ``path``; refuse truncated, corrupt or mismatched files with a clear error."""
+        with _open(path) as f:
+            info = _read_info(f, str(path))
+            try:
+                arrays = [f[f"objects/{n}/pressure"][...] for n in info.objects]
+                extras = {
+                    key: np.stack([f[f"objects/{n}/{key}"][...] for n in info.objects])
+                    for key in ("force", "z", "contact")
+                }
+            except (OSError, KeyError) as exc:
+                raise HamError(f"cannot read glance table {str(path)!r}: {exc}") from None
+            if verify:
+                h = hashlib.sha256()
+                for a in arrays:
+                    h.update(np.ascontiguousarray(a).tobytes())
+                if h.hexdigest() != info.checksum:
+                    raise HamError(
+                        f"glance table {str(path)!r} is corrupt: its checksum does not match its data"
+                    )
+        pressure = torch.from_numpy(np.stack(arrays)).to(device)
+        return cls(info, pressure, extras)
+
+    def to(self, device: str | torch.device) -> GlanceTable:
+        return GlanceTable(self.info, self.pressure.to(device), self.extras)
+
+    def indices(self, q_x, q_phi) -> tuple[torch.Tensor, torch.Tensor]:
+        from ham.glance import as_action
+
+        qx = as_action("q_x", q_x, self.device)
+        qp = as_action("q_phi", q_phi, self.device)
+        return nearest_index(qx, self.grid), nearest_index(qp, self.grid)
+
+    def lookup(self, object_ids, q_x, q_phi, *, check: bool = True) -> torch.Tensor:
+        """Raw pressure ``(B, 16, 16)`` at the grid points closest to ``(q_x, q_phi)``.
+
+        ``check=False`` skips input validation (the training loop's own samples are in range).
+        """
+        if check:
+            from ham.glance import as_object_ids
+
+            ids = as_object_ids(object_ids, self.n_objects, self.device)
+            ix, ip = self.indices(q_x, q_phi)
+        else:
+            ids = object_ids
+            ix, ip = nearest_index(q_x, self.grid), nearest_index(q_phi, self.grid)
+        g = self.grid
+        flat = self.pressure.view(-1, 16 * 16)  # one gather of whole images: no per-axis indexing
+        return flat.index_select(0, (ids * g + ix) * g + ip).view(-1, 16, 16)
+
+
+# --------------------------------------------------------------------------- authors' data
+def import_authors(
+    src: str | os.PathLike,
+    out: str | os.PathLike,
+    *,
+    axes: str = "x,phi",
+    command: str | None = None,
+) -> Path:
+    """Convert the authors' layout (``object_0``..``object_3``, each [201][201][256]) to a table.
+
+    ``axes`` names the order of the first two axes in their file (``x,phi`` or ``phi,x``).
+    Their images are stored as they are (the authors normalized them); force and z are unknown (NaN).
+    """
+    if axes not in ("x,phi", "phi,x"):
+        raise HamError(f"axes = {axes!r}; accepted: x,phi or phi,x")
+    with _open(src) as f:
+        arrays = []
+        for i in range(len(AUTHORS_OBJECTS)):
+            ds = f.get(f"object_{i}")
+            if ds is None:
+                raise HamError(
+                    f"{str(src)!r} has no dataset object_{i}; expected object_0..object_3"
+                )
+            if ds.ndim != 3 or ds.shape[0] != ds.shape[1] or ds.shape[2] != 256:
+                raise HamError(
+                    f"{str(src)!r}: object_{i} has shape {ds.shape}; expected (grid, grid, 256)"
+                )
+            a = np.asarray(ds[...], dtype=np.float32)
+            if axes == "phi,x":
+                a = a.transpose(1, 0, 2)
+            arrays.append(a.reshape(a.shape[0], a.shape[1], 16, 16))
+    grid = arrays[0].shape[0]
+    if any(a.shape[0] != grid for a in arrays):
+        raise HamError(f"{str(src)!r}: the objects have different grid sizes")
+    out = Path(out)
+    tmp = out.with_name(out.name + ".partial")
+    world = WorldConfig()
+    with h5py.File(tmp, "w") as g:
+        g.attrs.update(
+            format=FORMAT,
+            format_version=FORMAT_VERSION,
+            grid=grid,
+            q_range=json.dumps([-1.0, 1.0]),
+            objects=json.dumps(list(AUTHORS_OBJECTS)),
+            world=json.dumps(world.to_dict(), sort_keys=True),
+            geometry=json.dumps({}),
+            simulator=json.dumps({"simulator": "gazebo (authors' data set)", "axes": axes}),
+            ham_version=ham.__version__,
+            source=f"authors:{Path(src).name}",
+            command=command or " ".join(sys.argv),
+            created=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        )
+        for name, a in zip(AUTHORS_OBJECTS, arrays, strict=True):
+            grp = g.create_group(f"objects/{name}")
+            grp.create_dataset("pressure", data=a)
+            grp.create_dataset("force", data=np.full((grid, grid), np.nan, np.float32))
+            grp.create_dataset("z", data=np.full((grid, grid), np.nan, np.float32))
+            grp.create_dataset("contact", data=a.reshape(grid, grid, -1).max(-1) > 0)
+        g.attrs["checksum"] = _checksum(g, list(AUTHORS_OBJECTS))
+    os.replace(tmp, out)
+    return out

@@ -1,0 +1,88 @@
+"""The haptic world: a set of objects, the Myrmex pad, the pose mapping and a simulator.
+
+``WorldConfig`` is the one config object for everything a glance depends on; it is saved beside
+every table and run. ``make_simulator`` builds the simulator it names:
+
+* ``fast``: the vectorized foam-contact model (:class:`ham.glance.FastSimulator`), CPU or CUDA;
+* ``mujoco``: the MuJoCo physics engine (:mod:`ham.mujoco_sim`), when installed.
+
+Third parties add a simulator with :func:`register_simulator`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+
+from ham import objects as _objects
+from ham.errors import HamError
+from ham.glance import FastSimulator, GlanceConfig, PoseConfig, Simulator
+from ham.objects import HapticObject
+from ham.sensor import SensorConfig
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    """Objects, sensor, pose mapping, glance rule and simulator (paper defaults)."""
+
+    objects: str = "paper"
+    simulator: str = "fast"
+    sensor: SensorConfig = field(default_factory=SensorConfig)
+    pose: PoseConfig = field(default_factory=PoseConfig)
+    glance: GlanceConfig = field(default_factory=GlanceConfig)
+
+    def resolve_objects(self) -> list[HapticObject]:
+        return _objects.resolve_set(self.objects)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> WorldConfig:
+        try:
+            return cls(
+                objects=d.get("objects", "paper"),
+                simulator=d.get("simulator", "fast"),
+                sensor=SensorConfig(**d.get("sensor", {})),
+                pose=PoseConfig(**d.get("pose", {})),
+                glance=GlanceConfig(**d.get("glance", {})),
+            )
+        except TypeError as exc:
+            raise HamError(f"world config has an unknown field: {exc}") from None
+
+
+SimulatorFactory = Callable[..., Simulator]
+_SIMULATORS: dict[str, SimulatorFactory] = {}
+
+
+def register_simulator(name: str, factory: SimulatorFactory) -> None:
+    """Make ``factory(objects, sensor, pose, glance, device=...)`` available under ``name``."""
+    _SIMULATORS[name] = factory
+
+
+def simulator_names() -> list[str]:
+    return ["fast", "mujoco", *[n for n in _SIMULATORS if n not in ("fast", "mujoco")]]
+
+
+def make_simulator(
+    config: WorldConfig | None = None, *, device: str = "cpu", **kwargs
+) -> Simulator:
+    """The simulator ``config.simulator`` over ``config``'s objects."""
+    config = config or WorldConfig()
+    objs = config.resolve_objects()
+    name = config.simulator
+    if name == "fast":
+        return FastSimulator(
+            objs, config.sensor, config.pose, config.glance, device=device, **kwargs
+        )
+    if name == "mujoco" and name not in _SIMULATORS:
+        try:
+            from ham.mujoco_sim import MujocoSimulator
+        except ImportError as exc:  # pragma: no cover - depends on the installation
+            raise HamError(f"simulator 'mujoco' is not available: {exc}") from None
+        return MujocoSimulator(objs, config.sensor, config.pose, config.glance, **kwargs)
+    if name in _SIMULATORS:
+        return _SIMULATORS[name](
+            objs, config.sensor, config.pose, config.glance, device=device, **kwargs
+        )
+    raise HamError(f"unknown simulator {name!r}; accepted: {', '.join(simulator_names())}")

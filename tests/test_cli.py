@@ -1,0 +1,90 @@
+"""The real ``ham`` CLI in a subprocess: the contract other work builds on."""
+
+import json
+
+import numpy as np
+import pytest
+
+
+def test_glance_json_contract(ham_cli):
+    r = ham_cli("glance", "--object", "box", "--x", "0", "--phi", "0", "--json")
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    p = np.array(d["pressure"])
+    assert p.shape == (16, 16) and np.allclose(p, 312.5, rtol=1e-4)  # raw, not normalized
+    assert d["force"] == pytest.approx(2.0, abs=1e-4)
+    assert d["contact"] is True and 0.04 < d["z"] < 0.046
+
+
+def test_glance_picture(ham_cli, tmp_path):
+    out = tmp_path / "g.png"
+    r = ham_cli("glance", "--object", "3", "--x", "-0.5", "--phi", "0.1", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (
+            ["glance", "--object", "box", "--x", "nan", "--phi", "0"],
+            "q_x = nan is outside the accepted range [-1, 1]",
+        ),
+        (
+            ["glance", "--object", "box", "--x", "0", "--phi", "-1.2"],
+            "q_phi = -1.2 is outside the accepted range [-1, 1]",
+        ),
+        (["glance", "--object", "sphere", "--x", "0", "--phi", "0"], "unknown object 'sphere'"),
+        (
+            ["glance", "--object", "12", "--x", "0", "--phi", "0"],
+            "unknown object id 12; accepted: 0..7",
+        ),
+        (
+            ["glance", "--object", "box", "--x", "0", "--phi", "0", "--simulator", "ode"],
+            "unknown simulator 'ode'",
+        ),
+        (["table", "info", "/nonexistent/t.h5"], "does not exist"),
+        (
+            ["table", "build", "--grid", "1", "--out", "x.h5"],
+            "grid = 1; accepted: an integer 2..2001",
+        ),
+        (["objects", "--set", "box,cube"], "unknown object 'cube'"),
+    ],
+)
+def test_bad_input_is_one_line_without_traceback(ham_cli, args, message, tmp_path):
+    r = ham_cli(*args, cwd=tmp_path)
+    assert r.returncode != 0
+    assert "Traceback" not in r.stderr
+    assert message in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_unreadable_table_file(ham_cli, tmp_path):
+    bad = tmp_path / "bad.h5"
+    bad.write_bytes(b"\x00" * 100)
+    r = ham_cli("table", "info", str(bad))
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "cannot read glance table" in r.stderr
+
+
+def test_table_build_info_show(ham_cli, tmp_path):
+    out = tmp_path / "t.h5"
+    r = ham_cli("table", "build", "--objects", "paper", "--grid", "9", "--out", str(out), "--quiet")
+    assert r.returncode == 0, r.stderr
+    r = ham_cli("table", "info", str(out), "--json")
+    info = json.loads(r.stdout)
+    assert info["grid"] == 9 and info["command"].startswith("ham table build")
+    png = tmp_path / "show.png"
+    r = ham_cli("table", "show", str(out), "--object", "ramp_up", "--n", "3", "--out", str(png))
+    assert r.returncode == 0, r.stderr
+    assert png.exists()
+    r = ham_cli("table", "show", str(out), "--object", "ridge", "--out", str(png))
+    assert r.returncode == 2 and "not in table" in r.stderr
+
+
+def test_objects_listing(ham_cli, tmp_path):
+    r = ham_cli("objects", "--json", "--out", str(tmp_path / "o.png"))
+    rows = json.loads(r.stdout)
+    assert [x["name"] for x in rows[:4]] == ["box", "ramp_up", "convex", "ramp_down"]
+    assert {"ridge", "trough", "step", "double_ridge"} <= {x["name"] for x in rows}
+    assert (tmp_path / "o.png").exists()

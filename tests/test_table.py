@@ -1,0 +1,148 @@
+"""Glance tables: build, round trip, nearest lookup, resume, authors' import, bad files."""
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+import torch
+
+from ham.errors import HamError
+from ham.glance import FastSimulator
+from ham.table import GlanceTable, build_table, grid_values, import_authors, table_info
+from ham.world import WorldConfig, make_simulator
+
+GRID = 11
+
+
+@pytest.fixture(scope="module")
+def table_path(tmp_path_factory):
+    return build_table(
+        WorldConfig(), GRID, tmp_path_factory.mktemp("t") / "table.h5", progress=False
+    )
+
+
+def test_table_is_self_describing(table_path):
+    info = table_info(table_path)
+    assert info.grid == GRID and info.objects == ["box", "ramp_up", "convex", "ramp_down"]
+    assert info.world["sensor"]["taxels"] == 16 and info.simulator["simulator"] == "fast"
+    assert len(info.checksum) == 64
+    with h5py.File(table_path) as f:
+        assert f["objects/convex/pressure"].shape == (GRID, GRID, 16, 16)
+        assert f["objects/convex/pressure"].dtype == np.float32
+        assert set(json.loads(f.attrs["geometry"])) == set(info.objects)
+        assert "progress" not in f  # a finished table carries no build state
+    assert not table_path.with_name(table_path.name + ".partial").exists()
+
+
+def test_round_trip_on_grid_points_equals_direct_glances(table_path):
+    table = GlanceTable.load(table_path)
+    sim = make_simulator(WorldConfig())
+    q = grid_values(GRID)
+    qx, qp = np.meshgrid(q, q, indexing="ij")
+    for oid in range(4):
+        ids = np.full(qx.size, oid)
+        looked = table.lookup(ids, qx.ravel(), qp.ravel())
+        direct = sim.glance(ids, qx.ravel(), qp.ravel()).pressure
+        assert torch.equal(looked, direct)
+
+
+def test_lookup_picks_the_nearest_grid_point(table_path):
+    table = GlanceTable.load(table_path)
+    q = grid_values(GRID)
+    step = q[1] - q[0]
+    # just below and above the midpoint between grid points 3 and 4
+    a = table.lookup([2, 2], [q[3] + 0.49 * step, q[3] + 0.51 * step], [q[5], q[5]])
+    assert torch.equal(a[0], table.pressure[2, 3, 5]) and torch.equal(a[1], table.pressure[2, 4, 5])
+    with pytest.raises(HamError, match=r"q_phi = -1.01 is outside"):
+        table.lookup([0], [0.0], [-1.01])
+    with pytest.raises(HamError, match="object id 4 out of range; accepted: 0..3"):
+        table.lookup([4], [0.0], [0.0])
+
+
+def test_interrupted_build_resumes_to_the_same_table(tmp_path, monkeypatch, table_path):
+    out = tmp_path / "resumed.h5"
+    calls = {"n": 0}
+    real = FastSimulator.glance
+
+    def failing(self, *a, **k):  # fault injection: the process dies after two blocks
+        calls["n"] += 1
+        if calls["n"] > 2:
+            raise KeyboardInterrupt
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(FastSimulator, "glance", failing)
+    with pytest.raises(KeyboardInterrupt):
+        build_table(WorldConfig(), GRID, out, batch=3 * GRID, progress=False)
+    partial = tmp_path / "resumed.h5.partial"
+    assert partial.exists() and not out.exists()
+    with h5py.File(partial) as f:
+        assert 0 < f["progress"][...].sum() < 4 * GRID
+    monkeypatch.setattr(FastSimulator, "glance", real)
+    build_table(WorldConfig(), GRID, out, batch=3 * GRID, progress=False)
+    assert not partial.exists()
+    assert table_info(out).checksum == table_info(table_path).checksum
+
+
+def test_partial_of_another_world_is_refused(tmp_path):
+    out = tmp_path / "x.h5"
+    with h5py.File(tmp_path / "x.h5.partial", "w") as f:
+        f.attrs["world"] = "{}"
+        f.attrs["grid"] = GRID
+    with pytest.raises(HamError, match="partial build of another world or grid"):
+        build_table(WorldConfig(), GRID, out, progress=False)
+
+
+def test_truncated_corrupt_and_foreign_files_are_refused(tmp_path, table_path):
+    data = table_path.read_bytes()
+    truncated = tmp_path / "truncated.h5"
+    truncated.write_bytes(data[: len(data) // 3])
+    with pytest.raises(HamError, match="not a complete HDF5 file"):
+        GlanceTable.load(truncated)
+    text = tmp_path / "notes.h5"
+    text.write_text("not a table")
+    with pytest.raises(HamError, match="cannot read glance table"):
+        GlanceTable.load(text)
+    with pytest.raises(HamError, match="does not exist"):
+        GlanceTable.load(tmp_path / "missing.h5")
+    corrupt = tmp_path / "corrupt.h5"
+    corrupt.write_bytes(data)
+    with h5py.File(corrupt, "a") as f:
+        f["objects/box/pressure"][0, 0, 0, 0] += 1.0
+    with pytest.raises(HamError, match="checksum does not match"):
+        GlanceTable.load(corrupt)
+    foreign = tmp_path / "foreign.h5"
+    with h5py.File(foreign, "w") as f:
+        f["x"] = np.zeros(3)
+    with pytest.raises(HamError, match="not a ham glance table"):
+        GlanceTable.load(foreign)
+    wrong = tmp_path / "wrong.h5"
+    wrong.write_bytes(data)
+    with h5py.File(wrong, "a") as f:
+        del f["objects/box/contact"]
+        f["objects/box/contact"] = np.zeros((3, 3), bool)
+    with pytest.raises(HamError, match=r"objects/box/contact has shape \(3, 3\)"):
+        GlanceTable.load(wrong)
+
+
+def test_import_of_the_authors_layout(tmp_path):
+    rng = np.random.default_rng(0)
+    src = tmp_path / "authors.h5"
+    arrays = [rng.random((21, 21, 256), dtype=np.float32) for _ in range(4)]
+    with h5py.File(src, "w") as f:
+        for i, a in enumerate(arrays):
+            f[f"object_{i}"] = a
+    out = import_authors(src, tmp_path / "imported.h5")
+    table = GlanceTable.load(out)
+    assert table.grid == 21 and table.objects == ["box", "ramp_up", "convex", "ramp_down"]
+    assert table.info.source == "authors:authors.h5"
+    got = table.lookup([3], [grid_values(21)[4]], [grid_values(21)[17]])
+    assert np.array_equal(got[0].numpy().ravel(), arrays[3][4, 17])
+    swapped = GlanceTable.load(import_authors(src, tmp_path / "swapped.h5", axes="phi,x"))
+    assert np.array_equal(swapped.pressure[1, 4, 17].numpy().ravel(), arrays[1][17, 4])
+    with h5py.File(tmp_path / "bad.h5", "w") as f:
+        f["object_0"] = np.zeros((5, 5, 100), np.float32)
+    with pytest.raises(HamError, match=r"object_0 has shape \(5, 5, 100\)"):
+        import_authors(tmp_path / "bad.h5", tmp_path / "o.h5")
+    with pytest.raises(HamError, match="accepted: x,phi or phi,x"):
+        import_authors(src, tmp_path / "o.h5", axes="y")
