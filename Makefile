@@ -13,8 +13,8 @@ $(BIN)/python:
 # CPU torch first, so that the project's `torch>=` requirement is already met and pip
 # never pulls the multi-GB CUDA build.
 $(STAMP): $(BIN)/python pyproject.toml
-	$(BIN)/python -m pip install -q torch==2.13.0 || $(BIN)/python -m pip install -q torch --index-url https://download.pytorch.org/whl/cpu
-	$(BIN)/python -m pip install -q -e ".[test]"
+	$(BIN)/python -m pip install -q torch==2.13.0
+	$(BIN)/python -m pip install -q -e ".[test,cluster,ap]"
 	touch $(STAMP)
 
 demo: $(STAMP)
