@@ -332,11 +332,22 @@ def _solve_stop_height(e: torch.Tensor, target: float) -> torch.Tensor:
     root (where one point alone carries the target), moves up monotonically and is exact once the
     active set stops changing: at most K iterations, usually 3-6.
     """
-    z = e.amax(1) - target
+    # Two lower bounds of the root: one point carries everything, or all points press equally.
+    z = torch.maximum(e.amax(1) - target, (e.sum(1) - target) / e.shape[1])
+    rows, ez, zz = None, e, z
     for _ in range(e.shape[1] + 1):
-        active = (e > z[:, None]).to(e.dtype)  # one conversion; sums below stay in e's dtype
-        z_new = ((e * active).sum(1) - target) / active.sum(1).clamp_min(1)
-        if bool((z_new <= z).all()):
+        active = (ez > zz[:, None]).to(ez.dtype)  # one conversion; the sums stay in e's dtype
+        z_new = ((ez * active).sum(1) - target) / active.sum(1).clamp_min(1)
+        moved = z_new > zz
+        zz = torch.maximum(zz, z_new)
+        if rows is None:
+            z = zz
+        else:
+            z[rows] = zz
+        if not bool(moved.any()):
             break
-        z = torch.maximum(z, z_new)
+        # Iterate on the rows still moving only: most converge in one or two steps.
+        keep = moved.nonzero().squeeze(1)
+        rows = keep if rows is None else rows[keep]
+        ez, zz = ez[keep], zz[keep]
     return z
