@@ -41,6 +41,13 @@ def add_world_options(p: argparse.ArgumentParser, *, objects: bool = True) -> No
         )
     p.add_argument("--simulator", default="fast", help="fast (default) or mujoco")
     p.add_argument(
+        "--sensor",
+        default="taxels",
+        choices=("taxels", "gazebo"),
+        help="read-out: taxels (default; edges are lines) or gazebo (MuJoCo only: contact points "
+        "spread by a 5 mm Gaussian, the paper's plugin: edges are blobs)",
+    )
+    p.add_argument(
         "--pose",
         default="paper",
         choices=("paper", "authors"),
@@ -72,11 +79,20 @@ def world_from_args(args: argparse.Namespace, objects: str | None = None):
     if args.quantize_bits is not None:
         changes["quantize_bits"] = args.quantize_bits
     sensor = replace(sensor, **changes)
+    mujoco = {}
+    if args.sensor == "gazebo":
+        if args.simulator != "mujoco":
+            raise HamError(
+                f"--sensor gazebo needs --simulator mujoco (got {args.simulator!r}): the fast "
+                "model has no contact points to spread; for a Gazebo-like blur use --spread-sigma 0.005"
+            )
+        mujoco["readout"] = "gazebo"
     return WorldConfig(
         objects=objects or getattr(args, "objects", "paper"),
         simulator=args.simulator,
         sensor=sensor,
         pose=PoseConfig.preset(args.pose),
+        mujoco=mujoco,
     )
 
 

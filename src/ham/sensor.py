@@ -41,8 +41,10 @@ class SensorConfig:
     Attributes:
         taxels: cells per side (16).
         pitch: cell pitch (m), 5 mm.
-        foam_stiffness: pressure per metre of compression (Pa/m). 1e7 Pa/m presses a flat face
-            31 um deep at 2 N and lets a 27-degree ramp edge carry 2 N within about 1.6 mm.
+        foam_stiffness: pressure per metre of compression (Pa/m). 4e7 Pa/m presses a flat face
+            7.8 um deep at 2 N and lets a 27-degree ramp edge carry 2 N within about 0.8 mm;
+            calibrated so that the MuJoCo backend sinks as deep on the flat box
+            (``ham.mujoco_sim.calibrate_foam_stiffness``).
         foam_thickness: the foam's depth (m); when an object compresses it fully, it meets the
             rigid pad and the glance stops there.
         housing_thickness: the rigid pad body behind the foam (m); its sides stop a steeply
@@ -56,7 +58,7 @@ class SensorConfig:
 
     taxels: int = 16
     pitch: float = 0.005
-    foam_stiffness: float = 1.0e7
+    foam_stiffness: float = 4.0e7
     foam_thickness: float = 0.003
     housing_thickness: float = 0.01
     supersample: int = 4

@@ -23,13 +23,18 @@ from ham.sensor import SensorConfig
 
 @dataclass(frozen=True)
 class WorldConfig:
-    """Objects, sensor, pose mapping, glance rule and simulator (paper defaults)."""
+    """Objects, sensor, pose mapping, glance rule and simulator (paper defaults).
+
+    ``mujoco`` holds :class:`ham.mujoco_sim.MujocoConfig` overrides (e.g. ``{"readout": "gazebo"}``)
+    for the MuJoCo simulator; the fast simulator ignores it.
+    """
 
     objects: str = "paper"
     simulator: str = "fast"
     sensor: SensorConfig = field(default_factory=SensorConfig)
     pose: PoseConfig = field(default_factory=PoseConfig)
     glance: GlanceConfig = field(default_factory=GlanceConfig)
+    mujoco: dict = field(default_factory=dict)
 
     def resolve_objects(self) -> list[HapticObject]:
         return _objects.resolve_set(self.objects)
@@ -46,6 +51,7 @@ class WorldConfig:
                 sensor=SensorConfig(**d.get("sensor", {})),
                 pose=PoseConfig(**d.get("pose", {})),
                 glance=GlanceConfig(**d.get("glance", {})),
+                mujoco=dict(d.get("mujoco", {})),
             )
         except TypeError as exc:
             raise HamError(f"world config has an unknown field: {exc}") from None
@@ -80,7 +86,9 @@ def make_simulator(
             from ham.mujoco_sim import MujocoSimulator
         except ImportError as exc:  # pragma: no cover - depends on the installation
             raise HamError(f"simulator 'mujoco' is not available: {exc}") from None
-        return MujocoSimulator(objs, config.sensor, config.pose, config.glance, **kwargs)
+        return MujocoSimulator(
+            objs, config.sensor, config.pose, config.glance, **{**config.mujoco, **kwargs}
+        )
     if name in _SIMULATORS:
         return _SIMULATORS[name](
             objs, config.sensor, config.pose, config.glance, device=device, **kwargs

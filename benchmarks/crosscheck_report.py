@@ -1,0 +1,410 @@
+"""Cross-check the MuJoCo glance against the fast foam model; write docs/crosscheck.md and its pictures.
+
+    .venv/bin/python benchmarks/crosscheck_report.py            # writes docs/crosscheck.md, docs/img/crosscheck_*.png
+
+Every number and picture in the report comes from this run (section "Scenario and Experimental
+Setup" of the paper: the glance, the Myrmex pad and its Gazebo plugin).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from ham.glance import FastSimulator  # noqa: E402
+from ham.mujoco_sim import (  # noqa: E402
+    BLOCKED,
+    SETTLED,
+    STATUS_NAMES,
+    MujocoSimulator,
+    calibrate_foam_stiffness,
+    image_correlation,
+)
+from ham.objects import resolve_set  # noqa: E402
+from ham.sensor import SensorConfig  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+PHI_MAX = math.pi / 2
+#: Poses of the picture grids: (q_x, phi in rad).
+FIGURE_POSES = [(0.0, 0.0), (1.0, 0.0), (0.5, 0.3), (-0.5, -0.3), (0.9, 0.5), (-0.2, 1.2)]
+
+
+def grid(n_x: int, n_phi: int, phi_limit: float):
+    qx = np.linspace(-1.0, 1.0, n_x)
+    qp = np.linspace(-phi_limit, phi_limit, n_phi) / PHI_MAX
+    QX, QP = np.meshgrid(qx, qp)
+    return QX.ravel(), QP.ravel()
+
+
+def run(sim, fast, oid, qx, qp):
+    ids = np.full(len(qx), oid)
+    return sim.glance(ids, qx, qp), fast.glance(ids, qx, qp)
+
+
+def draw_grid(
+    path: Path, title: str, cols: list[tuple[str, list[np.ndarray]]], row_names: list[str]
+):
+    """A picture grid: one column per pose, one row per simulator/read-out."""
+    n_rows, n_cols = len(row_names), len(cols)
+    fig, axes = plt.subplots(
+        n_rows, n_cols, figsize=(2.1 * n_cols, 2.25 * n_rows + 0.4), squeeze=False
+    )
+    for j, (label, images) in enumerate(cols):
+        for i, img in enumerate(images):
+            ax = axes[i, j]
+            vmax = max(float(img.max()), 1e-9)
+            ax.imshow(img, cmap="viridis", origin="lower", vmin=0, vmax=vmax)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if i == 0:
+                ax.set_title(label, fontsize=7)
+            if j == 0:
+                ax.set_ylabel(row_names[i], fontsize=8)
+            ax.text(0.5, -1.0, f"max {vmax:.0f} Pa", fontsize=6, color="w", va="top")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def fmt_table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("--out", default=str(ROOT / "docs" / "crosscheck.md"))
+    ap.add_argument("--threads", type=int, default=None, help="MuJoCo threads (default: all cores)")
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    out = Path(args.out)
+    img_dir = out.parent / "img"
+    img_dir.mkdir(parents=True, exist_ok=True)
+    objs = resolve_set("paper")
+
+    cal = calibrate_foam_stiffness()
+    sensor = SensorConfig(foam_stiffness=cal["foam_stiffness"])
+    mj = MujocoSimulator(objs, sensor, threads=args.threads)
+    gz = MujocoSimulator(objs, sensor, threads=args.threads, readout="gazebo")
+    fast = FastSimulator(objs, sensor)
+    cfg = mj.config
+
+    # ---------------------------------------------------------------- |phi| <= 0.5 rad
+    qx, qp = grid(21, 11, 0.5)
+    main_rows, worst = [], []
+    n_glances, t_mj = 0, 0.0
+    for oid, obj in enumerate(objs):
+        t0 = time.perf_counter()
+        r, f = run(mj, fast, oid, qx, qp)
+        t_mj += time.perf_counter() - t0
+        n_glances += len(qx)
+        corr = image_correlation(r.pressure, f.pressure)
+        dz = (r.z - f.z).numpy() * 1e3
+        st = r.info["status"].numpy()
+        pooled = np.corrcoef(r.pressure.double().flatten(), f.pressure.double().flatten())[0, 1]
+        main_rows.append(
+            [
+                obj.name,
+                str(len(qx)),
+                f"{corr.mean():.3f}",
+                f"{np.median(corr):.3f}",
+                f"{corr.min():.3f}",
+                f"{np.mean(corr >= 0.85):.1%}",
+                f"{pooled:.3f}",
+                f"{np.abs(dz).max():.2f}",
+                f"{np.abs(dz).mean():.2f}",
+                f"{np.mean(st == SETTLED):.1%}",
+            ]
+        )
+        for i in np.argsort(corr)[:2]:
+            worst.append(
+                (
+                    corr[i],
+                    dz[i],
+                    obj.name,
+                    oid,
+                    qx[i],
+                    qp[i],
+                    r.pressure[i].numpy(),
+                    f.pressure[i].numpy(),
+                )
+            )
+
+    # ---------------------------------------------------------------- full range, by |phi| band
+    qx2, qp2 = grid(21, 41, PHI_MAX)
+    bands = [(0.0, 0.5), (0.5, 1.0), (1.0, 1.3), (1.3, PHI_MAX + 1e-9)]
+    acc = {
+        b: {
+            "corr": [],
+            "dz": [],
+            "agree": [],
+            "mjb": [],
+            "fb": [],
+            "fail": [],
+            "gzb": [],
+            "gzagree": [],
+        }
+        for b in bands
+    }
+    for oid in range(len(objs)):
+        t0 = time.perf_counter()
+        r, f = run(mj, fast, oid, qx2, qp2)
+        t_mj += time.perf_counter() - t0
+        n_glances += len(qx2)
+        corr = image_correlation(r.pressure, f.pressure)
+        st = r.info["status"].numpy()
+        mjb, fb = st != SETTLED, f.blocked.numpy()
+        gzb = gz.glance(np.full(len(qx2), oid), qx2, qp2).info["status"].numpy() != SETTLED
+        dz = np.abs((r.z - f.z).numpy()) * 1e3
+        phi = np.abs(r.phi.numpy())
+        for b in bands:
+            sel = (phi >= b[0]) & (phi < b[1])
+            both = sel & ~mjb & ~fb
+            acc[b]["corr"] += list(corr[both])
+            acc[b]["dz"] += list(dz[both])
+            acc[b]["agree"] += list((mjb == fb)[sel])
+            acc[b]["mjb"] += list(mjb[sel])
+            acc[b]["fb"] += list(fb[sel])
+            acc[b]["fail"] += list(st[sel] > BLOCKED)
+            acc[b]["gzb"] += list(gzb[sel])
+            acc[b]["gzagree"] += list((gzb == fb)[sel])
+    band_rows = []
+    for b in bands:
+        a = acc[b]
+        c = np.array(a["corr"])
+        band_rows.append(
+            [
+                f"{b[0]:.1f} - {min(b[1], PHI_MAX):.2f}",
+                str(len(a["agree"])),
+                f"{np.mean(a['fb']):.1%}",
+                f"{np.mean(a['mjb']):.1%}",
+                f"{np.mean(a['agree']):.1%}",
+                f"{np.mean(a['fail']):.1%}",
+                f"{np.mean(a['gzb']):.1%}",
+                f"{np.mean(a['gzagree']):.1%}",
+                f"{c.mean():.3f}" if len(c) else "-",
+                f"{np.mean(c >= 0.85):.1%}" if len(c) else "-",
+                f"{np.max(a['dz']):.2f}" if len(c) else "-",
+            ]
+        )
+
+    # ---------------------------------------------------------------- picture grids
+    figures = []
+    for oid, obj in enumerate(objs):
+        cols = []
+        for q_x, phi in FIGURE_POSES:
+            q_phi = phi / PHI_MAX
+            r, f = run(mj, fast, oid, [q_x], [q_phi])
+            g = gz.glance([oid], [q_x], [q_phi])
+            c = float(image_correlation(r.pressure, f.pressure)[0])
+            dz = (float(r.z[0]) - float(f.z[0])) * 1e3
+            label = (
+                f"q_x={q_x:+.1f}, phi={phi:+.1f}\ncorr {c:.2f}, dz {dz:+.2f} mm\n"
+                f"mj {STATUS_NAMES[int(r.info['status'][0])]}, fast {'blocked' if bool(f.blocked[0]) else 'ok'}"
+            )
+            cols.append(
+                (label, [r.pressure[0].numpy(), f.pressure[0].numpy(), g.pressure[0].numpy()])
+            )
+        path = img_dir / f"crosscheck_{obj.name}.png"
+        draw_grid(
+            path,
+            f"{obj.name}: MuJoCo taxels / fast foam / MuJoCo gazebo read-out",
+            cols,
+            ["MuJoCo taxels", "fast", "gazebo"],
+        )
+        figures.append((obj.name, path))
+    worst.sort(key=lambda w: w[0])
+    cols = [
+        (
+            f"{w[2]} q_x={w[4]:+.2f}\nphi={w[5] * PHI_MAX:+.2f}: corr {w[0]:.2f}\ndz {w[1]:+.2f} mm",
+            [w[6], w[7]],
+        )
+        for w in worst[:6]
+    ]
+    dis_path = img_dir / "crosscheck_disagreements.png"
+    draw_grid(
+        dis_path,
+        "Lowest correlations at |phi| <= 0.5 rad (2 per object)",
+        cols,
+        ["MuJoCo taxels", "fast"],
+    )
+
+    # ---------------------------------------------------------------- ramp top edge: line vs blobs
+    edge = []
+    for name, sim in (("MuJoCo taxels", mj), ("fast", fast), ("MuJoCo gazebo", gz)):
+        img = sim.glance([1], [1.0], [0.0]).pressure[0].numpy()
+        edge.append((name, img))
+    edge_path = img_dir / "crosscheck_ramp_edge.png"
+    draw_grid(
+        edge_path,
+        "ramp_up, pad centred over the top edge, flat: a line, a line, two blobs",
+        [(n, [im]) for n, im in edge],
+        ["image"],
+    )
+
+    # ---------------------------------------------------------------- write the report
+    rate = n_glances / t_mj
+    rel = lambda p: os.path.relpath(p, out.parent)  # noqa: E731
+    md = []
+    md.append("# MuJoCo glances cross-checked against the fast foam model\n")
+    md.append(
+        "Generated by `.venv/bin/python benchmarks/crosscheck_report.py` "
+        f"(MuJoCo {mujoco.__version__}); every number and picture below comes from that run.\n"
+    )
+    md.append("## What is compared\n")
+    md.append(
+        'Both simulators perform the paper\'s glance (section "Haptic Control of the Simulated Myrmex"): '
+        "the pad is lowered at a fixed pose `(x, phi)` until the summed force on its 16 x 16 cells is 2 N. "
+        "The **fast** model (`ham.glance.FastSimulator`) treats the face as a Winkler foam and solves the "
+        "stop height exactly. The **MuJoCo** model (`ham.mujoco_sim.MujocoSimulator`) pushes a pad whose "
+        "face is 16 x 16 sphere taxels (one contact each) down with a force actuator, closes the loop on "
+        "the taxels' summed normal force and waits until the pad has settled. The **gazebo** read-out "
+        "replaces the taxels by one box face and spreads each contact point's normal force over the "
+        "taxels with a Gaussian of sigma 5 mm, like the paper's Gazebo plugin.\n"
+    )
+    md.append("## Calibration: the same depth on the flat box\n")
+    md.append(
+        f"MuJoCo's taxel contacts are linear springs of `contact_stiffness` = {cfg.contact_stiffness:g} N/m "
+        f"each (pad mass {cfg.pad_mass * 1e3:.2f} g derived from it, `solref` = {cfg.taxel_solref()}, "
+        f"`solimp` = {tuple(round(v, 4) for v in cfg.taxel_solimp())}, time step {cfg.timestep * 1e3:g} ms, "
+        f"joint damping {cfg.joint_damping:g} N s/m). One glance at the centre of the box, flat, settled "
+        f"to 1e-9 m/s: depth **{cal['depth_m'] * 1e6:.3f} um** at {cal['force_N']:.6f} N, "
+        f"so the fast model's foam stiffness is 2 N / (64 cm^2 x depth) = "
+        f"**{cal['foam_stiffness']:.4g} Pa/m** (`calibrate_foam_stiffness()`). All comparisons below use "
+        "the fast model with this stiffness.\n"
+    )
+    md.append("## Cross-check at |phi| <= 0.5 rad\n")
+    md.append(
+        "Grid: 21 values of q_x in [-1, 1] x 11 angles in [-0.5, 0.5] rad per object. `corr` is the "
+        "Pearson correlation of a MuJoCo image with the fast image at the same pose (two uniform images "
+        "count as 1); `pooled` correlates all images of an object at once; `dz` is MuJoCo's stop height "
+        "minus the fast model's (mm).\n"
+    )
+    md.append(
+        fmt_table(
+            [
+                "object",
+                "poses",
+                "corr mean",
+                "median",
+                "min",
+                "corr >= 0.85",
+                "pooled",
+                "max abs dz",
+                "mean abs dz",
+                "MuJoCo settled",
+            ],
+            main_rows,
+        )
+        + "\n"
+    )
+    md.append(
+        "The criterion of issue 3 (images correlate at >= 0.85, heights within 2 mm) holds for every "
+        "object on average and in the pooled correlation, and the height difference holds at every pose. "
+        "It does not hold pose by pose for all poses: the column `corr >= 0.85` gives the share that "
+        "passes; the others are shown and explained below. `tests/test_mujoco.py` checks the same "
+        "criterion on a 9 x 5 subset per object.\n"
+    )
+    md.append("## Over the whole range of phi\n")
+    md.append(
+        "Grid: 21 values of q_x x 41 angles in [-pi/2, pi/2] per object, grouped by |phi| (rad). "
+        "`blocked` means the glance ended below 2 N (the housing held the pad; for MuJoCo also a step "
+        "limit); `agree` is the share of poses where MuJoCo (taxels or gazebo face) and the fast model "
+        "agree on whether the glance is blocked; `corr` and `max abs dz` are over poses where neither is "
+        "blocked.\n"
+    )
+    md.append(
+        fmt_table(
+            [
+                "abs(phi)",
+                "poses",
+                "fast blocked",
+                "MuJoCo blocked",
+                "blocked agree",
+                "MuJoCo step limit",
+                "gazebo blocked",
+                "gazebo agree",
+                "corr mean",
+                "corr >= 0.85",
+                "max abs dz",
+            ],
+            band_rows,
+        )
+        + "\n"
+    )
+    md.append("## Pictures\n")
+    md.append(
+        "Each column is one pose (q_x, phi in rad); rows: MuJoCo taxels, fast, MuJoCo gazebo read-out. "
+        "Each image has its own colour scale (its maximum is printed in it).\n"
+    )
+    for name, path in figures:
+        md.append(f"### {name}\n\n![{name}]({rel(path)})\n")
+    md.append("### The ramp's top edge\n")
+    md.append(
+        f"![ramp edge]({rel(edge_path)})\n\nBoth simulators show the edge as a line across all 16 rows; the "
+        "gazebo read-out shows two blobs where the edge leaves the face: MuJoCo's box-box/box-mesh "
+        "collision reports two contact points there, as Gazebo's libccd did in the paper.\n"
+    )
+    md.append("### Where they disagree most\n")
+    md.append(f"![disagreements]({rel(dis_path)})\n")
+    md.append("## Why they disagree\n")
+    md.append(
+        "* **An edge near a cell border.** Both simulators see an edge as a line one or two columns wide, "
+        "but they can put it in neighbouring columns. The fast foam compresses a strip beside the edge, "
+        "on the side of the face that recedes more slowly (as wide as the compression divided by the "
+        "relative slope, about a millimetre here), and a cell reads the mean compression over its width. "
+        "A MuJoCo taxel is a sphere with one contact: the edge loads the sphere(s) it presses into, "
+        "nearest centre first. When the edge lies within about a millimetre of a cell border, the foam's "
+        "strip falls in one cell and the edge itself in the next, and the two images are the same line "
+        f"one column apart: correlation down to {min(w[0] for w in worst):.2f} (the lowest-correlation "
+        "pictures above), while the heights still agree.\n"
+        "* **Depth at sharp edges.** The foam carries an edge only over the narrow strip it compresses, "
+        "so it sinks deeper there than a row of taxel springs, which each take a full share. MuJoCo "
+        "therefore stops higher on edges, by up to the `max abs dz` of the tables; against a steeply "
+        "tilted pad the foam's strip is narrowest and the difference largest. On flat contacts the two "
+        "agree to micrometres, by the calibration.\n"
+        "* **Steep tilts and the pad rim.** The sphere taxels of the outer columns reach "
+        f"{cfg.taxel_radius * 1e3 - mj.sensor.pitch * 500:.1f} mm beyond the 8 cm face (their radius is "
+        f"{cfg.taxel_radius * 1e3:g} mm, the pitch 5 mm), while the fast model's face ends exactly at the "
+        "rim, where its rigid housing begins. Beyond |phi| of about 1 rad the fast pad is often held by "
+        "its housing (blocked, less than 2 N), while a MuJoCo rim sphere still finds the surface and "
+        "reaches 2 N: the `blocked agree` column falls there. The gazebo read-out, whose face is a box "
+        "that ends at the rim, agrees far better on which glances are blocked. Concave shapes (`mhsb` "
+        "set, not part of this check) show the rim effect at small tilts too, where the rim sphere rests "
+        "on a trough's edge that the fast face never reaches.\n"
+        "* **Gazebo read-out.** The gazebo images are not meant to agree: with few contact points an "
+        "edge becomes blobs and a flat top four corner blobs, the paper's artifact.\n"
+    )
+    md.append("## Speed\n")
+    md.append(
+        f"The MuJoCo glances of this report ran at {rate:.0f} glances/s on {mj._threads} thread(s) of "
+        f"{os.cpu_count()} cores (a shared machine; the tables above weight poses uniformly). "
+        "`.venv/bin/python benchmarks/bench_mujoco.py` times a random sample of the full 4 x 201 x 201 "
+        "grid and projects the table time.\n"
+    )
+    md.append("## Configuration used\n")
+    md.append("```\n" + "\n".join(f"{k} = {v}" for k, v in asdict(cfg).items()) + "\n```\n")
+    out.write_text("\n".join(md))
+    print(f"wrote {out} and {len(figures) + 2} pictures in {img_dir}")
+    for row in main_rows:
+        print("  ", " | ".join(row))
+
+
+if __name__ == "__main__":
+    main()
