@@ -1,0 +1,23 @@
+"""The reinforcement baseline ``b(tau_{1:s}; theta_b)``: a dense layer on the core output.
+
+Section "Training": trained separately with the mean squared error to the reward over every
+sub-sequence ``1..s`` (Eq baseline). Its input is the core output *detached*: the baseline's
+loss trains the baseline layer only, never the core (REFERENCE.md: "the baseline layer is
+updated separately").
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+
+class Baseline(nn.Module):
+    """``tau -> b`` (B,), an estimate of the episode's reward from the glances so far."""
+
+    def __init__(self, input_size: int = 256, bias: bool = True) -> None:
+        super().__init__()
+        self.dense = nn.Linear(input_size, 1, bias=bias)
+
+    def forward(self, tau: torch.Tensor) -> torch.Tensor:
+        return self.dense(tau.detach()).squeeze(-1)  # the core gets no gradient from Eq baseline

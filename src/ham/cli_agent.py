@@ -1,0 +1,318 @@
+"""``ham train``, ``ham evaluate``, ``ham heatmap``: the agent's subcommands.
+
+``ham.cli`` adds them through :func:`add_commands`; each command returns an exit code and raises
+:class:`ham.errors.HamError` for anything the user got wrong (printed as one line by ``ham.cli``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from ham.errors import HamError
+
+PAPER_PARAMETERS = 741_248
+
+
+def add_commands(subparsers) -> None:
+    """Add ``train``, ``evaluate`` and ``heatmap`` to an argparse subparsers object."""
+    from ham.agent import HamConfig
+    from ham.train import TrainConfig
+
+    d, m = TrainConfig(), HamConfig()
+    p = subparsers.add_parser(
+        "train",
+        help="train a Haptic Attention Model (hybrid REINFORCE), or --resume one",
+        description="Train a HAM on fresh batches of objects. Glances come from a glance table "
+        "(--table FILE, the paper's nearest grid point) or, by default, online from the fast "
+        "simulator (--online: exact poses, no grid). Writes DIR/config.json, DIR/metrics.json, "
+        "DIR/checkpoint.pt and TensorBoard scalars in DIR/tb.",
+    )
+    p.add_argument("--glances", type=int, help=f"glances per episode (default {m.glances})")
+    p.add_argument(
+        "--steps",
+        type=int,
+        help=f"training steps (default {d.steps}; with --resume: the new total)",
+    )
+    p.add_argument(
+        "--seed", type=int, help=f"seed of weights, objects and poses (default {d.seed})"
+    )
+    p.add_argument("--core", choices=("lstm", "mlp"), help="core network (default lstm)")
+    p.add_argument(
+        "--policy", choices=("learned", "random"), help="location policy (default learned)"
+    )
+    p.add_argument("--combiner", choices=("concat2", "concat1", "add", "mul"),
+                   help="what & where combiner (default concat2)")  # fmt: skip
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--table", metavar="FILE", help="glance table (HDF5) to look glances up in")
+    src.add_argument("--online", action="store_true",
+                     help="simulate glances online with the fast simulator (the default)")  # fmt: skip
+    p.add_argument("--device", help="cpu (default) or cuda")
+    p.add_argument(
+        "--eval-every", type=int, help=f"steps between evaluations (default {d.eval_every})"
+    )
+    p.add_argument(
+        "--eval-batches", type=int, help=f"batches per evaluation (default {d.eval_batches})"
+    )
+    p.add_argument("--eval-policy", choices=("mean", "sample"),
+                   help="location policy when evaluating: mean poses (default) or sampled")  # fmt: skip
+    p.add_argument("--batch-size", type=int, help=f"objects per batch (default {d.batch_size})")
+    p.add_argument("--lr", type=float, help=f"initial learning rate (default {d.lr})")
+    p.add_argument(
+        "--lr-step",
+        type=int,
+        help=f"learning-rate decay step T (default {d.lr_step}; authors' code 200)",
+    )
+    p.add_argument(
+        "--beta", type=float, help=f"location weight of the hybrid loss (default {d.beta})"
+    )
+    p.add_argument("--classification-reduction", choices=("sum", "mean"),
+                   help=f"batch reduction of the classification term (default {d.classification_reduction})")  # fmt: skip
+    p.add_argument("--reinforce-reduction", choices=("sum", "mean"),
+                   help=f"batch reduction of the REINFORCE term (default {d.reinforce_reduction})")  # fmt: skip
+    p.add_argument(
+        "--normalization", choices=("l2", "l1", "none"), help="pressure normalization (default l2)"
+    )
+    p.add_argument(
+        "--lstm-activation", choices=("tanh", "relu"), help="LSTM cell activation (default tanh)"
+    )
+    p.add_argument(
+        "--std-activation",
+        choices=("softplus", "sigmoid"),
+        help="sigma activation (default softplus)",
+    )
+    p.add_argument(
+        "--truncate-bptt",
+        action="store_true",
+        help="no backpropagation through time (authors' code)",
+    )
+    p.add_argument(
+        "--no-bias", action="store_true", help="no biases outside the LSTM (authors' layout)"
+    )
+    p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--out", metavar="DIR", help="run directory to create")
+    p.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its checkpoint")
+    _add_world_options(p)
+    p.set_defaults(func=cmd_train)
+
+    p = subparsers.add_parser("evaluate", help="evaluate a trained HAM on fresh balanced batches")
+    p.add_argument("run", metavar="DIR", help="run directory (from ham train)")
+    p.add_argument("--batches", type=int, default=100, help="balanced batches (default 100)")
+    p.add_argument("--seed", type=int, default=12345, help="seed of the poses (default 12345)")
+    p.add_argument("--device", help="cpu or cuda (default: the run's)")
+    p.add_argument("--eval-policy", choices=("mean", "sample"),
+                   help="location policy: mean poses or sampled (default: the run's)")  # fmt: skip
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=cmd_evaluate)
+
+    p = subparsers.add_parser(
+        "heatmap", help="heat map of the last glance's pose per object, with the learned means"
+    )
+    p.add_argument("run", metavar="DIR", help="run directory (from ham train)")
+    p.add_argument("--out", required=True, metavar="PNG", help="image to write")
+    p.add_argument("--batches", type=int, default=1000, help="balanced batches (default 1000)")
+    p.add_argument("--bins", type=int, default=20, help="bins per axis (default 20)")
+    p.add_argument("--seed", type=int, default=12345, help="seed of the poses (default 12345)")
+    p.add_argument("--device", help="cpu or cuda (default: the run's)")
+    p.add_argument("--eval-policy", choices=("mean", "sample"),
+                   help="location policy: mean poses or sampled (default: the run's)")  # fmt: skip
+    p.add_argument("--json", metavar="FILE", help="also write the heat map data as JSON")
+    p.set_defaults(func=cmd_heatmap)
+
+
+def _add_world_options(p: argparse.ArgumentParser) -> None:
+    try:
+        from ham.cli import add_world_options
+    except ImportError:  # pragma: no cover - ham.cli is part of the package
+        return
+    add_world_options(p)
+
+
+def _world_from_args(args: argparse.Namespace):
+    from ham.cli import world_from_args
+
+    return world_from_args(args)
+
+
+def _set_threads(threads: int | None) -> None:
+    if threads is None:
+        return
+    if threads < 1:
+        raise HamError(f"--threads {threads}; accepted: an integer >= 1")
+    import torch
+
+    torch.set_num_threads(threads)
+
+
+def _config_from_args(args: argparse.Namespace):
+    from ham.agent import HamConfig
+    from ham.objects import resolve_set
+    from ham.train import TrainConfig
+
+    world = _world_from_args(args)
+    n_objects = None
+    if args.table:
+        from ham.table import table_info
+
+        if not Path(args.table).exists():
+            raise HamError(f"glance table {args.table!r} does not exist")
+        n_objects = len(table_info(args.table).objects)
+    else:
+        n_objects = len(resolve_set(world.objects))
+    model_args = {
+        "glances": args.glances,
+        "combiner": args.combiner,
+        "core": args.core,
+        "policy": args.policy,
+        "lstm_activation": args.lstm_activation,
+        "std_activation": args.std_activation,
+        "truncate_bptt": True if args.truncate_bptt else None,
+        "bias": False if args.no_bias else None,
+    }
+    model = HamConfig(n_objects=n_objects, **{k: v for k, v in model_args.items() if v is not None})
+    train_args = {
+        "steps": args.steps,
+        "seed": args.seed,
+        "device": args.device,
+        "eval_every": args.eval_every,
+        "eval_batches": args.eval_batches,
+        "eval_policy": args.eval_policy,
+        "batch_size": args.batch_size,
+        "lr": args.lr,
+        "lr_step": args.lr_step,
+        "beta": args.beta,
+        "classification_reduction": args.classification_reduction,
+        "reinforce_reduction": args.reinforce_reduction,
+        "normalization": args.normalization,
+    }
+    table = str(Path(args.table).resolve()) if args.table else None
+    return TrainConfig(
+        model=model,
+        table=table,
+        world=world,
+        **{k: v for k, v in train_args.items() if v is not None},
+    )
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from ham.train import resume, train
+
+    _set_threads(args.threads)
+    progress = not args.no_progress
+    if args.resume:
+        if args.out:
+            raise HamError("give either --resume DIR or --out DIR, not both")
+        ignored = [
+            f"--{k.replace('_', '-')}"
+            for k in (
+                "glances",
+                "seed",
+                "core",
+                "policy",
+                "combiner",
+                "table",
+                "device",
+                "eval_every",
+                "eval_batches",
+                "eval_policy",
+                "batch_size",
+                "lr",
+                "lr_step",
+                "beta",
+            )  # fmt: skip
+            if getattr(args, k) is not None
+        ]
+        if ignored:
+            raise HamError(
+                f"--resume continues the run with its own config; remove {', '.join(ignored)} "
+                "(only --steps may change)"
+            )
+        out = Path(args.resume)
+        metrics = resume(out, steps=args.steps, progress=progress)
+    else:
+        if not args.out:
+            raise HamError("ham train needs --out DIR (or --resume DIR)")
+        config = _config_from_args(args)
+        out = Path(args.out)
+        from ham.agent import HapticAttentionModel, count_parameters
+
+        n = count_parameters(HapticAttentionModel(config.model))
+        print(
+            f"HAM: {n:,} trainable weights (the paper reports {PAPER_PARAMETERS:,}; "
+            "see docs/agent.md)",
+            flush=True,
+        )
+        metrics = train(config, out, progress=progress)
+    _print_summary(metrics, out)
+    from ham.figures import plot_training_curve
+
+    print(f"wrote {plot_training_curve(metrics, out / 'training_curve.png')}")
+    return 0
+
+
+def _print_summary(metrics: dict, out: Path) -> None:
+    per = ", ".join(f"{a:.3f}" for a in metrics["accuracy_per_glance"] or [])
+    print(
+        f"{out}: {metrics['steps']} steps; final accuracy {metrics['final_accuracy']:.4f}, "
+        f"best {metrics['best_accuracy']:.4f} (step {metrics['best_step']}); per glance [{per}]"
+    )
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from ham.evaluation import evaluate
+    from ham.train import load_run
+
+    run = load_run(args.run, device=args.device)
+    policy = args.eval_policy or run.config.eval_policy
+    result = evaluate(run.agent, run.env, args.batches, seed=args.seed, policy=policy)
+    d = {"run": str(args.run), "steps": run.step, "eval_policy": policy, **result.to_dict()}
+    if args.json:
+        json.dump(d, sys.stdout)
+        sys.stdout.write("\n")
+        return 0
+    print(
+        f"{args.run}: step {run.step}, {result.episodes} episodes ({result.batches} balanced "
+        f"batches), {policy} poses"
+    )
+    print(f"{'glance':>6}  {'accuracy':>8}  {'accumulated':>11}")
+    for s, (a, b) in enumerate(
+        zip(result.accuracy_per_glance, result.accumulated_accuracy_per_glance, strict=True)
+    ):
+        print(f"{s + 1:>6}  {a:>8.4f}  {b:>11.4f}")
+    print(f"accuracy after the last glance: {result.accuracy:.4f}")
+    return 0
+
+
+def cmd_heatmap(args: argparse.Namespace) -> int:
+    from ham.evaluation import heatmap_data
+    from ham.figures import plot_heatmap
+    from ham.train import load_run
+
+    run = load_run(args.run, device=args.device)
+    policy = args.eval_policy or run.config.eval_policy
+    data = heatmap_data(run.agent, run.env, args.batches, args.bins, seed=args.seed, policy=policy)
+    data["step"] = run.step
+    out = plot_heatmap(data, args.out)
+    if args.json:
+        Path(args.json).write_text(json.dumps(data) + "\n")
+    print(f"wrote {out} (accuracy {data['accuracy']:.4f} over {args.batches} batches)")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Stand-alone entry (``python -m ham.cli_agent``), the same as ``ham <command>``."""
+    parser = argparse.ArgumentParser(prog="ham")
+    add_commands(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except HamError as exc:
+        print(f"ham: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

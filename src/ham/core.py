@@ -1,0 +1,97 @@
+"""The core network: integrates the glance features over the glance sequence.
+
+Section "The Haptic Attention Model": an LSTM with hidden states of 256 units turns the glance
+features ``g_1 .. g_s`` into the accumulated feature ``tau_{1:s}`` that the classifier, the location
+network and the baseline read. The ablation of section "Experiments" replaces it by one dense
+ReLU layer of the same size (the MLP core), which sees only the current glance.
+
+Options from the authors' code (REFERENCE.md):
+
+* ``activation="relu"``: ReLU instead of tanh for the cell input and the cell output;
+* ``truncate_bptt=True``: the state enters each step detached from the graph, as in the authors'
+  code, which runs the LSTM one glance at a time with the state fed back from outside the graph:
+  the loss then reaches only the last glance's step (no backpropagation through time).
+
+The LSTM cell is written out (one dense layer over ``[g, h]`` with one bias vector, gates in the
+order input, forget, cell, output), as in Keras/TensorFlow, so its parameter count matches the
+authors' model (``4 * 256 * (256 + 256) + 4 * 256`` = 525,312).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from ham.errors import HamError
+
+CORES: tuple[str, ...] = ("lstm", "mlp")
+ACTIVATIONS: tuple[str, ...] = ("tanh", "relu")
+
+State = tuple[torch.Tensor, ...]
+
+
+class LSTMCore(nn.Module):
+    """``(h_s, c_s) = LSTM(g_s, (h_{s-1}, c_{s-1}))``; the output is ``h_s``."""
+
+    def __init__(
+        self,
+        input_size: int,
+        hidden_size: int = 256,
+        activation: str = "tanh",
+        truncate_bptt: bool = False,
+        forget_bias: float = 1.0,
+    ) -> None:
+        super().__init__()
+        if activation not in ACTIVATIONS:
+            raise HamError(f"LSTM activation {activation!r}; accepted: {', '.join(ACTIVATIONS)}")
+        self.hidden_size = hidden_size
+        self.truncate_bptt = truncate_bptt
+        self.forget_bias = forget_bias
+        self.act = torch.tanh if activation == "tanh" else torch.relu
+        self.gates = nn.Linear(input_size + hidden_size, 4 * hidden_size)
+
+    def initial_state(self, batch: int, like: torch.Tensor) -> State:
+        z = like.new_zeros(batch, self.hidden_size)
+        return (z, z)
+
+    def forward(self, g: torch.Tensor, state: State) -> tuple[torch.Tensor, State]:
+        h, c = state
+        if self.truncate_bptt:
+            h, c = h.detach(), c.detach()
+        i, f, u, o = self.gates(torch.cat([g, h], dim=-1)).chunk(4, dim=-1)
+        c = torch.sigmoid(f + self.forget_bias) * c + torch.sigmoid(i) * self.act(u)
+        h = torch.sigmoid(o) * self.act(c)
+        return h, (h, c)
+
+
+class MLPCore(nn.Module):
+    """The memory-less ablation: ``tau_s = relu(W g_s + b)``; it keeps no state."""
+
+    def __init__(self, input_size: int, hidden_size: int = 256, bias: bool = True) -> None:
+        super().__init__()
+        self.hidden_size = hidden_size
+        self.dense = nn.Linear(input_size, hidden_size, bias=bias)
+
+    def initial_state(self, batch: int, like: torch.Tensor) -> State:
+        return ()
+
+    def forward(self, g: torch.Tensor, state: State) -> tuple[torch.Tensor, State]:
+        return torch.relu(self.dense(g)), state
+
+
+def make_core(
+    kind: str,
+    input_size: int,
+    hidden_size: int = 256,
+    *,
+    activation: str = "tanh",
+    truncate_bptt: bool = False,
+    forget_bias: float = 1.0,
+    bias: bool = True,
+) -> LSTMCore | MLPCore:
+    """The core named ``kind`` (``lstm`` or ``mlp``)."""
+    if kind == "lstm":
+        return LSTMCore(input_size, hidden_size, activation, truncate_bptt, forget_bias)
+    if kind == "mlp":
+        return MLPCore(input_size, hidden_size, bias)
+    raise HamError(f"core {kind!r}; accepted: {', '.join(CORES)}")

@@ -1,0 +1,159 @@
+"""Evaluation (section "Experiments"): accuracies on fresh balanced batches, and the pose heat map.
+
+"In order to measure the performance after a certain number of training steps, the training is
+stopped. This is followed by estimation of the mean classification accuracy of 100 newly generated
+batches, using the currently available policy." We report, over ``batches`` balanced batches:
+
+* ``accuracy``: the arg-max class after the last glance (Eq classify);
+* ``accuracy_per_glance``: the same after each glance ``s = 1..S`` of the same episodes;
+* ``accumulated_accuracy_per_glance``: the arg-max of the softmax outputs averaged over glances
+  ``1..s`` (the paper's averaged output, column ``<pi_MLP>`` of Table 1).
+
+``policy`` says how the learned location policy acts during evaluation: ``mean`` (default) takes
+the mean pose ``mu`` of each Gaussian, the policy with training "stopped" (the authors' RAM code
+evaluates this way); ``sample`` draws poses as in training. The first glance is random either way;
+the random-location policy is uniform either way. Evaluation draws from its own generator, so it
+never disturbs the training's random streams.
+
+:func:`heatmap_data` bins the last glance's pose per object into 20 x 20 cells over many batches
+and collects the learned means ``mu_x, mu_phi`` that chose it (the paper's heat maps).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import torch
+
+from ham.agent import HapticAttentionModel
+from ham.environment import HapticEnv
+from ham.errors import HamError
+
+
+@dataclass
+class EvalResult:
+    accuracy: float
+    accuracy_per_glance: list[float]
+    accumulated_accuracy_per_glance: list[float]
+    batches: int
+    episodes: int
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+EVAL_POLICIES: tuple[str, ...] = ("mean", "sample")
+
+
+def _check(batches: int, policy: str) -> None:
+    if not (isinstance(batches, int) and batches >= 1):
+        raise HamError(f"batches = {batches!r}; accepted: an integer >= 1")
+    if policy not in EVAL_POLICIES:
+        raise HamError(f"evaluation policy {policy!r}; accepted: {', '.join(EVAL_POLICIES)}")
+
+
+@torch.no_grad()
+def evaluate(
+    agent: HapticAttentionModel,
+    env: HapticEnv,
+    batches: int = 100,
+    seed: int = 0,
+    policy: str = "mean",
+) -> EvalResult:
+    """Accuracies of ``agent`` on ``batches`` balanced batches of ``env`` (poses seeded by ``seed``)."""
+    _check(batches, policy)
+    generator = torch.Generator(device=env.device)
+    generator.manual_seed(int(seed))
+    glances = agent.config.glances
+    correct = torch.zeros(glances, device=env.device)
+    accumulated = torch.zeros(glances, device=env.device)
+    counts = torch.arange(1, glances + 1, device=env.device).view(-1, 1, 1)
+    was_training = agent.training
+    agent.eval()
+    try:
+        for k in range(batches):
+            objects = env.balanced_objects(k)
+            episode = agent(env, objects, generator, greedy=policy == "mean")
+            correct += (episode.logits.argmax(-1) == objects).sum(1)
+            averaged = episode.logits.softmax(-1).cumsum(0) / counts
+            accumulated += (averaged.argmax(-1) == objects).sum(1)
+    finally:
+        agent.train(was_training)
+    n = batches * env.batch_size
+    per_glance = (correct / n).tolist()
+    return EvalResult(
+        accuracy=per_glance[-1],
+        accuracy_per_glance=per_glance,
+        accumulated_accuracy_per_glance=(accumulated / n).tolist(),
+        batches=batches,
+        episodes=n,
+    )
+
+
+@torch.no_grad()
+def heatmap_data(
+    agent: HapticAttentionModel,
+    env: HapticEnv,
+    batches: int = 1000,
+    bins: int = 20,
+    seed: int = 0,
+    policy: str = "mean",
+) -> dict:
+    """The last glance's pose ``(q_x, q_phi)`` per object, binned ``bins x bins`` over
+    ``[-1, 1]^2``, over ``batches`` balanced batches; with the mean and spread of the learned
+    ``mu_x, mu_phi`` (and ``sigma``) that chose it (``None`` for the random policy or one glance).
+
+    Returns a JSON-ready dict; ``counts[o][i][j]`` counts object ``o`` with ``q_x`` in bin ``i``
+    and ``q_phi`` in bin ``j``.
+    """
+    _check(batches, policy)
+    if not (isinstance(bins, int) and bins >= 1):
+        raise HamError(f"bins = {bins!r}; accepted: an integer >= 1")
+    generator = torch.Generator(device=env.device)
+    generator.manual_seed(int(seed))
+    k = env.n_objects
+    counts = torch.zeros(k * bins * bins, device=env.device)
+    mu_sum = torch.zeros(k, 2, device=env.device, dtype=torch.float64)
+    mu_sq = torch.zeros_like(mu_sum)
+    sigma_sum = torch.zeros_like(mu_sum)
+    n_obj = torch.zeros(k, device=env.device, dtype=torch.float64)
+    correct = 0.0
+    was_training = agent.training
+    agent.eval()
+    try:
+        for b in range(batches):
+            objects = env.balanced_objects(b)
+            episode = agent(env, objects, generator, greedy=policy == "mean")
+            q = episode.locations[-1]
+            cell = ((q + 1) * (bins / 2)).long().clamp(0, bins - 1)
+            counts += torch.bincount(
+                (objects * bins + cell[:, 0]) * bins + cell[:, 1], minlength=k * bins * bins
+            )
+            n_obj += torch.bincount(objects, minlength=k)
+            correct += float((episode.logits[-1].argmax(-1) == objects).sum())
+            if episode.mu is not None:
+                mu = episode.mu[-1].double()
+                mu_sum.index_add_(0, objects, mu)
+                mu_sq.index_add_(0, objects, mu * mu)
+                sigma_sum.index_add_(0, objects, episode.sigma[-1].double())
+    finally:
+        agent.train(was_training)
+    has_mu = agent.location is not None and agent.config.glances > 1
+    denom = n_obj.clamp_min(1)[:, None]
+    mu_mean = mu_sum / denom
+    mu_std = (mu_sq / denom - mu_mean**2).clamp_min(0).sqrt()
+    return {
+        "objects": list(getattr(env.source, "objects", range(k))),
+        "glances": agent.config.glances,
+        "policy": agent.config.policy,
+        "eval_policy": policy,
+        "batches": batches,
+        "bins": bins,
+        "range": [-1.0, 1.0],
+        "phi_scale": agent.config.phi_scale,
+        "counts": counts.view(k, bins, bins).long().tolist(),
+        "mu_mean": mu_mean.tolist() if has_mu else None,
+        "mu_std": mu_std.tolist() if has_mu else None,
+        "sigma_mean": (sigma_sum / denom).tolist() if has_mu else None,
+        "accuracy": correct / (batches * env.batch_size),
+    }

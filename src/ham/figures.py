@@ -1,0 +1,113 @@
+"""Figures of a training run: the training curve and the pose heat map (PNG, matplotlib Agg).
+
+* :func:`plot_training_curve`: accuracy after the last glance, after each glance and the
+  accumulated (averaged-output) accuracy over training steps, from ``metrics.json``
+  (the paper's Figs "Classification Accuracy");
+* :func:`plot_heatmap`: per object, the last glance's pose binned 20 x 20 over
+  ``(x, phi)`` with the learned mean ``(mu_x, mu_phi)`` marked (the paper's heat maps).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from ham.errors import HamError  # noqa: E402
+
+
+def _out(out_png: str | os.PathLike) -> Path:
+    out = Path(out_png)
+    if out.parent and not out.parent.exists():
+        out.parent.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def plot_training_curve(metrics: dict, out_png: str | os.PathLike) -> Path:
+    """Accuracy over training steps from a run's metrics (``metrics.json``)."""
+    history = metrics.get("history") or []
+    if not history:
+        raise HamError("the metrics hold no evaluation history to plot")
+    steps = np.array([h["step"] for h in history])
+    per_glance = np.array([h["accuracy_per_glance"] for h in history])
+    accumulated = np.array([h["accumulated_accuracy_per_glance"] for h in history])
+    glances = per_glance.shape[1]
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    cmap = plt.get_cmap("viridis")
+    for s in range(glances - 1):
+        ax.plot(steps, per_glance[:, s], color=cmap(s / max(glances - 1, 1)), lw=0.8, alpha=0.6,
+                label=f"after glance {s + 1}" if glances <= 6 or s in (0, glances - 2) else None)  # fmt: skip
+    ax.plot(steps, per_glance[:, -1], color="k", lw=2, label=f"after the last glance ({glances})")
+    ax.plot(steps, accumulated[:, -1], color="tab:red", lw=1.2, ls="--",
+            label="accumulated (averaged output)")  # fmt: skip
+    best = metrics.get("best_accuracy")
+    if best is not None:
+        ax.axhline(best, color="gray", lw=0.6, ls=":")
+        ax.text(steps[-1], best, f"best {best:.3f}", ha="right", va="bottom", fontsize=8)
+    cfg = metrics.get("config", {}).get("model", {})
+    ax.set_title(
+        f"HAM, {glances} glances, {cfg.get('core', 'lstm')} core, {cfg.get('policy', 'learned')} policy"
+    )
+    ax.set_xlabel("training step")
+    ax.set_ylabel("accuracy (balanced evaluation)")
+    ax.set_ylim(0, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="lower right")
+    fig.tight_layout()
+    out = _out(out_png)
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return out
+
+
+def plot_heatmap(heatmap_data: dict, out_png: str | os.PathLike) -> Path:
+    """One panel per object: where the last glance went, and the learned mean pose."""
+    try:
+        counts = np.asarray(heatmap_data["counts"], dtype=float)
+        names = list(heatmap_data["objects"])
+    except KeyError as exc:
+        raise HamError(f"heat map data lacks {exc}") from None
+    k = counts.shape[0]
+    phi_deg = math.degrees(heatmap_data.get("phi_scale", math.pi / 2))
+    extent = (-1, 1, -phi_deg, phi_deg)  # x: q_x; y: phi in degrees
+    cols = min(k, 4)
+    rows = math.ceil(k / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 3.0 * rows + 0.5), squeeze=False)
+    mu = heatmap_data.get("mu_mean")
+    mu_std = heatmap_data.get("mu_std")
+    for o in range(rows * cols):
+        ax = axes[o // cols][o % cols]
+        if o >= k:
+            ax.axis("off")
+            continue
+        total = counts[o].sum()
+        frac = counts[o] / total if total else counts[o]
+        # counts[o][i][j]: q_x bin i, q_phi bin j -> image rows = phi, columns = x
+        im = ax.imshow(frac.T, origin="lower", extent=extent, aspect="auto", cmap="magma")
+        if mu is not None:
+            mx, mp = mu[o]
+            sx, sp = mu_std[o] if mu_std is not None else (0.0, 0.0)
+            ax.errorbar(mx, mp * phi_deg, xerr=sx, yerr=sp * phi_deg, fmt="x", color="cyan",
+                        ms=8, mew=2, capsize=3, label="mean $\\mu$")  # fmt: skip
+        ax.set_title(f"{o}: {names[o]}", fontsize=10)
+        ax.set_xlabel("x (normalized)")
+        if o % cols == 0:
+            ax.set_ylabel("phi (degrees)")
+        fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03)
+    glances = heatmap_data.get("glances", "?")
+    fig.suptitle(
+        f"pose of the last glance ({glances} glances, {heatmap_data.get('policy', '')} policy, "
+        f"{heatmap_data.get('batches', '?')} batches; accuracy {heatmap_data.get('accuracy', float('nan')):.3f})",
+        fontsize=10,
+    )
+    fig.tight_layout()
+    out = _out(out_png)
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return out

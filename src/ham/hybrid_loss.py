@@ -1,0 +1,110 @@
+"""The paper's hybrid loss (section "Training", Eq update_weights) and the baseline loss (Eq baseline).
+
+For a batch of episodes with reward ``r = 1`` if the arg-max class after the last glance is
+right, else 0 (section "Methods"):
+
+``L = -log pi(o | tau_{1:S})                                     (classification, cross-entropy)
+      - beta * sum_{s=2..S} (r - b_{s-1}) * sum_{x, phi} log N(q_s; mu_s, sigma_s)   (REINFORCE)``
+
+combined over the batch as :func:`hybrid_loss` describes. Its gradient with respect to the policy's outputs is the paper's
+update: ``-beta * (r - b) * (zeta_mu_x + zeta_mu_phi + zeta_sigma_x + zeta_sigma_phi)`` with
+the characteristic eligibilities ``zeta_mu = (q - mu) / sigma^2`` (Eq reinforce_mean) and
+``zeta_sigma = ((q - mu)^2 - sigma^2) / sigma^3`` (Eq reinforce_std): autograd of the Gaussian's
+log density gives exactly these (``tests/test_hybrid_loss.py`` checks it). ``b_{s-1} =
+b(tau_{1:s-1})`` is the baseline read from the same core output that chose the pose ``q_s``.
+
+The baseline is trained separately with ``L_b = sum_{s=1..S} (R_s - b(tau_{1:s}))^2`` (Eq
+baseline). With the reward only at the end of the episode and no discount within it, the return
+``R_s`` seen from every sub-sequence ``1..s`` is the episode's reward ``r`` (Eq total_reward).
+
+What is detached from what, all explicit below or in the modules:
+
+* the sampled poses ``q`` carry no gradient (``.detach()`` here; they are drawn detached);
+* the advantage ``r - b`` is detached: REINFORCE does not train the baseline;
+* the baseline reads the core output detached (:class:`ham.baseline.Baseline`): ``L_b`` does not
+  train the core; the location network reads it detached too (:class:`ham.location_net.LocationNetwork`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch.nn import functional as F
+
+from ham.agent import Episode
+from ham.errors import HamError
+from ham.location_net import gaussian_log_prob
+
+REDUCTIONS: tuple[str, ...] = ("sum", "mean")
+
+
+@dataclass
+class HybridLoss:
+    """The loss to minimize (``total``) and its parts, each a scalar tensor; ``reward`` is (B,)."""
+
+    total: torch.Tensor
+    classification: torch.Tensor
+    reinforce: torch.Tensor
+    baseline: torch.Tensor
+    reward: torch.Tensor
+
+
+def reward(logits: torch.Tensor, objects: torch.Tensor) -> torch.Tensor:
+    """``r = 1`` if the arg-max class is the true object, else 0 (B,)."""
+    return (logits.argmax(-1) == objects).to(logits.dtype)
+
+
+def reinforce_term(
+    q: torch.Tensor, mu: torch.Tensor, sigma: torch.Tensor, advantage: torch.Tensor
+) -> torch.Tensor:
+    """``-mean_b sum_s advantage * sum_{x, phi} log N(q; mu, sigma)``: its gradient in ``mu`` and
+    ``sigma`` is ``-advantage * zeta_mu`` and ``-advantage * zeta_sigma`` per element / B."""
+    q = q.detach()  # no gradient flows into the sampled poses
+    advantage = advantage.detach()  # the baseline is not trained by REINFORCE
+    log_n = gaussian_log_prob(q, mu, sigma).sum(-1)  # the x and phi streams: (S-1, B)
+    return -(advantage * log_n).sum(0).mean()
+
+
+def hybrid_loss(
+    episode: Episode,
+    beta: float = 0.4,
+    classification_reduction: str = "sum",
+    reinforce_reduction: str = "mean",
+) -> HybridLoss:
+    """The hybrid loss of ``episode`` with location weight ``beta`` (0.4), plus the baseline loss.
+
+    ``total = classification + beta * reinforce + baseline``. Through the detaches above the
+    three parts train disjoint weights: classification the tactile network, core and classifier;
+    REINFORCE only the location heads; the baseline loss only the baseline layer.
+
+    How the episodes of a batch combine (Eq update_weights is written for one episode):
+    ``classification_reduction="sum"`` adds the episodes' classification updates;
+    ``reinforce_reduction="mean"`` averages their REINFORCE updates (the Monte-Carlo estimate of
+    the policy gradient ``E[(r - b) zeta]``). The baseline's loss is a mean over the batch ("the
+    mean-squared error") and a sum over the sub-sequences (Eq baseline). The parts train disjoint
+    weights, so each reduction only scales its own part's step; docs/agent.md has the measurements
+    behind these defaults.
+    """
+    for name, value in (
+        ("classification_reduction", classification_reduction),
+        ("reinforce_reduction", reinforce_reduction),
+    ):
+        if value not in REDUCTIONS:
+            raise HamError(f"{name} {value!r}; accepted: {', '.join(REDUCTIONS)}")
+    objects = episode.objects
+    last = episode.logits[-1]
+    # -sum_o y_o log pi(o) per episode
+    classification = F.cross_entropy(last, objects, reduction=classification_reduction)
+    r = reward(last.detach(), objects)
+    # Eq baseline over every sub-sequence 1..S, target the episode's reward.
+    baseline = ((r[None] - episode.baselines) ** 2).sum(0).mean()
+    if episode.mu is None or beta == 0:
+        reinforce = last.new_zeros(())
+    else:
+        advantage = r[None] - episode.baselines[:-1]  # b(tau_{1:s-1}) for the pose q_s
+        reinforce = reinforce_term(episode.locations[1:], episode.mu, episode.sigma, advantage)
+        if reinforce_reduction == "sum":
+            reinforce = reinforce * objects.shape[0]
+    total = classification + beta * reinforce + baseline
+    return HybridLoss(total, classification, reinforce, baseline, r)

@@ -1,0 +1,186 @@
+"""The hybrid loss: its gradients are the paper's eligibilities; what is detached from what."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from ham.agent import HamConfig, HapticAttentionModel
+from ham.environment import HapticEnv, make_source
+from ham.errors import HamError
+from ham.hybrid_loss import hybrid_loss, reinforce_term, reward
+from ham.location_net import gaussian_log_prob
+from ham.world import WorldConfig
+
+
+def zeta_mu(q, mu, sigma):
+    """Eq reinforce_mean."""
+    return (q - mu) / sigma**2
+
+
+def zeta_sigma(q, mu, sigma):
+    """Eq reinforce_std."""
+    return ((q - mu) ** 2 - sigma**2) / sigma**3
+
+
+@pytest.fixture(scope="module")
+def env() -> HapticEnv:
+    source, _ = make_source(None, WorldConfig())
+    return HapticEnv(source, batch_size=8, seed=0)
+
+
+def _episode(env, **kw):
+    torch.manual_seed(0)
+    model = HapticAttentionModel(HamConfig(glances=3, **kw))
+    episode = model(env, env.sample_objects(), torch.Generator().manual_seed(0))
+    return model, episode
+
+
+# --------------------------------------------------------------------------- the eligibilities
+def test_log_density_gradients_are_the_eligibilities():
+    g = torch.Generator().manual_seed(0)
+    q = torch.rand(50, 2, generator=g, dtype=torch.float64) * 2 - 1
+    mu = (torch.rand(50, 2, generator=g, dtype=torch.float64) * 2 - 1).requires_grad_()
+    sigma = (torch.rand(50, 2, generator=g, dtype=torch.float64) + 0.05).requires_grad_()
+    gaussian_log_prob(q, mu, sigma).sum().backward()
+    assert torch.allclose(mu.grad, zeta_mu(q, mu, sigma))
+    assert torch.allclose(sigma.grad, zeta_sigma(q, mu, sigma))
+    # and the density is the Gaussian's
+    ref = torch.distributions.Normal(mu, sigma).log_prob(q)
+    assert torch.allclose(gaussian_log_prob(q, mu, sigma), ref)
+
+
+def test_reinforce_gradient_is_minus_advantage_times_eligibility_numerically():
+    """d/dmu and d/dsigma of the REINFORCE term, by central differences, equal
+    -(r - b) * zeta / B: the paper's update (Eq update_weights) for the policy's outputs."""
+    g = torch.Generator().manual_seed(1)
+    s, b = 2, 5
+    q = torch.rand(s, b, 2, generator=g, dtype=torch.float64) * 2 - 1
+    mu = torch.rand(s, b, 2, generator=g, dtype=torch.float64) * 2 - 1
+    sigma = torch.rand(s, b, 2, generator=g, dtype=torch.float64) * 0.8 + 0.1
+    adv = torch.rand(s, b, generator=g, dtype=torch.float64) * 2 - 1
+    eps = 1e-6
+    for name, zeta in (("mu", zeta_mu), ("sigma", zeta_sigma)):
+        expected = -adv[..., None] * zeta(q, mu, sigma) / b
+        numeric = torch.zeros_like(mu)
+        for idx in torch.cartesian_prod(*(torch.arange(n) for n in mu.shape)):
+            i = tuple(idx.tolist())
+            plus, minus = mu.clone(), mu.clone()
+            splus, sminus = sigma.clone(), sigma.clone()
+            if name == "mu":
+                plus[i] += eps
+                minus[i] -= eps
+                f1, f0 = reinforce_term(q, plus, sigma, adv), reinforce_term(q, minus, sigma, adv)
+            else:
+                splus[i] += eps
+                sminus[i] -= eps
+                f1, f0 = reinforce_term(q, mu, splus, adv), reinforce_term(q, mu, sminus, adv)
+            numeric[i] = (f1 - f0) / (2 * eps)
+        assert torch.allclose(numeric, expected, rtol=1e-5, atol=1e-7), name
+
+
+@pytest.mark.parametrize("reduction", ["sum", "mean"])
+def test_hybrid_loss_policy_gradient_matches_the_paper(env, reduction):
+    """d(loss)/d(mu, sigma) = -beta * (r - b) * zeta per episode (summed, or averaged)."""
+    model, ep = _episode(env)
+    mu = ep.mu.detach().requires_grad_()
+    sigma = ep.sigma.detach().requires_grad_()
+    ep.mu, ep.sigma = mu, sigma
+    loss = hybrid_loss(ep, beta=0.4, reinforce_reduction=reduction)
+    loss.total.backward()
+    r = reward(ep.logits[-1], ep.objects)
+    adv = (r[None] - ep.baselines[:-1]).detach()[..., None]
+    q = ep.locations[1:]
+    scale = 1.0 if reduction == "sum" else 1.0 / ep.objects.shape[0]
+    assert torch.allclose(mu.grad, -0.4 * adv * zeta_mu(q, mu, sigma) * scale, atol=1e-6)
+    assert torch.allclose(sigma.grad, -0.4 * adv * zeta_sigma(q, mu, sigma) * scale, atol=1e-6)
+
+
+def test_reward_is_argmax_correct():
+    logits = torch.tensor([[2.0, 1.0], [0.0, 3.0], [5.0, -1.0]])
+    assert reward(logits, torch.tensor([0, 0, 0])).tolist() == [1.0, 0.0, 1.0]
+
+
+def test_sum_reduction_is_batch_times_mean(env):
+    _, ep = _episode(env)
+    mean = hybrid_loss(ep, classification_reduction="mean", reinforce_reduction="mean")
+    total = hybrid_loss(ep, classification_reduction="sum", reinforce_reduction="sum")
+    b = ep.objects.shape[0]
+    assert torch.allclose(total.classification, b * mean.classification)
+    assert torch.allclose(total.reinforce, b * mean.reinforce)
+    assert torch.allclose(total.baseline, mean.baseline)  # the baseline's MSE is always a mean
+    default = hybrid_loss(ep)  # classification summed, REINFORCE averaged
+    assert torch.allclose(default.classification, total.classification)
+    assert torch.allclose(default.reinforce, mean.reinforce)
+    with pytest.raises(HamError, match="reinforce_reduction"):
+        hybrid_loss(ep, reinforce_reduction="max")
+
+
+def test_baseline_loss_covers_every_sub_sequence(env):
+    _, ep = _episode(env)
+    loss = hybrid_loss(ep)
+    r = reward(ep.logits[-1], ep.objects)
+    expected = ((r[None] - ep.baselines) ** 2).sum(0).mean()
+    assert torch.allclose(loss.baseline, expected)
+
+
+# --------------------------------------------------------------------------- what is detached
+def _grads(model) -> dict[str, float]:
+    return {
+        n: (0.0 if p.grad is None else p.grad.abs().sum().item())
+        for n, p in model.named_parameters()
+    }
+
+
+def _nonzero(grads: dict[str, float], prefix: str) -> bool:
+    return any(v > 0 for n, v in grads.items() if n.startswith(prefix))
+
+
+def test_sampled_locations_carry_no_gradient(env):
+    _, ep = _episode(env)
+    assert not ep.locations.requires_grad
+    assert ep.mu.requires_grad and ep.sigma.requires_grad
+
+
+def test_reinforce_term_trains_only_the_location_network(env):
+    model, ep = _episode(env)
+    loss = hybrid_loss(ep)
+    loss.reinforce.backward()
+    g = _grads(model)
+    assert _nonzero(g, "location.")
+    for part in ("tactile.", "core.", "classifier.", "baseline."):
+        assert not _nonzero(g, part), part  # the baseline in the advantage is detached too
+
+
+def test_baseline_loss_trains_only_the_baseline(env):
+    model, ep = _episode(env)
+    hybrid_loss(ep).baseline.backward()
+    g = _grads(model)
+    assert _nonzero(g, "baseline.")
+    for part in ("tactile.", "core.", "classifier.", "location."):
+        assert not _nonzero(g, part), part  # the core gets no gradient from Eq baseline
+
+
+def test_classification_trains_tactile_core_classifier_only(env):
+    model, ep = _episode(env)
+    hybrid_loss(ep).classification.backward()
+    g = _grads(model)
+    for part in ("tactile.", "core.", "classifier."):
+        assert _nonzero(g, part), part
+    for part in ("location.", "baseline."):
+        assert not _nonzero(g, part), part
+
+
+def test_random_policy_has_no_reinforce_term(env):
+    model, ep = _episode(env, policy="random")
+    loss = hybrid_loss(ep, beta=0.4)
+    assert loss.reinforce.item() == 0.0
+    loss.total.backward()
+    assert torch.isfinite(loss.total)
+
+
+def test_beta_zero_drops_the_reinforce_term(env):
+    _, ep = _episode(env)
+    a, b = hybrid_loss(ep, beta=0.0), hybrid_loss(ep, beta=0.4)
+    assert torch.allclose(a.total, a.classification + a.baseline)
+    assert not torch.allclose(b.total, a.total) or b.reinforce.item() == 0.0

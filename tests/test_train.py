@@ -1,0 +1,230 @@
+"""Training runs: the CLI end to end, resume gives the same numbers, divergence is caught."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+from ham.agent import HamConfig
+from ham.errors import HamError
+from ham.train import TrainConfig, load_run, resume, train
+
+TINY = ["--glances", "2", "--batch-size", "8", "--eval-batches", "2", "--no-progress"]
+
+
+def ham_inprocess(capsys, *args: str) -> tuple[int, str, str]:
+    """The same ``ham`` command line, run in this process (faster than a subprocess)."""
+    from ham.cli import main
+
+    code = main(list(args))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def ham(*args: str, check: bool = True) -> subprocess.CompletedProcess:
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    p = subprocess.run(
+        [sys.executable, "-m", "ham", *args], capture_output=True, text=True, env=env, timeout=300
+    )
+    if check and p.returncode != 0:
+        raise AssertionError(f"ham {' '.join(args)} failed ({p.returncode}):\n{p.stderr}")
+    return p
+
+
+def tiny(**kw) -> TrainConfig:
+    base = dict(
+        model=HamConfig(glances=2),
+        steps=8,
+        batch_size=8,
+        eval_every=2,
+        eval_batches=2,
+        seed=3,
+    )
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+# --------------------------------------------------------------------------- config
+def test_learning_rate_schedule():
+    c = TrainConfig()
+    assert c.learning_rate(0) == pytest.approx(8e-4)
+    assert c.learning_rate(800) == pytest.approx(8e-4 * 0.97)
+    assert c.learning_rate(400) == pytest.approx(8e-4 * 0.97**0.5)
+    assert c.learning_rate(10_000_000) == 1e-6
+    assert TrainConfig(lr_step=200).learning_rate(200) == pytest.approx(8e-4 * 0.97)
+
+
+def test_paper_defaults():
+    c = TrainConfig()
+    assert (c.batch_size, c.steps, c.eval_every, c.eval_batches) == (64, 50_000, 200, 100)
+    assert (c.momentum, c.nesterov, c.beta, c.lr_step) == (0.9, True, 0.4, 800)
+    assert c.normalization == "l2"
+
+
+@pytest.mark.parametrize(
+    "kw",
+    [{"steps": -1}, {"lr": 0.0}, {"lr": float("nan")}, {"momentum": 1.0}, {"beta": -1.0},
+     {"normalization": "max"}, {"device": "tpu"}, {"reinforce_reduction": "median"},
+     {"classification_reduction": "max"}, {"eval_every": 0}],
+)  # fmt: skip
+def test_bad_train_config(kw):
+    with pytest.raises(HamError):
+        TrainConfig(**kw)
+
+
+def test_config_round_trip():
+    c = tiny(lr_step=200)
+    assert TrainConfig.from_dict(json.loads(json.dumps(c.to_dict()))) == c
+
+
+# --------------------------------------------------------------------------- the CLI
+def test_cli_train_evaluate_heatmap(tmp_path, capsys):
+    out = tmp_path / "run"
+    p = ham("train", *TINY, "--steps", "4", "--eval-every", "2", "--seed", "1", "--out", str(out))
+    assert "trainable weights" in p.stdout
+    for name in ("config.json", "metrics.json", "checkpoint.pt", "tb", "training_curve.png"):
+        assert (out / name).exists(), name
+    m = json.loads((out / "metrics.json").read_text())
+    for key in ("best_accuracy", "final_accuracy", "steps", "accuracy_per_glance",
+                "accumulated_accuracy_per_glance", "config", "history"):  # fmt: skip
+        assert key in m, key
+    assert m["steps"] == 4
+    assert [h["step"] for h in m["history"]] == [0, 2, 4]
+    assert len(m["accuracy_per_glance"]) == 2
+    assert m["config"]["model"]["glances"] == 2
+    assert 0 <= m["best_accuracy"] <= 1
+
+    code, stdout, _ = ham_inprocess(capsys, "evaluate", str(out), "--json", "--batches", "2")
+    d = json.loads(stdout)
+    assert code == 0 and len(d["accuracy_per_glance"]) == 2 and d["episodes"] == 16
+    code, stdout, _ = ham_inprocess(capsys, "evaluate", str(out), "--batches", "1",
+                                    "--eval-policy", "sample")  # fmt: skip
+    assert code == 0 and "sample poses" in stdout
+
+    png = tmp_path / "heat.png"
+    code, _, _ = ham_inprocess(capsys, "heatmap", str(out), "--out", str(png), "--batches", "3",
+                               "--json", str(tmp_path / "h.json"))  # fmt: skip
+    assert code == 0
+    assert png.stat().st_size > 0
+    h = json.loads((tmp_path / "h.json").read_text())
+    assert len(h["counts"]) == 4 and len(h["counts"][0]) == 20
+    assert sum(c for obj in h["counts"] for row in obj for c in row) == 3 * 8
+    assert len(h["mu_mean"]) == 4
+
+    from ham.figures import plot_training_curve
+
+    assert plot_training_curve(m, tmp_path / "curve.png").stat().st_size > 0
+
+
+def test_cli_errors_are_one_line(tmp_path, capsys):
+    code, _, err = ham_inprocess(capsys, "train", *TINY, "--steps", "2")
+    assert code == 2 and "--out" in err and len(err.strip().splitlines()) == 1
+    code, _, err = ham_inprocess(capsys, "train", *TINY, "--table", str(tmp_path / "none.h5"),
+                                 "--out", str(tmp_path / "r"))  # fmt: skip
+    assert code == 2 and "does not exist" in err
+    code, _, err = ham_inprocess(capsys, "evaluate", str(tmp_path / "missing"))
+    assert code == 2 and "does not exist" in err
+    code, _, err = ham_inprocess(capsys, "train", *TINY, "--steps", "2", "--batch-size", "0",
+                                 "--out", str(tmp_path / "b"))  # fmt: skip
+    assert code == 2 and "batch_size" in err
+
+
+def test_nan_stops_the_run_with_the_step_named(tmp_path, capsys):
+    code, _, err = ham_inprocess(capsys, "train", *TINY, "--steps", "20", "--eval-every", "10",
+                                 "--lr", "1e30", "--out", str(tmp_path / "nan"))  # fmt: skip
+    assert code == 2
+    assert "diverged at step" in err
+
+
+# --------------------------------------------------------------------------- resume
+def _metrics(out: Path) -> dict:
+    return json.loads((out / "metrics.json").read_text())
+
+
+def test_resume_gives_the_same_numbers(tmp_path):
+    full = train(tiny(steps=8), tmp_path / "full", progress=False)
+    train(tiny(steps=4), tmp_path / "half", progress=False)
+    resumed = resume(tmp_path / "half", steps=8, progress=False)
+    assert resumed == full  # bit-identical: every float in the history
+    a, b = load_run(tmp_path / "full"), load_run(tmp_path / "half")
+    for (n, p), (_, q) in zip(
+        a.agent.state_dict().items(), b.agent.state_dict().items(), strict=True
+    ):
+        assert torch.equal(p, q), n
+
+
+def test_train_refuses_an_existing_run(tmp_path):
+    train(tiny(steps=2), tmp_path / "r", progress=False)
+    with pytest.raises(HamError, match="--resume"):
+        train(tiny(steps=2), tmp_path / "r", progress=False)
+
+
+def test_killed_run_resumes_to_the_same_numbers(tmp_path):
+    """Kill a CLI run (SIGKILL) after a checkpoint, resume it: the same metrics as uninterrupted."""
+    args = [*TINY, "--steps", "150", "--eval-every", "10", "--eval-batches", "1", "--seed", "5"]
+    # The uninterrupted reference, in this process with the subprocesses' one thread.
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        train(tiny(steps=150, eval_every=10, eval_batches=1, seed=5), tmp_path / "full",
+              progress=False)  # fmt: skip
+    finally:
+        torch.set_num_threads(threads)
+    out = tmp_path / "killed"
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ham", "train", *args, "--out", str(out)],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env,
+    )  # fmt: skip
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None:
+        try:
+            if _metrics(out)["steps"] >= 10:
+                break
+        except (FileNotFoundError, json.JSONDecodeError, KeyError):
+            pass
+        time.sleep(0.01)
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert proc.returncode == -signal.SIGKILL  # killed mid-run, not finished
+    assert _metrics(out)["steps"] < 150
+    ham("train", "--resume", str(out), "--no-progress")
+    assert _metrics(out) == _metrics(tmp_path / "full")
+
+
+def test_resume_refuses_changed_settings(tmp_path, capsys):
+    train(tiny(steps=2), tmp_path / "r", progress=False)
+    code, _, err = ham_inprocess(capsys, "train", "--resume", str(tmp_path / "r"), "--glances", "3")
+    assert code == 2 and "--glances" in err
+
+
+# --------------------------------------------------------------------------- variants
+@pytest.mark.parametrize(
+    "model",
+    [HamConfig(glances=2, policy="random"), HamConfig(glances=2, core="mlp"),
+     HamConfig(glances=2, combiner="mul", lstm_activation="relu", std_activation="sigmoid",
+               truncate_bptt=True, bias=False)],
+)  # fmt: skip
+def test_variants_train(tmp_path, model):
+    m = train(tiny(model=model, steps=2), tmp_path / "v", progress=False)
+    assert m["steps"] == 2 and m["final_accuracy"] is not None
+
+
+def test_train_from_a_glance_table(tmp_path):
+    from ham.table import build_table
+    from ham.world import WorldConfig
+
+    path = build_table(WorldConfig(), 5, tmp_path / "t.h5", progress=False)
+    m = train(tiny(table=str(path), steps=2), tmp_path / "r", progress=False)
+    assert m["steps"] == 2
+    run = load_run(tmp_path / "r")
+    assert type(run.env.source).__name__ == "TableSource"
