@@ -1,0 +1,69 @@
+"""``ham reproduce``: the paper's tables and figures from one command (see :mod:`ham.reproduce`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from ham.reproduce import EXECUTORS, PROFILES, TARGETS, reproduce
+
+
+def add_commands(subparsers) -> None:
+    p = subparsers.add_parser(
+        "reproduce",
+        help="reproduce the paper's Table 1, Table 2 and figures",
+        description="Plan the paper's grid of training runs, run what is not finished in OUT "
+        "(locally or on Ray), and write tables, figures and OUT/report.md.",
+    )
+    p.add_argument("target", choices=TARGETS)
+    p.add_argument(
+        "--profile",
+        default="quick",
+        choices=tuple(PROFILES),
+        help="paper: the full protocol (50k steps, 10 seeds); quick: the same grid, reduced, "
+        "<= 30 min on 2 cores; smoke: seconds (default quick)",
+    )
+    p.add_argument("--seeds", type=int, default=None, help="override the profile's seed count")
+    p.add_argument("--executor", default="local", choices=EXECUTORS)
+    p.add_argument(
+        "--ray-address", default=None, help="a running Ray cluster (default: start a local one)"
+    )
+    p.add_argument("--workers", type=int, default=None, help="local processes (default: all cores)")
+    p.add_argument("--device", default="cpu", help="cpu or cuda")
+    p.add_argument("--retries", type=int, default=1, help="re-runs of a failed run (default 1)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--out", required=True, help="output folder; finished runs in it are skipped")
+    p.set_defaults(func=cmd_reproduce)
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    summary = reproduce(
+        args.target,
+        args.profile,
+        args.out,
+        seeds=args.seeds,
+        executor=args.executor,
+        workers=args.workers,
+        ray_address=args.ray_address,
+        device=args.device,
+        retries=args.retries,
+        progress=not args.quiet,
+        command="ham " + " ".join(sys.argv[1:]),
+    )
+    if args.json:
+        json.dump(summary, sys.stdout, default=str)
+        print()
+    else:
+        print(f"ran {summary['ran']} run(s), skipped {summary['skipped']} finished")
+        for name in ("table1", "table2"):
+            if name in summary:
+                print(f"wrote {args.out}/{name}.md")
+        print(f"wrote {args.out}/report.md")
+    failures = summary["failures"]
+    if failures:
+        for f in failures:
+            print(f"ham: run {f['key']} failed: {f.get('error')}", file=sys.stderr)
+        return 1
+    return 0

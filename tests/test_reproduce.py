@@ -1,0 +1,106 @@
+"""``ham reproduce`` with the smoke profile: the real CLI, real runs, local pool and local Ray."""
+
+import json
+
+import pytest
+
+from ham.errors import HamError
+from ham.reproduce import PROFILES, plan, reproduce
+
+
+@pytest.fixture(scope="module")
+def smoke_all(tmp_path_factory):
+    from tests.conftest import run_ham
+
+    out = tmp_path_factory.mktemp("repro")
+    r = run_ham(
+        "reproduce", "all", "--profile", "smoke", "--workers", "2", "--quiet", "--out", str(out)
+    )
+    assert r.returncode == 0, r.stderr
+    return out, r
+
+
+def test_all_writes_tables_figures_and_report(smoke_all):
+    out, r = smoke_all
+    assert "ran 12 run(s), skipped 0 finished" in r.stdout
+    t1 = json.loads((out / "table1.json").read_text())
+    assert set(t1) == {"1", "2", "3"}
+    assert set(t1["3"]) == {"full", "rloc", "mlp", "avg_mlp"}
+    assert t1["3"]["full"]["paper"] == [0.91, 0.001] and t1["3"]["full"]["n"] == 1
+    assert 0.0 <= t1["3"]["full"]["mean"] <= 1.0
+    t2 = json.loads((out / "table2.json").read_text())
+    assert set(t2) == {"mul", "concat1", "add", "concat2"}
+    # Table 2's concat2 entry is Table 1's full model at 3 glances: one run, not two
+    assert t2["concat2"]["mean"] == t1["3"]["full"]["mean"]
+    report = (out / "report.md").read_text()
+    assert "0.910 ± 0.001" in report and "Reductions from the paper's protocol: steps 12" in report
+    assert "torch" in report and "cores" in report
+    for name in ("curves", "learned_vs_random", "per_glance", "heatmap_g3"):
+        assert (out / "figures" / f"{name}.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_finished_runs_are_skipped(smoke_all, ham_cli):
+    out, _ = smoke_all
+    r = ham_cli("reproduce", "table2", "--profile", "smoke", "--quiet", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "ran 0 run(s), skipped 4 finished" in r.stdout
+
+
+def test_a_failed_run_is_retried_and_reported(tmp_path):
+    jobs = plan("table2", PROFILES["smoke"], 1, str(tmp_path / "table_21.h5"))
+    broken = tmp_path / "runs" / jobs[0].key
+    broken.mkdir(parents=True)
+    (broken / "config.json").write_text(json.dumps(jobs[0].config))
+    (broken / "checkpoint.pt").write_bytes(b"not a checkpoint")  # an interrupted run, damaged
+    summary = reproduce("table2", "smoke", tmp_path, workers=1, progress=False, retries=1)
+    assert [f["key"] for f in summary["failures"]] == [jobs[0].key]
+    assert "cannot read checkpoint" in summary["failures"][0]["error"]
+    assert summary["ran"] == 3
+    assert (
+        f"`{jobs[0].key}`: HamError: cannot read checkpoint" in (tmp_path / "report.md").read_text()
+    )
+
+
+def test_ray_executor_matches_the_local_pool(smoke_all, tmp_path, ham_cli):
+    pytest.importorskip("ray")
+    out, _ = smoke_all
+    r = ham_cli(
+        "reproduce",
+        "table2",
+        "--profile",
+        "smoke",
+        "--executor",
+        "ray",
+        "--quiet",
+        "--out",
+        str(tmp_path),
+    )
+    assert r.returncode == 0, r.stderr
+    assert "ran 4 run(s)" in r.stdout
+    ours = json.loads((tmp_path / "table2.json").read_text())
+    local = json.loads((out / "table2.json").read_text())
+    assert ours == local  # same seeds, same numbers, whichever executor ran them
+
+
+def test_bad_arguments(tmp_path, ham_cli):
+    with pytest.raises(HamError, match="seeds = 0; accepted: an integer >= 1"):
+        reproduce("table1", "smoke", tmp_path, seeds=0)
+    with pytest.raises(HamError, match="profile 'huge'; accepted: smoke, quick, paper"):
+        reproduce("table1", "huge", tmp_path)
+    r = ham_cli("reproduce", "table3", "--out", str(tmp_path))
+    assert r.returncode == 2 and "invalid choice: 'table3'" in r.stderr
+
+
+def test_paper_profile_is_the_papers_protocol():
+    p = PROFILES["paper"]
+    assert (p.steps, p.seeds, p.eval_every, p.eval_batches, p.heatmap_batches) == (
+        50_000,
+        10,
+        200,
+        100,
+        1000,
+    )
+    assert p.reductions() == "none: the paper's protocol"
+    jobs = plan("all", p, p.seeds, "t.h5")
+    # 3 trained variants x 7 glance counts + 3 more combiners, each over 10 seeds
+    assert len(jobs) == (3 * 7 + 3) * 10
