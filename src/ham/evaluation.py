@@ -37,6 +37,8 @@ class EvalResult:
     accumulated_accuracy_per_glance: list[float]
     batches: int
     episodes: int
+    #: per object, the mean ``(mu_x, mu_phi)`` that chose the last glance (``None``: no policy)
+    mu_mean: list[list[float]] | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -68,6 +70,8 @@ def evaluate(
     correct = torch.zeros(glances, device=env.device)
     accumulated = torch.zeros(glances, device=env.device)
     counts = torch.arange(1, glances + 1, device=env.device).view(-1, 1, 1)
+    mu_sum = torch.zeros(env.n_objects, 2, device=env.device, dtype=torch.float64)
+    n_obj = torch.zeros(env.n_objects, device=env.device, dtype=torch.float64)
     was_training = agent.training
     agent.eval()
     try:
@@ -77,16 +81,21 @@ def evaluate(
             correct += (episode.logits.argmax(-1) == objects).sum(1)
             averaged = episode.logits.softmax(-1).cumsum(0) / counts
             accumulated += (averaged.argmax(-1) == objects).sum(1)
+            if episode.mu is not None and len(episode.mu):
+                mu_sum.index_add_(0, objects, episode.mu[-1].double())
+                n_obj += torch.bincount(objects, minlength=env.n_objects)
     finally:
         agent.train(was_training)
     n = batches * env.batch_size
     per_glance = (correct / n).tolist()
+    has_mu = bool(n_obj.sum() > 0)
     return EvalResult(
         accuracy=per_glance[-1],
         accuracy_per_glance=per_glance,
         accumulated_accuracy_per_glance=(accumulated / n).tolist(),
         batches=batches,
         episodes=n,
+        mu_mean=(mu_sum / n_obj.clamp_min(1)[:, None]).tolist() if has_mu else None,
     )
 
 

@@ -360,6 +360,7 @@ def _evaluate(run: Run, train_loss: float | None, train_reward: float | None) ->
         "accuracy": result.accuracy,
         "accuracy_per_glance": result.accuracy_per_glance,
         "accumulated_accuracy_per_glance": result.accumulated_accuracy_per_glance,
+        "mu_mean": result.mu_mean,
         "train_loss": train_loss,
         "train_reward": train_reward,
         "lr": c.learning_rate(run.step),
