@@ -88,3 +88,15 @@ def test_objects_listing(ham_cli, tmp_path):
     assert [x["name"] for x in rows[:4]] == ["box", "ramp_up", "convex", "ramp_down"]
     assert {"ridge", "trough", "step", "double_ridge"} <= {x["name"] for x in rows}
     assert (tmp_path / "o.png").exists()
+
+
+def test_demo_quick_runs_the_whole_chain(ham_cli, tmp_path):
+    out = tmp_path / "demo"
+    r = ham_cli("demo", "--quick", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    for name in ("table.h5", "objects.png", "glance_box.png", "training_curve.png", "heatmap.png"):
+        assert (out / name).exists(), name
+    summary = json.loads((out / "demo.json").read_text())
+    assert summary["agent"]["steps"] == 20
+    assert 0.0 <= summary["agent"]["evaluation"]["accuracy"] <= 1.0
+    assert "accuracy after the last glance" in (out / "report.md").read_text()
