@@ -41,7 +41,7 @@ def run_agent_demo(out: Path, table: Path, *, quick: bool = False) -> dict:
     per = ", ".join(f"{a:.3f}" for a in result.accuracy_per_glance)
     (out / "report.md").write_text(
         "# ham demo\n\n"
-        f"Glance table `{table.name}` (201 x 201 poses per paper object), then a HAM "
+        f"Glance table `{table.name}`, then a HAM "
         f"with {config.model.glances} glances trained for {metrics['steps']} steps "
         f"(seed {config.seed}) and evaluated on {result.episodes} fresh balanced episodes.\n\n"
         f"- accuracy after the last glance: **{result.accuracy:.3f}** (paper, 3 glances: 0.910)\n"
