@@ -49,6 +49,14 @@ def add_commands(subparsers) -> None:
     src.add_argument("--table", metavar="FILE", help="glance table (HDF5) to look glances up in")
     src.add_argument("--online", action="store_true",
                      help="simulate glances online with the fast simulator (the default)")  # fmt: skip
+    src.add_argument("--env", metavar="ap_gym:ENV_ID",
+                     help="train on an ap_gym active classification environment (docs/gym.md)")  # fmt: skip
+    p.add_argument("--actions", choices=("absolute", "relative"),
+                   help="with --env: poses are targets (default) or movements")  # fmt: skip
+    p.add_argument("--max-step-length", metavar="L",
+                   help="with --env: image env step length, a number or 'teleport'")  # fmt: skip
+    p.add_argument("--eval-env", metavar="ap_gym:ENV_ID",
+                   help="with --env: evaluation environment (default: the training one)")  # fmt: skip
     p.add_argument("--device", help="cpu (default) or cuda")
     p.add_argument(
         "--eval-every", type=int, help=f"steps between evaluations (default {d.eval_every})"
@@ -201,6 +209,10 @@ def cmd_train(args: argparse.Namespace) -> int:
     from ham.train import resume, train
 
     _set_threads(args.threads)
+    if args.env:  # another world: the ap_gym adapter (ham.ap_adapter)
+        from ham.cli_envs import train_from_args
+
+        return train_from_args(args)
     progress = not args.no_progress
     if args.resume:
         if args.out:

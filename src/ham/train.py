@@ -156,7 +156,7 @@ class TrainConfig:
 
 
 # --------------------------------------------------------------------------- the parts of a run
-def _stream_seed(seed: int, stream: int) -> int:
+def stream_seed(seed: int, stream: int) -> int:
     """Independent seeds for the generators of one run: 0 objects, 1 poses, 2 evaluation."""
     return seed * 1000 + stream
 
@@ -189,7 +189,7 @@ class Run:
                 f"has {source.n_objects} ({', '.join(source.objects)})"
             )
         env = HapticEnv(
-            source, config.batch_size, config.normalization, _stream_seed(config.seed, 0), device
+            source, config.batch_size, config.normalization, stream_seed(config.seed, 0), device
         )
         torch.manual_seed(config.seed)  # the initial weights
         agent = HapticAttentionModel(config.model).to(device)
@@ -201,7 +201,7 @@ class Run:
             foreach=True,
         )
         policy_generator = torch.Generator(device=device)
-        policy_generator.manual_seed(_stream_seed(config.seed, 1))
+        policy_generator.manual_seed(stream_seed(config.seed, 1))
         return cls(config, agent, env, optimizer, policy_generator, objects=list(source.objects))
 
     def state_dict(self) -> dict:
@@ -295,7 +295,7 @@ def train(config: TrainConfig, out: str | os.PathLike, *, progress: bool = True)
         raise HamError(f"{str(out)!r} already holds a run; continue it with --resume {out}")
     out.mkdir(parents=True, exist_ok=True)
     _write_json(out / CONFIG_FILE, config.to_dict())
-    return _train_loop(Run.create(config), out, progress)
+    return train_loop(Run.create(config), out, progress)
 
 
 def resume(out: str | os.PathLike, *, steps: int | None = None, progress: bool = True) -> dict:
@@ -309,7 +309,7 @@ def resume(out: str | os.PathLike, *, steps: int | None = None, progress: bool =
     run.load_state_dict(load_checkpoint(out))
     if run.step > config.steps:
         raise HamError(f"the run is at step {run.step}, beyond --steps {config.steps}")
-    return _train_loop(run, out, progress)
+    return train_loop(run, out, progress)
 
 
 def _check_loss(run: Run, loss: torch.Tensor) -> None:
@@ -348,7 +348,7 @@ def train_step(run: Run) -> HybridLoss:
 def _evaluate(run: Run, train_loss: float | None, train_reward: float | None) -> dict:
     c = run.config
     result = evaluate(
-        run.agent, run.env, c.eval_batches, seed=_stream_seed(c.seed, 2), policy=c.eval_policy
+        run.agent, run.env, c.eval_batches, seed=stream_seed(c.seed, 2), policy=c.eval_policy
     )
     if result.accuracy > run.best_accuracy:
         run.best_accuracy, run.best_step = result.accuracy, run.step
@@ -374,7 +374,7 @@ def _save(run: Run, out: Path) -> None:
     _write_json(out / METRICS_FILE, run.metrics())
 
 
-def _train_loop(run: Run, out: Path, progress: bool) -> dict:
+def train_loop(run: Run, out: Path, progress: bool) -> dict:
     from torch.utils.tensorboard import SummaryWriter
 
     c, env, optimizer = run.config, run.env, run.optimizer

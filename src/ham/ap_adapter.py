@@ -1,0 +1,505 @@
+"""The HAM on other worlds: any ``ap_gym`` active classification environment with a glimpse.
+
+The Active Perception Gym (``ap_gym``, PyPI ``ap-gym``) offers image classification tasks in
+which an agent moves a small glimpse over an image: observation ``{"glimpse": (G, G, C),
+"glimpse_pos": (2,) in [-1, 1], ...}``, action ``{"action": movement (2,), "prediction":
+logits (K,)}``. :class:`ApGymGlanceEnv` presents such a vector environment to the HAM exactly
+like :class:`ham.environment.HapticEnv` presents the haptic world:
+
+* ``sample_objects()`` resets a batch of ``batch_size`` episodes and returns their class labels
+  (the "objects" the HAM classifies);
+* ``glance(objects, q)`` returns the next glimpse, flattened to ``pressure_dim`` values and
+  normalized (``none`` by default: an image glimpse's brightness is information, unlike the
+  pressure image's scale); the first glance of an episode is the environment's reset glimpse
+  (ap_gym's image environments start at a uniformly random position: the paper's random first
+  glance);
+* ``observed_location``: where the glimpse actually was, ``(B, 2)`` in ``[-1, 1]``: the
+  HAM's where-input (the tactile network's location branch), not the pose it asked for.
+
+Actions (``actions``):
+
+* ``relative``: the HAM's sampled ``q in [-1, 1]^2`` is passed unchanged as the environment's
+  action: ap_gym's image environments move the glimpse by ``max_step_length * q`` (``q``
+  projected into the unit disc; 0.2 by default, a tenth of the image);
+* ``absolute``: ``q`` is a target position; the adapter sends the movement toward it,
+  ``(q - position) / max_step_length``, which the environment caps at its step length. With
+  ``max_step_length=2 * sqrt(2)`` (an override of the environment's configuration, a different
+  and easier task than the registered one) every target is reached in one step: the paper's
+  glances, which go anywhere.
+
+The reward the HAM trains on is its own, as in the paper: 1 at the end of the episode if the
+arg-max class after the last glance is right, else 0 (:mod:`ham.hybrid_loss`); the environment's
+reward (base reward minus normalized cross-entropy) is not used, and the adapter sends uniform
+logits as the environment's ``prediction``.
+
+Evaluation (``balanced_objects``) runs on a separate environment (``eval_env_id``, default the
+same id) reseeded at every evaluation, so every evaluation sees the same images and first
+glimpses. Labels come from the environment's data and are not balanced by class.
+
+:func:`train_on_ap_gym` trains and evaluates a HAM through the regular training loop
+(:mod:`ham.train`) on such an environment and writes a regular run directory.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ham.agent import HamConfig, HapticAttentionModel
+from ham.errors import HamError
+
+ACTIONS: tuple[str, ...] = ("relative", "absolute")
+NORMALIZATIONS: tuple[str, ...] = ("none", "l2", "l1")
+#: ``max_step_length`` with which one step reaches any position of ``[-1, 1]^2``.
+TELEPORT_STEP = 2.0 * math.sqrt(2.0)
+GLIMPSE_KEYS: tuple[str, ...] = ("glimpse",)
+POSITION_KEYS: tuple[str, ...] = ("glimpse_pos",)
+ENV_PREFIX = "ap_gym:"
+
+
+def import_ap_gym():
+    """``ap_gym``, or a :class:`HamError` that says how to install it."""
+    try:
+        import ap_gym
+    except ImportError as exc:
+        raise HamError(
+            f"ap_gym is not available ({exc}); install it with: pip install ap-gym aiohttp"
+        ) from None
+    return ap_gym
+
+
+def parse_env(env: str) -> str:
+    """``ap_gym:ENV_ID`` (or a bare ``ENV_ID``) -> ``ENV_ID``; a :class:`HamError` when unknown."""
+    if not isinstance(env, str) or not env:
+        raise HamError(f"environment {env!r}; accepted: ap_gym:ENV_ID, e.g. ap_gym:CircleSquare-v0")
+    env_id = env[len(ENV_PREFIX) :] if env.startswith(ENV_PREFIX) else env
+    import gymnasium as gym
+
+    import_ap_gym()  # registers ap_gym's environments
+    if env_id not in gym.registry:
+        close = [k for k in gym.registry if env_id.split("-")[0].lower() in k.lower()][:8]
+        hint = f"; similar: {', '.join(close)}" if close else ""
+        raise HamError(f"environment {env_id!r} is not registered with gymnasium/ap_gym{hint}")
+    return env_id
+
+
+def _image_config_with(env_id: str, max_step_length: float) -> dict:
+    """The ``image_perception_config`` kwarg of ``env_id`` with another ``max_step_length``."""
+    import gymnasium as gym
+
+    cfg = (gym.spec(env_id).kwargs or {}).get("image_perception_config")
+    if cfg is None or not dataclasses.is_dataclass(cfg):
+        raise HamError(
+            f"max_step_length = {max_step_length!r} applies only to ap_gym image environments "
+            f"(with an image_perception_config); {env_id!r} has none"
+        )
+    return {"image_perception_config": dataclasses.replace(cfg, max_step_length=max_step_length)}
+
+
+def _pick_key(space, candidates: tuple[str, ...], what: str, env_id: str) -> str:
+    keys = list(getattr(space, "spaces", {}) or {})
+    for k in candidates:
+        if k in keys:
+            return k
+    raise HamError(
+        f"environment {env_id!r} has no {what} in its observation (keys: {', '.join(keys) or 'none'}); "
+        f"accepted: an observation dict with one of {', '.join(candidates)}"
+    )
+
+
+def _as_target_array(target: Any) -> np.ndarray:
+    """A step's or reset's prediction target (plain or ``-sparse``'s ``{target, weight}``)."""
+    if isinstance(target, dict):
+        target = target["target"]
+    return np.asarray(target, dtype=np.int64).reshape(-1)
+
+
+class ApGymGlanceEnv:
+    """An ap_gym active classification vector environment with the interface of
+    :class:`ham.environment.HapticEnv` (``sample_objects``, ``balanced_objects``, ``glance``,
+    ``n_objects``, ``batch_size``, ``device``, ``state_dict``), plus ``observed_location``.
+
+    Args:
+        env_id: an ap_gym environment id (``CircleSquare-v0``) or ``ap_gym:ENV_ID``.
+        batch_size: episodes per batch (parallel environments).
+        actions: ``relative`` (the HAM's pose is the environment's movement) or ``absolute``
+            (a target position; the adapter moves toward it).
+        max_step_length: override of the image environments' step length (``None``: as
+            registered, 0.2); :data:`TELEPORT_STEP` reaches any target in one step.
+        normalization: of the flattened glimpse: ``none`` (default), ``l2`` or ``l1``.
+        seed: seeds the training environment's images and first glimpses.
+        eval_env_id: environment of the evaluation (default ``env_id``; e.g. a ``-test`` split).
+        eval_seed: seeds the evaluation environment at every evaluation.
+        device: where the glimpses go (the HAM's device).
+        env_kwargs: more keyword arguments for ``ap_gym.make_vec``.
+    """
+
+    def __init__(
+        self,
+        env_id: str,
+        batch_size: int = 64,
+        *,
+        actions: str = "absolute",
+        max_step_length: float | None = None,
+        normalization: str = "none",
+        seed: int = 0,
+        eval_env_id: str | None = None,
+        eval_seed: int = 12345,
+        device: str | torch.device = "cpu",
+        env_kwargs: dict | None = None,
+    ) -> None:
+        if not (
+            isinstance(batch_size, int) and not isinstance(batch_size, bool) and batch_size >= 1
+        ):
+            raise HamError(f"batch_size = {batch_size!r}; accepted: an integer >= 1")
+        if actions not in ACTIONS:
+            raise HamError(f"actions = {actions!r}; accepted: {', '.join(ACTIONS)}")
+        if normalization not in NORMALIZATIONS:
+            raise HamError(
+                f"normalization = {normalization!r}; accepted: {', '.join(NORMALIZATIONS)}"
+            )
+        if max_step_length is not None and not (
+            isinstance(max_step_length, (int, float))
+            and math.isfinite(max_step_length)
+            and max_step_length > 0
+        ):
+            raise HamError(f"max_step_length = {max_step_length!r}; accepted: a finite number > 0")
+        self.env_id = parse_env(env_id)
+        self.eval_env_id = parse_env(eval_env_id) if eval_env_id else self.env_id
+        self.batch_size = batch_size
+        self.actions = actions
+        self.normalization = normalization
+        self.seed = int(seed)
+        self.eval_seed = int(eval_seed)
+        self.device = torch.device(device)
+        self.max_step_length = max_step_length
+        self.env_kwargs = dict(env_kwargs or {})
+
+        self.train_env = self._make(self.env_id)
+        self.eval_env = self._make(self.eval_env_id)
+        env = self.train_env
+        self.glimpse_key = _pick_key(
+            env.single_observation_space, GLIMPSE_KEYS, "glimpse", self.env_id
+        )
+        self.position_key = _pick_key(
+            env.single_observation_space, POSITION_KEYS, "glimpse position", self.env_id
+        )
+        glimpse_space = env.single_observation_space[self.glimpse_key]
+        self.glimpse_shape = tuple(int(s) for s in glimpse_space.shape)
+        self.pressure_dim = int(np.prod(self.glimpse_shape))
+        target_space = env.single_prediction_target_space
+        n = getattr(target_space, "n", None)
+        if n is None and hasattr(target_space, "spaces"):  # a -sparse variant: {target, weight}
+            n = getattr(target_space.spaces.get("target"), "n", None)
+        if n is None:
+            raise HamError(
+                f"environment {self.env_id!r} is not an active classification environment "
+                f"(its prediction target is {target_space}); accepted: a Discrete class target"
+            )
+        self.n_objects = int(n)
+        self.objects = [str(k) for k in range(self.n_objects)]
+        self.step_limit = self._step_limit(env)
+        self.env_max_step = self._env_max_step(env)
+        if actions == "absolute" and self.env_max_step is None:
+            raise HamError(
+                f"actions = 'absolute' needs the step length of {self.env_id!r}, which it does not "
+                "report; accepted: actions = 'relative'"
+            )
+        self._active = None
+        self._position: np.ndarray | None = None
+        self._labels: np.ndarray | None = None
+        self._glances = 0
+        self._train_reset_done = False
+
+    # ------------------------------------------------------------------ construction
+    def _make(self, env_id: str):
+        ap_gym = import_ap_gym()
+        kwargs = dict(self.env_kwargs)
+        if self.max_step_length is not None:
+            kwargs.update(_image_config_with(env_id, float(self.max_step_length)))
+        try:
+            return ap_gym.make_vec(env_id, num_envs=self.batch_size, **kwargs)
+        except HamError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - e.g. a hub data set that cannot be fetched
+            raise HamError(
+                f"cannot make ap_gym environment {env_id!r}: {type(exc).__name__}: {exc}"
+            ) from None
+
+    @staticmethod
+    def _step_limit(env) -> int | None:
+        config = getattr(env.unwrapped, "config", None)
+        limit = getattr(config, "step_limit", None)
+        if limit is None and env.spec is not None:
+            limit = env.spec.max_episode_steps
+        return None if limit is None else int(limit)
+
+    @staticmethod
+    def _env_max_step(env) -> np.ndarray | None:
+        config = getattr(env.unwrapped, "config", None)
+        step = getattr(config, "max_step_length", None)
+        if step is None:
+            return None
+        return np.ones(2) * np.asarray(step, dtype=np.float64)
+
+    def check_glances(self, glances: int) -> None:
+        """A :class:`HamError` when an episode of ``glances`` glances would outlast the
+        environment's episode (the first glance is the reset, each further one a step)."""
+        if self.step_limit is not None and glances - 1 > self.step_limit:
+            raise HamError(
+                f"glances = {glances}; accepted for {self.env_id!r}: at most {self.step_limit + 1} "
+                f"(its episodes end after {self.step_limit} steps)"
+            )
+
+    # ------------------------------------------------------------------ HapticEnv interface
+    def _reset(self, env, seed: int | None) -> torch.Tensor:
+        obs, info = env.reset(seed=seed)
+        target = (info.get("prediction") or {}).get("target") if isinstance(info, dict) else None
+        if target is None:
+            labels = getattr(
+                getattr(env.unwrapped, "image_perception_module", None), "current_labels", None
+            )
+            if labels is None:
+                raise HamError(
+                    f"environment {self.env_id!r} reports no prediction target at reset "
+                    "(info['prediction']['target']); the adapter needs the labels to train"
+                )
+            target = labels
+        self._labels = _as_target_array(target)
+        self._active = env
+        self._glances = 0
+        self._obs = obs
+        return torch.as_tensor(self._labels, dtype=torch.long, device=self.device)
+
+    def sample_objects(self) -> torch.Tensor:
+        """A fresh training batch: reset ``batch_size`` episodes; their labels ``(B,)`` long."""
+        seed = None if self._train_reset_done else self.seed
+        self._train_reset_done = True
+        return self._reset(self.train_env, seed)
+
+    def balanced_objects(self, batch_index: int = 0) -> torch.Tensor:
+        """Evaluation batch ``batch_index`` (the evaluation environment is reseeded at 0)."""
+        return self._reset(self.eval_env, self.eval_seed if batch_index == 0 else None)
+
+    def glance(self, object_ids: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+        """The next glimpse of the current episodes, flattened and normalized ``(B, pressure_dim)``.
+
+        The first call after a reset returns the reset glimpse (``q`` is not used); every later
+        call moves the glimpse by ``q`` (``relative``) or toward ``q`` (``absolute``).
+        """
+        if self._active is None:
+            raise HamError("glance() before sample_objects() or balanced_objects()")
+        env = self._active
+        if self._glances > 0:
+            qn = q.detach().to("cpu", torch.float64).numpy()
+            if qn.shape != (self.batch_size, 2) or not np.isfinite(qn).all():
+                raise HamError(
+                    f"poses of shape {qn.shape}; accepted: ({self.batch_size}, 2) finite values"
+                )
+            if self.actions == "relative":
+                action = qn
+            else:
+                action = (qn - self._obs[self.position_key]) / self.env_max_step
+            prediction = np.zeros((self.batch_size, self.n_objects), dtype=np.float32)
+            obs, _, terminated, truncated, info = env.step(
+                {"action": action.astype(np.float32), "prediction": prediction}
+            )
+            if (
+                np.any(terminated | truncated)
+                and self.step_limit is not None
+                and self._glances < self.step_limit
+            ):
+                raise HamError(
+                    f"environment {self.env_id!r} ended an episode after {self._glances} steps; "
+                    "use fewer glances"
+                )
+            target = info.get("prediction", {}).get("target")
+            if target is not None and not np.array_equal(_as_target_array(target), self._labels):
+                raise HamError(f"environment {self.env_id!r} changed its targets within an episode")
+            self._obs = obs
+        self._glances += 1
+        glimpse = np.asarray(self._obs[self.glimpse_key], dtype=np.float32).reshape(
+            self.batch_size, -1
+        )
+        self._position = np.asarray(self._obs[self.position_key], dtype=np.float32)
+        x = torch.from_numpy(glimpse).to(self.device)
+        if self.normalization != "none":
+            norm = x.norm(p=2 if self.normalization == "l2" else 1, dim=-1, keepdim=True)
+            x = torch.where(norm > 0, x / norm.clamp_min(torch.finfo(x.dtype).tiny), 0.0)
+        return x
+
+    @property
+    def observed_location(self) -> torch.Tensor | None:
+        """Where the last glimpse was, ``(B, 2)`` in ``[-1, 1]`` (the HAM's where-input)."""
+        if self._position is None:
+            return None
+        return torch.from_numpy(self._position).to(self.device)
+
+    def settings(self) -> dict:
+        """The adapter's settings (saved in a run's config.json under ``env``)."""
+        return {
+            "env": ENV_PREFIX + self.env_id,
+            "eval_env": ENV_PREFIX + self.eval_env_id,
+            "actions": self.actions,
+            "max_step_length": self.max_step_length,
+            "normalization": self.normalization,
+            "eval_seed": self.eval_seed,
+            "glimpse_shape": list(self.glimpse_shape),
+            "pressure_dim": self.pressure_dim,
+            "n_objects": self.n_objects,
+            "step_limit": self.step_limit,
+        }
+
+    # ------------------------------------------------------------------ checkpoints
+    def state_dict(self) -> dict:
+        """ap_gym's generators cannot be saved: a resumed run draws other images."""
+        return {"settings": self.settings()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self._train_reset_done = False
+
+    def close(self) -> None:
+        self.train_env.close()
+        self.eval_env.close()
+
+
+class LocatedAttentionModel(HapticAttentionModel):
+    """The HAM whose where-input is the location the environment reports
+    (``env.observed_location``) when it reports one, else the pose it asked for.
+
+    For environments that move a sensor themselves (a capped or relative step) the two differ.
+    Weights, checkpoints and everything else are those of :class:`HapticAttentionModel`; this
+    subclass becomes unnecessary once ``HapticAttentionModel.forward`` reads
+    ``observed_location`` itself (see docs/gym.md).
+    """
+
+    _located_env = None
+
+    def forward(self, env, objects: torch.Tensor, *args: Any, **kwargs: Any):
+        self._located_env = env
+        try:
+            return super().forward(env, objects, *args, **kwargs)
+        finally:
+            self._located_env = None
+
+    def step(self, pressure: torch.Tensor, q: torch.Tensor, state):
+        where = getattr(self._located_env, "observed_location", None)
+        return super().step(pressure, q if where is None else where, state)
+
+
+def make_env(
+    settings: dict, batch_size: int, seed: int, device: str | torch.device = "cpu"
+) -> ApGymGlanceEnv:
+    """The adapter a run's ``config.json`` describes (``settings``: :meth:`ApGymGlanceEnv.settings`),
+    with the seeds of :mod:`ham.train` (stream 0 trains, stream 2 evaluates)."""
+    from ham.train import stream_seed
+
+    return ApGymGlanceEnv(
+        settings["env"],
+        batch_size,
+        actions=settings.get("actions", "absolute"),
+        max_step_length=settings.get("max_step_length"),
+        normalization=settings.get("normalization", "none"),
+        seed=stream_seed(seed, 0),
+        eval_env_id=settings.get("eval_env"),
+        eval_seed=stream_seed(seed, 2),
+        device=device,
+    )
+
+
+def make_ham_config(env: ApGymGlanceEnv, glances: int, **model: Any) -> HamConfig:
+    """A :class:`HamConfig` sized for ``env``: its glimpse, its classes; positions unscaled."""
+    env.check_glances(glances)
+    return HamConfig(
+        glances=glances,
+        n_objects=env.n_objects,
+        pressure_dim=env.pressure_dim,
+        **{"phi_scale": 1.0, **model},
+    )
+
+
+def train_on_ap_gym(
+    env_id: str,
+    glances: int,
+    steps: int,
+    seed: int,
+    out: str | os.PathLike,
+    *,
+    batch_size: int = 64,
+    actions: str = "absolute",
+    max_step_length: float | None = None,
+    normalization: str = "none",
+    eval_env_id: str | None = None,
+    eval_every: int = 200,
+    eval_batches: int = 20,
+    policy: str = "learned",
+    lr: float | None = None,
+    model: dict | None = None,
+    train: dict | None = None,
+    progress: bool = False,
+) -> dict:
+    """Train a HAM on the ap_gym environment ``env_id`` into run directory ``out``.
+
+    The HAM's own loop (:mod:`ham.train`): hybrid loss, 0/1 reward at the end, SGD with Nesterov
+    momentum, evaluations every ``eval_every`` steps on ``eval_batches`` batches, TensorBoard,
+    checkpoint, metrics.json. ``policy='random'`` trains the random-location baseline (the
+    paper's ``pi_rloc``). ``model`` and ``train`` override fields of :class:`HamConfig` and
+    :class:`ham.train.TrainConfig`. Returns the metrics (also in ``out/metrics.json``).
+    """
+    from ham import train as ham_train
+
+    out = Path(out)
+    if (out / ham_train.CHECKPOINT_FILE).exists():
+        raise HamError(f"{str(out)!r} already holds a run; choose another --out")
+    train_fields = dict(train or {})
+    if lr is not None:
+        train_fields["lr"] = lr
+    device = train_fields.get("device", "cpu")
+    env = ApGymGlanceEnv(
+        env_id,
+        batch_size,
+        actions=actions,
+        max_step_length=max_step_length,
+        normalization=normalization,
+        seed=ham_train.stream_seed(seed, 0),
+        eval_env_id=eval_env_id,
+        eval_seed=ham_train.stream_seed(seed, 2),
+        device=device,
+    )
+    try:
+        ham_config = make_ham_config(env, glances, policy=policy, **(model or {}))
+        config = ham_train.TrainConfig(
+            model=ham_config,
+            steps=steps,
+            batch_size=batch_size,
+            eval_every=eval_every,
+            eval_batches=eval_batches,
+            seed=seed,
+            **train_fields,
+        )
+        torch.manual_seed(config.seed)  # the initial weights, as ham.train does
+        agent = LocatedAttentionModel(config.model).to(config.device)
+        optimizer = torch.optim.SGD(
+            agent.parameters(), lr=config.lr, momentum=config.momentum, nesterov=config.nesterov
+        )
+        policy_generator = torch.Generator(device=config.device)
+        policy_generator.manual_seed(ham_train.stream_seed(config.seed, 1))
+        run = ham_train.Run(
+            config, agent, env, optimizer, policy_generator, objects=list(env.objects)
+        )
+        out.mkdir(parents=True, exist_ok=True)
+        record = {**config.to_dict(), "env": env.settings()}
+        (out / ham_train.CONFIG_FILE).write_text(json.dumps(record, indent=1) + "\n")
+        metrics = ham_train.train_loop(run, out, progress)
+        metrics["env"] = env.settings()
+        (out / ham_train.METRICS_FILE).write_text(json.dumps(metrics, indent=1) + "\n")
+    finally:
+        env.close()
+    return metrics

@@ -1,0 +1,381 @@
+"""Plain Gymnasium environments over the haptic world: ``ham/HapticGlance-v0``.
+
+One episode identifies one object (drawn uniformly, or given with ``reset(options=...)``) by a
+fixed number of glances ``S`` (``glances``, default 3):
+
+* ``reset()`` makes the first glance at a uniformly random pose (section "Training": "the first
+  pressure-location pair is chosen by the first random glance") and returns it;
+* steps ``1 .. S-1`` make glance ``s+1`` at the action's ``pose``;
+* step ``S`` makes no glance: it is where the agent's last ``prediction`` counts. The episode
+  terminates with reward 1 if that prediction is the object, else 0 (the paper's reward); every
+  earlier step has reward 0 and its ``prediction`` is ignored. The observation returned with the
+  termination repeats the last glance.
+
+Spaces:
+
+* observation ``{"pressure": Box(16, 16) float32, "pose": Box(2,) in [-1, 1]}``: the pressure
+  image of the last glance, L2-normalized (the paper; ``normalization='l1'``: the authors' code;
+  ``'none'``: raw pressure in Pa) and the normalized pose it was made at;
+* action ``{"pose": Box(2,) in [-1, 1], "prediction": Discrete(K)}``: where to glance next
+  (``q_x, q_phi``; ``x = q_x * zone``, ``phi = q_phi * pi/2``; values outside ``[-1, 1]`` are
+  clipped) and the object the agent believes it touches.
+
+Glances come from the batched glance sources of :mod:`ham.environment`: a glance table
+(``table=FILE``, the nearest grid point, as in the paper) or the fast simulator online (exact
+poses). :class:`HapticGlanceVectorEnv` runs ``num_envs`` episodes in lockstep with one batched
+glance per step (true vectorization) and resets them all on the step after they end
+(Gymnasium's ``NEXT_STEP`` autoreset mode).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from ham.errors import HamError
+from ham.world import WorldConfig
+
+ENV_NORMALIZATIONS: tuple[str, ...] = ("l2", "l1", "none")
+RENDER_MODES: tuple[str, ...] = ("rgb_array",)
+RENDER_SCALE = 8
+
+
+def check_glances(glances: Any) -> int:
+    """``glances`` as an int >= 1, or a :class:`HamError`."""
+    if not (
+        isinstance(glances, (int, np.integer)) and not isinstance(glances, bool) and glances >= 1
+    ):
+        raise HamError(f"glances = {glances!r}; accepted: an integer >= 1")
+    return int(glances)
+
+
+def _check_render_mode(render_mode: str | None) -> str | None:
+    if render_mode is not None and render_mode not in RENDER_MODES:
+        raise HamError(f"render_mode = {render_mode!r}; accepted: None, {', '.join(RENDER_MODES)}")
+    return render_mode
+
+
+class GlanceBackend:
+    """Batched glances for the environments: object ids and poses in, pressure images out.
+
+    Args:
+        table: a glance table (HDF5) to look glances up in; ``None``: simulate them online.
+        world: the world simulated online (:class:`ham.world.WorldConfig` or its dict; paper
+            defaults); ignored with a table, which carries its own.
+        normalization: ``l2`` (paper), ``l1`` (authors' code) or ``none`` (raw pressure, Pa).
+        device: where glances are computed (``cpu`` or ``cuda``); observations are NumPy.
+    """
+
+    def __init__(
+        self,
+        table: str | Path | None = None,
+        world: WorldConfig | dict | None = None,
+        normalization: str = "l2",
+        device: str = "cpu",
+    ) -> None:
+        from ham.environment import make_source
+
+        if normalization not in ENV_NORMALIZATIONS:
+            raise HamError(
+                f"normalization = {normalization!r}; accepted: {', '.join(ENV_NORMALIZATIONS)}"
+            )
+        if isinstance(world, dict):
+            world = WorldConfig.from_dict(world)
+        if world is not None and not isinstance(world, WorldConfig):
+            raise HamError(f"world = {world!r}; accepted: a WorldConfig, its dict, or None")
+        if table is not None and not Path(table).exists():
+            raise HamError(f"glance table {str(table)!r} does not exist")
+        self.device = torch.device(device)
+        self.source, self.world = make_source(table, world, self.device)
+        self.table = None if table is None else str(table)
+        self.normalization = normalization
+        self.objects: list[str] = list(self.source.objects)
+        self.n_objects = len(self.objects)
+        self.pressure_space = gym.spaces.Box(
+            0.0, np.inf if normalization == "none" else 1.0, (16, 16), np.float32
+        )
+
+    def glance(self, objects: np.ndarray, poses: np.ndarray) -> np.ndarray:
+        """Pressure images ``(N, 16, 16)`` float32 of ``objects`` ``(N,)`` at ``poses`` ``(N, 2)``."""
+        from ham.sensor import normalize
+
+        ids = torch.as_tensor(np.asarray(objects, dtype=np.int64), device=self.device)
+        q = torch.as_tensor(np.asarray(poses, dtype=np.float32), device=self.device)
+        with torch.no_grad():
+            raw = self.source.lookup(ids, q[:, 0], q[:, 1]).to(torch.float32)
+            flat = normalize(raw, self.normalization)
+        image = flat.reshape(-1, 16, 16).cpu().numpy().astype(np.float32, copy=False)
+        if self.normalization != "none":  # unit-norm images lie in [0, 1]; guard rounding
+            np.clip(image, 0.0, 1.0, out=image)
+        return image
+
+
+def check_poses(pose: Any, n: int) -> np.ndarray:
+    """Action poses as ``(n, 2)`` float32 clipped to ``[-1, 1]``; NaN or a bad shape: HamError."""
+    try:
+        q = np.asarray(pose, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise HamError(f"pose {pose!r}; accepted: {n} x 2 numbers in [-1, 1]") from None
+    if q.size != 2 * n:
+        raise HamError(f"pose of shape {q.shape}; accepted: ({n}, 2) numbers in [-1, 1]")
+    q = q.reshape(n, 2)
+    if not np.isfinite(q).all():
+        raise HamError(
+            f"pose {q[~np.isfinite(q).all(1)][0].tolist()} is not finite; accepted: numbers in [-1, 1]"
+        )
+    return np.clip(q, -1.0, 1.0).astype(np.float32)
+
+
+def check_object_ids(objects: Any, n: int, n_objects: int) -> np.ndarray:
+    """Object ids ``(n,)`` int64 in ``0 .. n_objects-1``, or a :class:`HamError`."""
+    a = np.asarray(objects)
+    if a.dtype.kind not in "iu" or a.size not in (1, n):
+        raise HamError(f"objects {objects!r}; accepted: {n} integer id(s) in 0..{n_objects - 1}")
+    a = np.broadcast_to(a.reshape(-1).astype(np.int64), (n,)).copy()
+    bad = (a < 0) | (a >= n_objects)
+    if bad.any():
+        raise HamError(f"object id {int(a[bad][0])} out of range; accepted: 0..{n_objects - 1}")
+    return a
+
+
+class GlanceEpisodes:
+    """``n`` episodes in lockstep: their objects, the last glance and its pose, and the count."""
+
+    def __init__(self, backend: GlanceBackend, n: int, glances: int) -> None:
+        self.backend = backend
+        self.n = n
+        self.glances = check_glances(glances)
+        self.objects = np.zeros(n, dtype=np.int64)
+        self.pose = np.zeros((n, 2), dtype=np.float32)
+        self.pressure = np.zeros((n, 16, 16), dtype=np.float32)
+        self.steps = 0  # steps taken in the current episodes (glances made = min(steps + 1, S))
+        self.started = False
+
+    def start(self, rng: np.random.Generator, objects: Any = None) -> None:
+        """New episodes: objects uniform (or given), the first glance at a uniform random pose."""
+        k = self.backend.n_objects
+        if objects is None:
+            self.objects = rng.integers(0, k, size=self.n).astype(np.int64)
+        else:
+            self.objects = check_object_ids(objects, self.n, k)
+        self.pose = rng.uniform(-1.0, 1.0, size=(self.n, 2)).astype(np.float32)
+        self.pressure = self.backend.glance(self.objects, self.pose)
+        self.steps = 0
+        self.started = True
+
+    def advance(self, pose: Any) -> bool:
+        """One step: the next glance at ``pose`` unless the last has been made. True when the
+        episodes end with this step (the step that scores the prediction)."""
+        if not self.started:
+            raise HamError("step() before reset(); call reset() first")
+        if self.steps >= self.glances:
+            raise HamError("step() after the episode ended; call reset() first")
+        q = check_poses(pose, self.n)
+        self.steps += 1
+        if self.steps < self.glances:
+            self.pose = q
+            self.pressure = self.backend.glance(self.objects, q)
+        return self.steps >= self.glances
+
+    def observation(self) -> dict[str, np.ndarray]:
+        return {"pressure": self.pressure.copy(), "pose": self.pose.copy()}
+
+    def info(self) -> dict[str, Any]:
+        return {
+            "object": self.objects.copy(),
+            "glances": np.full(self.n, min(self.steps + 1, self.glances)),
+        }
+
+    def render(self) -> np.ndarray:
+        """The last pressure images as RGB ``(n, 128, 128, 3)`` uint8 (each scaled to its max)."""
+        p = self.pressure
+        top = p.reshape(self.n, -1).max(1).reshape(-1, 1, 1)
+        gray = np.where(top > 0, p / np.where(top > 0, top, 1), 0)
+        img = (255 * gray).astype(np.uint8).repeat(RENDER_SCALE, 1).repeat(RENDER_SCALE, 2)
+        return np.repeat(img[..., None], 3, axis=-1)
+
+
+def observation_space(backend: GlanceBackend) -> gym.spaces.Dict:
+    return gym.spaces.Dict(
+        {
+            "pressure": backend.pressure_space,
+            "pose": gym.spaces.Box(-1.0, 1.0, (2,), np.float32),
+        }
+    )
+
+
+def _prediction(prediction: Any, n: int, n_objects: int) -> np.ndarray:
+    return check_object_ids(prediction, n, n_objects)
+
+
+class HapticGlanceEnv(gym.Env):
+    """``ham/HapticGlance-v0``: identify one haptic object by ``glances`` glances (module doc).
+
+    Args:
+        glances: glances per episode ``S`` (3); the first is random, made by ``reset``.
+        table: glance table file; ``None``: the fast simulator online.
+        world: the online world (``WorldConfig`` or dict; paper defaults).
+        normalization: ``l2`` (paper), ``l1`` or ``none`` (raw Pa).
+        device: ``cpu`` or ``cuda`` for the glances.
+        render_mode: ``None`` or ``rgb_array`` (the last pressure image).
+
+    ``reset(options={"object": ID})`` fixes the object of the episode.
+    """
+
+    metadata = {"render_modes": list(RENDER_MODES), "render_fps": 2}
+
+    def __init__(
+        self,
+        glances: int = 3,
+        table: str | Path | None = None,
+        world: WorldConfig | dict | None = None,
+        normalization: str = "l2",
+        device: str = "cpu",
+        render_mode: str | None = None,
+    ) -> None:
+        self.render_mode = _check_render_mode(render_mode)
+        self.backend = GlanceBackend(table, world, normalization, device)
+        self.episodes = GlanceEpisodes(self.backend, 1, glances)
+        self.glances = self.episodes.glances
+        self.objects = self.backend.objects
+        self.observation_space = observation_space(self.backend)
+        self.action_space = gym.spaces.Dict(
+            {
+                "pose": gym.spaces.Box(-1.0, 1.0, (2,), np.float32),
+                "prediction": gym.spaces.Discrete(self.backend.n_objects),
+            }
+        )
+
+    def _obs(self) -> dict[str, np.ndarray]:
+        return {k: v[0] for k, v in self.episodes.observation().items()}
+
+    def _info(self) -> dict[str, Any]:
+        obj = int(self.episodes.objects[0])
+        return {
+            "object": obj,
+            "object_name": self.objects[obj],
+            "glances": min(self.episodes.steps + 1, self.glances),
+        }
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        super().reset(seed=seed)
+        self.episodes.start(self.np_random, (options or {}).get("object"))
+        return self._obs(), self._info()
+
+    def step(
+        self, action: dict[str, Any]
+    ) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        if not isinstance(action, dict) or "pose" not in action or "prediction" not in action:
+            raise HamError(
+                f"action {action!r}; accepted: a dict with 'pose' (2 numbers) and 'prediction' (an id)"
+            )
+        prediction = _prediction(action["prediction"], 1, self.backend.n_objects)[0]
+        terminated = self.episodes.advance(action["pose"])
+        reward = float(terminated and prediction == self.episodes.objects[0])
+        return self._obs(), reward, terminated, False, self._info()
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode != "rgb_array":
+            return None
+        return self.episodes.render()[0]
+
+
+class HapticGlanceVectorEnv(gym.vector.VectorEnv):
+    """``num_envs`` episodes of ``ham/HapticGlance-v0`` in lockstep, one batched glance per step.
+
+    Same arguments as :class:`HapticGlanceEnv`. All episodes have ``glances`` steps, so they end
+    together; the step after they end resets them all (``NEXT_STEP`` autoreset: it ignores the
+    actions and returns the first glances of the new episodes with reward 0).
+    ``reset(options={"objects": IDS})`` fixes the objects (e.g. balanced evaluation batches).
+    """
+
+    metadata = {
+        "render_modes": list(RENDER_MODES),
+        "render_fps": 2,
+        "autoreset_mode": gym.vector.AutoresetMode.NEXT_STEP,
+    }
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        glances: int = 3,
+        table: str | Path | None = None,
+        world: WorldConfig | dict | None = None,
+        normalization: str = "l2",
+        device: str = "cpu",
+        render_mode: str | None = None,
+    ) -> None:
+        if not (
+            isinstance(num_envs, (int, np.integer))
+            and not isinstance(num_envs, bool)
+            and num_envs >= 1
+        ):
+            raise HamError(f"num_envs = {num_envs!r}; accepted: an integer >= 1")
+        self.num_envs = int(num_envs)
+        self.render_mode = _check_render_mode(render_mode)
+        self.backend = GlanceBackend(table, world, normalization, device)
+        self.episodes = GlanceEpisodes(self.backend, self.num_envs, glances)
+        self.glances = self.episodes.glances
+        self.objects = self.backend.objects
+        self.single_observation_space = observation_space(self.backend)
+        self.observation_space = gym.vector.utils.batch_space(
+            self.single_observation_space, self.num_envs
+        )
+        self.single_action_space = gym.spaces.Dict(
+            {
+                "pose": gym.spaces.Box(-1.0, 1.0, (2,), np.float32),
+                "prediction": gym.spaces.Discrete(self.backend.n_objects),
+            }
+        )
+        self.action_space = gym.vector.utils.batch_space(self.single_action_space, self.num_envs)
+        self._autoreset = False
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        super().reset(seed=seed)
+        self.episodes.start(self.np_random, (options or {}).get("objects"))
+        self._autoreset = False
+        return self.episodes.observation(), self.episodes.info()
+
+    def step(
+        self, actions: dict[str, Any]
+    ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        n = self.num_envs
+        if not isinstance(actions, dict) or "pose" not in actions or "prediction" not in actions:
+            raise HamError(
+                f"actions {actions!r}; accepted: a dict with 'pose' ({n}, 2) and 'prediction' ({n},)"
+            )
+        truncated = np.zeros(n, dtype=np.bool_)
+        if self._autoreset:
+            self.episodes.start(self.np_random)
+            self._autoreset = False
+            return (
+                self.episodes.observation(),
+                np.zeros(n),
+                np.zeros(n, np.bool_),
+                truncated,
+                self.episodes.info(),
+            )
+        prediction = _prediction(actions["prediction"], n, self.backend.n_objects)
+        ended = self.episodes.advance(actions["pose"])
+        reward = (prediction == self.episodes.objects).astype(np.float64) if ended else np.zeros(n)
+        self._autoreset = ended
+        return (
+            self.episodes.observation(),
+            reward,
+            np.full(n, ended),
+            truncated,
+            self.episodes.info(),
+        )
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode != "rgb_array":
+            return None
+        return self.episodes.render()
