@@ -35,9 +35,11 @@ import numpy as np
 
 from ham.envs.haptic import (
     RENDER_MODES,
+    VECTOR_METADATA,
     GlanceBackend,
     GlanceEpisodes,
     _check_render_mode,
+    check_num_envs,
     observation_space,
 )
 from ham.errors import HamError
@@ -127,11 +129,7 @@ class HapticGlanceAPVectorEnv(ap_gym.ActiveClassificationVectorEnv):
     ``reset(options={"objects": IDS})`` fixes the objects.
     """
 
-    metadata = {
-        "render_modes": list(RENDER_MODES),
-        "render_fps": 2,
-        "autoreset_mode": gym.vector.AutoresetMode.NEXT_STEP,
-    }
+    metadata = VECTOR_METADATA
 
     def __init__(
         self,
@@ -143,12 +141,7 @@ class HapticGlanceAPVectorEnv(ap_gym.ActiveClassificationVectorEnv):
         device: str = "cpu",
         render_mode: str | None = None,
     ) -> None:
-        if not (
-            isinstance(num_envs, (int, np.integer))
-            and not isinstance(num_envs, bool)
-            and num_envs >= 1
-        ):
-            raise HamError(f"num_envs = {num_envs!r}; accepted: an integer >= 1")
+        num_envs = check_num_envs(num_envs)
         self.render_mode = _check_render_mode(render_mode)
         self.backend = GlanceBackend(table, world, normalization, device)
         self.episodes = GlanceEpisodes(self.backend, int(num_envs), glances)

@@ -286,6 +286,23 @@ class HapticGlanceEnv(gym.Env):
         return self.episodes.render()[0]
 
 
+#: Metadata of both vector envs: all episodes end together and reset on the next step.
+VECTOR_METADATA = {
+    "render_modes": list(RENDER_MODES),
+    "render_fps": 2,
+    "autoreset_mode": gym.vector.AutoresetMode.NEXT_STEP,
+}
+
+
+def check_num_envs(num_envs) -> int:
+    """``num_envs`` as an int >= 1, or a HamError naming it."""
+    if not (
+        isinstance(num_envs, (int, np.integer)) and not isinstance(num_envs, bool) and num_envs >= 1
+    ):
+        raise HamError(f"num_envs = {num_envs!r}; accepted: an integer >= 1")
+    return int(num_envs)
+
+
 class HapticGlanceVectorEnv(gym.vector.VectorEnv):
     """``num_envs`` episodes of ``ham/HapticGlance-v0`` in lockstep, one batched glance per step.
 
@@ -295,11 +312,7 @@ class HapticGlanceVectorEnv(gym.vector.VectorEnv):
     ``reset(options={"objects": IDS})`` fixes the objects (e.g. balanced evaluation batches).
     """
 
-    metadata = {
-        "render_modes": list(RENDER_MODES),
-        "render_fps": 2,
-        "autoreset_mode": gym.vector.AutoresetMode.NEXT_STEP,
-    }
+    metadata = VECTOR_METADATA
 
     def __init__(
         self,
@@ -311,12 +324,7 @@ class HapticGlanceVectorEnv(gym.vector.VectorEnv):
         device: str = "cpu",
         render_mode: str | None = None,
     ) -> None:
-        if not (
-            isinstance(num_envs, (int, np.integer))
-            and not isinstance(num_envs, bool)
-            and num_envs >= 1
-        ):
-            raise HamError(f"num_envs = {num_envs!r}; accepted: an integer >= 1")
+        num_envs = check_num_envs(num_envs)
         self.num_envs = int(num_envs)
         self.render_mode = _check_render_mode(render_mode)
         self.backend = GlanceBackend(table, world, normalization, device)
