@@ -67,7 +67,7 @@ def draw_figures(root: Path, jobs, profile) -> list[Path]:
         for variant, ls in (("full", "-"), ("rloc", "--")):
             hs = _histories(root, jobs, variant, g)
             if hs:
-                label = f"{g} glances" if variant == "full" else None
+                label = f"{g} glance{'s' * (g > 1)}" if variant == "full" else None
                 ax.plot(*_mean_curve(hs), color=c, ls=ls, label=label)
     ax.set(
         xlabel="training step",
