@@ -207,3 +207,17 @@ def test_bad_configs_are_named():
         PoseConfig(phi_max=4.0)
     with pytest.raises(HamError, match="unknown simulator 'ode'"):
         make_simulator(WorldConfig(simulator="ode"))
+
+
+def test_inlined_image_equals_the_sensor_component():
+    # The fast path writes Myrmex.image's result straight into the output; it must stay identical.
+    g = torch.Generator().manual_seed(3)
+    n = 3000
+    ids = torch.randint(0, 4, (n,), generator=g)
+    qx, qp = torch.rand(n, generator=g) * 2 - 1, torch.rand(n, generator=g) * 2 - 1
+    fast = make_simulator(WorldConfig())
+    assert fast._direct_image
+    plain = make_simulator(WorldConfig())
+    plain._direct_image = False
+    a, b = fast.glance(ids, qx, qp), plain.glance(ids, qx, qp)
+    assert torch.equal(a.pressure, b.pressure) and torch.equal(a.z, b.z)
