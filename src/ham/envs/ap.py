@@ -36,9 +36,7 @@ import numpy as np
 from ham.envs.haptic import (
     RENDER_MODES,
     VECTOR_METADATA,
-    GlanceBackend,
-    GlanceEpisodes,
-    _check_render_mode,
+    attach_world,
     check_num_envs,
     observation_space,
 )
@@ -83,11 +81,7 @@ class HapticGlanceAPEnv(ap_gym.ActiveClassificationEnv):
         device: str = "cpu",
         render_mode: str | None = None,
     ) -> None:
-        self.render_mode = _check_render_mode(render_mode)
-        self.backend = GlanceBackend(table, world, normalization, device)
-        self.episodes = GlanceEpisodes(self.backend, 1, glances)
-        self.glances = self.episodes.glances
-        self.objects = self.backend.objects
+        attach_world(self, 1, glances, table, world, normalization, device, render_mode)
         super().__init__(self.backend.n_objects, _pose_space())
         self.observation_space = observation_space(self.backend)
 
@@ -142,11 +136,7 @@ class HapticGlanceAPVectorEnv(ap_gym.ActiveClassificationVectorEnv):
         render_mode: str | None = None,
     ) -> None:
         num_envs = check_num_envs(num_envs)
-        self.render_mode = _check_render_mode(render_mode)
-        self.backend = GlanceBackend(table, world, normalization, device)
-        self.episodes = GlanceEpisodes(self.backend, int(num_envs), glances)
-        self.glances = self.episodes.glances
-        self.objects = self.backend.objects
+        attach_world(self, int(num_envs), glances, table, world, normalization, device, render_mode)
         super().__init__(int(num_envs), self.backend.n_objects, _pose_space())
         self.single_observation_space = observation_space(self.backend)
         self.observation_space = gym.vector.utils.batch_space(

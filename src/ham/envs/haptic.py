@@ -212,6 +212,17 @@ def _prediction(prediction: Any, n: int, n_objects: int) -> np.ndarray:
     return check_object_ids(prediction, n, n_objects)
 
 
+def attach_world(
+    env, n: int, glances: int, table, world, normalization: str, device: str, render_mode
+) -> None:
+    """Give ``env`` its glance backend and ``n`` episodes: the setup every env here shares."""
+    env.render_mode = _check_render_mode(render_mode)
+    env.backend = GlanceBackend(table, world, normalization, device)
+    env.episodes = GlanceEpisodes(env.backend, n, glances)
+    env.glances = env.episodes.glances
+    env.objects = env.backend.objects
+
+
 class HapticGlanceEnv(gym.Env):
     """``ham/HapticGlance-v0``: identify one haptic object by ``glances`` glances (module doc).
 
@@ -237,11 +248,7 @@ class HapticGlanceEnv(gym.Env):
         device: str = "cpu",
         render_mode: str | None = None,
     ) -> None:
-        self.render_mode = _check_render_mode(render_mode)
-        self.backend = GlanceBackend(table, world, normalization, device)
-        self.episodes = GlanceEpisodes(self.backend, 1, glances)
-        self.glances = self.episodes.glances
-        self.objects = self.backend.objects
+        attach_world(self, 1, glances, table, world, normalization, device, render_mode)
         self.observation_space = observation_space(self.backend)
         self.action_space = gym.spaces.Dict(
             {
@@ -326,11 +333,7 @@ class HapticGlanceVectorEnv(gym.vector.VectorEnv):
     ) -> None:
         num_envs = check_num_envs(num_envs)
         self.num_envs = int(num_envs)
-        self.render_mode = _check_render_mode(render_mode)
-        self.backend = GlanceBackend(table, world, normalization, device)
-        self.episodes = GlanceEpisodes(self.backend, self.num_envs, glances)
-        self.glances = self.episodes.glances
-        self.objects = self.backend.objects
+        attach_world(self, self.num_envs, glances, table, world, normalization, device, render_mode)
         self.single_observation_space = observation_space(self.backend)
         self.observation_space = gym.vector.utils.batch_space(
             self.single_observation_space, self.num_envs
