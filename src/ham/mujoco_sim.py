@@ -872,3 +872,19 @@ def image_correlation(a: torch.Tensor | np.ndarray, b: torch.Tensor | np.ndarray
     with np.errstate(invalid="ignore", divide="ignore"):
         r = (ca * cb).sum(1) / (na * nb)
     return np.where(flat_a & flat_b, 1.0, np.where(flat_a | flat_b, 0.0, r))
+
+
+def contact_centroid(pressure: torch.Tensor | np.ndarray) -> np.ndarray:
+    """Force-weighted mean column (in taxels, 0..15) of each image ``(B, 16, 16)``; NaN if empty.
+
+    Where an edge lies within a millimetre of a cell border, two models (or one model at two read-out
+    resolutions) may put its line in neighbouring columns: the correlation of the two images then
+    drops towards 0 although the contact is in the same place to within one taxel. The centroid
+    distance tells the two apart (docs/crosscheck.md, "How fine is either model?").
+    """
+    p = np.asarray(pressure, dtype=np.float64)
+    cols = p.reshape(len(p), -1, p.shape[-1]).sum(1)
+    total = cols.sum(1)
+    j = np.arange(cols.shape[1], dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(total > 0, (cols * j).sum(1) / total, np.nan)
