@@ -91,6 +91,38 @@ def test_bad_arguments(tmp_path, ham_cli):
     assert r.returncode == 2 and "invalid choice: 'table3'" in r.stderr
 
 
+def test_a_part_of_the_grid(tmp_path, ham_cli):
+    """--glances and --variants cut Table 1 to some rows and columns; the rest show as missing."""
+    p = PROFILES["paper"].subset([3, 2, 3], ["rloc", "full"])
+    assert (p.glances, p.variants) == ((2, 3), ("full", "rloc"))
+    assert (
+        p.reductions()
+        == "glances [2, 3] (paper [1, 2, 3, 4, 6, 8, 10]); variants ['full', 'rloc'] (paper ['full', 'rloc', 'mlp'])"
+    )
+    assert len(plan("table1", p, 10, "t.h5")) == 2 * 2 * 10
+    assert len(plan("all", p, 1, "t.h5")) == 2 * 2 + 3  # Table 2's other combiners stay
+    with pytest.raises(
+        HamError, match=r"glances = \[0\]; accepted: one or more integers in 1..100"
+    ):
+        PROFILES["quick"].subset([0])
+    with pytest.raises(
+        HamError, match=r"variants = \['cnn'\]; accepted: one or more of full, rloc, mlp"
+    ):
+        PROFILES["quick"].subset(variants=["cnn"])
+    r = ham_cli(
+        "reproduce", "table1", "--profile", "smoke", "--glances", "2", "--variants", "full",
+        "--workers", "1", "--quiet", "--out", str(tmp_path),
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "ran 1 run(s), skipped 0 finished" in r.stdout
+    t1 = json.loads((tmp_path / "table1.json").read_text())
+    assert set(t1) == {"2"}
+    assert t1["2"]["full"]["n"] == 1 and t1["2"]["rloc"]["n"] == 0
+    table = (tmp_path / "table1.md").read_text()
+    assert "| 2 | " in table and "—" in table
+    assert "variants ['full'] (paper" in (tmp_path / "report.md").read_text()
+
+
 def test_paper_profile_is_the_papers_protocol():
     p = PROFILES["paper"]
     assert (p.steps, p.seeds, p.eval_every, p.eval_batches, p.heatmap_batches) == (

@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from ham.reproduce import EXECUTORS, PROFILES, TARGETS, reproduce
+from ham.reproduce import EXECUTORS, PROFILES, TARGETS, TRAINED_VARIANTS, reproduce
 
 
 def add_commands(subparsers) -> None:
@@ -25,6 +25,22 @@ def add_commands(subparsers) -> None:
         "<= 30 min on 2 cores; smoke: seconds (default quick)",
     )
     p.add_argument("--seeds", type=int, default=None, help="override the profile's seed count")
+    p.add_argument(
+        "--glances",
+        type=int,
+        nargs="+",
+        default=None,
+        metavar="N",
+        help="only these glance counts in Table 1 and the figures (default: the paper's 1 2 3 4 6 8 10)",
+    )
+    p.add_argument(
+        "--variants",
+        nargs="+",
+        default=None,
+        choices=tuple(TRAINED_VARIANTS),
+        help="only these trained variants in Table 1 and the figures (default: all; the averaged "
+        "MLP column is scored on the mlp runs)",
+    )
     p.add_argument("--executor", default="local", choices=EXECUTORS)
     p.add_argument(
         "--ray-address", default=None, help="a running Ray cluster (default: start a local one)"
@@ -51,6 +67,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         retries=args.retries,
         progress=not args.quiet,
         command="ham " + " ".join(sys.argv[1:]),
+        glances=args.glances,
+        variants=args.variants,
     )
     if args.json:
         json.dump(summary, sys.stdout, default=str)

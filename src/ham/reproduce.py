@@ -83,6 +83,8 @@ class Profile:
     heatmap_batches: int
     glances: tuple[int, ...] = GLANCES
     table_grid: int = 201
+    #: Trained variants of Table 1 and the figures (``avg_mlp`` is scored on the ``mlp`` runs).
+    variants: tuple[str, ...] = tuple(TRAINED_VARIANTS)
 
     def reductions(self) -> str:
         paper = PROFILES["paper"]
@@ -102,7 +104,29 @@ class Profile:
                 parts.append(f"{key} {a} (paper {b})")
         if self.glances != paper.glances:
             parts.append(f"glances {list(self.glances)} (paper {list(paper.glances)})")
+        if self.variants != paper.variants:
+            parts.append(f"variants {list(self.variants)} (paper {list(paper.variants)})")
         return "; ".join(parts)
+
+    def subset(self, glances=None, variants=None) -> Profile:
+        """This profile with Table 1 and the figures cut to some glance counts and variants."""
+        out = self
+        if glances is not None:
+            g = tuple(glances)
+            if not g or not all(
+                isinstance(n, int) and not isinstance(n, bool) and 1 <= n <= 100 for n in g
+            ):
+                raise HamError(f"glances = {list(g)}; accepted: one or more integers in 1..100")
+            out = replace(out, glances=tuple(sorted(set(g))))
+        if variants is not None:
+            v = tuple(variants)
+            bad = [x for x in v if x not in TRAINED_VARIANTS]
+            if not v or bad:
+                raise HamError(
+                    f"variants = {list(v)}; accepted: one or more of {', '.join(TRAINED_VARIANTS)}"
+                )
+            out = replace(out, variants=tuple(x for x in TRAINED_VARIANTS if x in v))
+        return out
 
 
 PROFILES = {
@@ -140,11 +164,12 @@ def plan(target: str, profile: Profile, seeds: int, table: str, device: str = "c
         raise HamError(f"target {target!r}; accepted: {', '.join(TARGETS)}")
     wanted: list[tuple[str, str, int]] = []
     if target in ("table1", "all"):
-        wanted += [(v, "concat2", g) for v in TRAINED_VARIANTS for g in profile.glances]
+        wanted += [(v, "concat2", g) for v in profile.variants for g in profile.glances]
     if target in ("table2", "all"):
         wanted += [("full", c, 3) for c in PAPER_TABLE2]
     if target in ("figures", "all"):
-        wanted += [(v, "concat2", g) for v in ("full", "rloc") for g in profile.glances]
+        figure_variants = [v for v in ("full", "rloc") if v in profile.variants]
+        wanted += [(v, "concat2", g) for v in figure_variants for g in profile.glances]
     jobs: dict[str, Job] = {}
     for variant, combiner, g in wanted:
         for seed in range(seeds):
@@ -382,8 +407,14 @@ def reproduce(
     retries: int = 1,
     progress: bool = True,
     command: str | None = None,
+    glances: Iterable[int] | None = None,
+    variants: Iterable[str] | None = None,
 ) -> dict:
-    """Plan, run (skipping finished runs), aggregate and report. Returns the summary dict."""
+    """Plan, run (skipping finished runs), aggregate and report. Returns the summary dict.
+
+    ``glances`` and ``variants`` cut Table 1 and the figures to a part of the grid (Table 2 is
+    always the four combiners at 3 glances), e.g. the paper's protocol for one row on a laptop.
+    """
     from tqdm.auto import tqdm
 
     from ham.table import build_table
@@ -398,6 +429,7 @@ def reproduce(
         if not (isinstance(seeds, int) and seeds >= 1):
             raise HamError(f"seeds = {seeds!r}; accepted: an integer >= 1")
         profile = replace(profile, seeds=seeds)
+    profile = profile.subset(glances, variants)
     workers = workers or os.cpu_count() or 1
     if workers < 1:
         raise HamError(f"workers = {workers}; accepted: >= 1")
