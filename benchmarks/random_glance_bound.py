@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from ham.sensor import normalize
-from ham.table import GlanceTable, build_table, nearest_index
+from ham.table import GlanceTable, build_table, grid_values, nearest_index
 from ham.world import WorldConfig
 
 
@@ -81,7 +81,7 @@ def main() -> None:
     )
     rng = np.random.default_rng(args.seed)
     g = table.grid
-    q = np.linspace(-1, 1, g)
+    q = grid_values(g)
     for f in args.phi_max:
         rows = np.abs(q) <= f + 1e-12
         share_empty = empty[:, :, rows].mean()
