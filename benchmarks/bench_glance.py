@@ -14,8 +14,8 @@ from pathlib import Path
 
 import torch
 
-from ham.table import GlanceTable, build_table
-from ham.world import WorldConfig, make_simulator
+from ham.world.config import WorldConfig, make_simulator
+from ham.world.table import GlanceTable, build_table
 
 
 def best_rate(fn, n_items: int, repeats: int = 3) -> float:

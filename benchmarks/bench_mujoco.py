@@ -20,10 +20,10 @@ import time
 import numpy as np
 import torch
 
-from ham.glance import FastSimulator
-from ham.mujoco_sim import STATUS_NAMES, MujocoSimulator
-from ham.objects import resolve_set
-from ham.sensor import SensorConfig
+from ham.world.glance import FastSimulator
+from ham.world.mujoco_sim import STATUS_NAMES, MujocoSimulator
+from ham.world.objects import resolve_set
+from ham.world.sensor import SensorConfig
 
 GRID = 201
 

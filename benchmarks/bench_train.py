@@ -18,8 +18,8 @@ import time
 import torch
 from torch.nn import functional as F
 
-from ham.agent import HamConfig
-from ham.train import Run, TrainConfig, train_step
+from ham.learn.train import Run, TrainConfig, train_step
+from ham.model.agent import HamConfig
 
 
 def bare_step(run: Run, pressures: torch.Tensor, locations: torch.Tensor, objects: torch.Tensor):

@@ -23,8 +23,8 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from ham.glance import FastSimulator  # noqa: E402
-from ham.mujoco_sim import (  # noqa: E402
+from ham.world.glance import FastSimulator  # noqa: E402
+from ham.world.mujoco_sim import (  # noqa: E402
     BLOCKED,
     SETTLED,
     STATUS_NAMES,
@@ -33,8 +33,8 @@ from ham.mujoco_sim import (  # noqa: E402
     contact_centroid,
     image_correlation,
 )
-from ham.objects import resolve_set  # noqa: E402
-from ham.sensor import SensorConfig  # noqa: E402
+from ham.world.objects import resolve_set  # noqa: E402
+from ham.world.sensor import SensorConfig  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PHI_MAX = math.pi / 2
@@ -352,8 +352,8 @@ def main() -> None:
     md.append(
         'Both simulators perform the paper\'s glance (section "Haptic Control of the Simulated Myrmex"): '
         "the pad is lowered at a fixed pose `(x, phi)` until the summed force on its 16 x 16 cells is 2 N. "
-        "The **fast** model (`ham.glance.FastSimulator`) treats the face as a Winkler foam and solves the "
-        "stop height exactly. The **MuJoCo** model (`ham.mujoco_sim.MujocoSimulator`) pushes a pad whose "
+        "The **fast** model (`ham.world.glance.FastSimulator`) treats the face as a Winkler foam and solves the "
+        "stop height exactly. The **MuJoCo** model (`ham.world.mujoco_sim.MujocoSimulator`) pushes a pad whose "
         "face is 16 x 16 sphere taxels (one contact each) down with a force actuator, closes the loop on "
         "the taxels' summed normal force and waits until the pad has settled. The **gazebo** read-out "
         "replaces the taxels by one box face and spreads each contact point's normal force over the "
@@ -407,7 +407,7 @@ def main() -> None:
     md.append(
         f"Dense grid: {DENSE[0]} values of q_x x {DENSE[1]} angles in [-0.5, 0.5] rad per object. "
         "A pose misses when its correlation is below 0.85; the miss is *within one taxel* when the "
-        "force-weighted mean columns of the two images (`ham.mujoco_sim.contact_centroid`) are at most "
+        "force-weighted mean columns of the two images (`ham.world.mujoco_sim.contact_centroid`) are at most "
         "one column (5 mm) apart: the same line, put in the neighbouring column.\n"
     )
     md.append("MuJoCo against the fast model (4 read-out points per cell, the default):\n")

@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ham.sensor import normalize
-from ham.table import GlanceTable, build_table, grid_values, nearest_index
-from ham.world import WorldConfig
+from ham.world.config import WorldConfig
+from ham.world.sensor import normalize
+from ham.world.table import GlanceTable, build_table, grid_values, nearest_index
 
 
 def agreement(table: GlanceTable, tolerance: float) -> np.ndarray:

@@ -7,13 +7,14 @@ import math
 import pytest
 import torch
 
-from ham.agent import HamConfig, HapticAttentionModel, count_parameters
-from ham.core import LSTMCore, MLPCore
-from ham.environment import HapticEnv, OnlineSource, TableSource, make_source
 from ham.errors import HamError
-from ham.location_net import LocationNetwork, truncated_normal, uniform_locations
-from ham.tactile_net import TactileNetwork
-from ham.world import WorldConfig, make_simulator
+from ham.learn.environment import HapticEnv
+from ham.model.agent import HamConfig, HapticAttentionModel, count_parameters
+from ham.model.core import LSTMCore, MLPCore
+from ham.model.location_net import LocationNetwork, truncated_normal, uniform_locations
+from ham.model.tactile_net import TactileNetwork
+from ham.world.config import WorldConfig, make_simulator
+from ham.world.source import OnlineSource, TableSource, make_source
 
 
 @pytest.fixture(scope="module")
@@ -240,7 +241,7 @@ def test_bad_environment_arguments(env):
 
 
 def test_table_source_matches_online_at_grid_points(tmp_path):
-    from ham.table import GlanceTable, build_table
+    from ham.world.table import GlanceTable, build_table
 
     world = WorldConfig()
     path = build_table(world, 5, tmp_path / "t.h5", progress=False)

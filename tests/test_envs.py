@@ -1,5 +1,5 @@
 """Gymnasium / ap_gym environments over the haptic world (ham.envs) and the HAM on ap_gym
-environments (ham.ap_adapter): real Gymnasium checker, real ap_gym, real training."""
+environments (ham.learn.ap_adapter): real Gymnasium checker, real ap_gym, real training."""
 
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ from gymnasium.utils.env_checker import check_env
 import ham.envs
 from ham.envs import AP_ENV_ID, AP_SPARSE_ENV_ID, ENV_ID, HapticGlanceEnv, HapticGlanceVectorEnv
 from ham.errors import HamError
-from ham.table import build_table
-from ham.world import WorldConfig
+from ham.world.config import WorldConfig
+from ham.world.table import build_table
 
 GRID = 11
 
@@ -188,7 +188,7 @@ def test_random_policy_episodes_through_ap_gym_make_vec(ap_gym, ap):
 
 # --------------------------------------------------------------------------- HAM on ap_gym
 def test_adapter_presents_an_ap_gym_env_like_haptic_env(ap_gym):
-    from ham.ap_adapter import TELEPORT_STEP, ApGymGlanceEnv
+    from ham.learn.ap_adapter import TELEPORT_STEP, ApGymGlanceEnv
 
     env = ApGymGlanceEnv(
         "ap_gym:CircleSquare-s15-nograd-v0", 8, max_step_length=TELEPORT_STEP, seed=1
@@ -225,7 +225,7 @@ def test_ham_trains_on_an_offline_ap_gym_env_and_beats_random_locations(ap_gym, 
     steps, batches and learning rate; the baseline draws its second glance uniformly (the
     paper's random-location model). Measured (docs/gym.md): learned 0.703 vs random 0.656 with
     this seed; seeds 0 and 2 lead too (0.675 vs 0.661, 0.677 vs 0.622)."""
-    from ham.ap_adapter import TELEPORT_STEP, train_on_ap_gym
+    from ham.learn.ap_adapter import TELEPORT_STEP, train_on_ap_gym
 
     common = dict(
         batch_size=32,

@@ -5,12 +5,13 @@ from __future__ import annotations
 import pytest
 import torch
 
-from ham.agent import HamConfig, HapticAttentionModel
-from ham.environment import HapticEnv, make_source
 from ham.errors import HamError
-from ham.hybrid_loss import hybrid_loss, reinforce_term, reward
-from ham.location_net import gaussian_log_prob
-from ham.world import WorldConfig
+from ham.learn.environment import HapticEnv
+from ham.learn.hybrid_loss import hybrid_loss, reinforce_term, reward
+from ham.model.agent import HamConfig, HapticAttentionModel
+from ham.model.location_net import gaussian_log_prob
+from ham.world.config import WorldConfig
+from ham.world.source import make_source
 
 
 def zeta_mu(q, mu, sigma):

@@ -14,14 +14,14 @@ import pytest
 import torch
 
 from ham.errors import HamError
-from ham.glance import FastSimulator
-from ham.objects import get, resolve_set
-from ham.sensor import SensorConfig
-from ham.world import WorldConfig, make_simulator
+from ham.world.config import WorldConfig, make_simulator
+from ham.world.glance import FastSimulator
+from ham.world.objects import get, resolve_set
+from ham.world.sensor import SensorConfig
 
 mujoco = pytest.importorskip("mujoco")
 
-from ham.mujoco_sim import (  # noqa: E402
+from ham.world.mujoco_sim import (  # noqa: E402
     BLOCKED,
     SETTLED,
     STEP_LIMIT,
@@ -282,7 +282,7 @@ def test_render_draws_or_says_why(tmp_path):
     out = tmp_path / "scene.png"
     env = dict(os.environ, MPLBACKEND="Agg")
     env.pop("DISPLAY", None)
-    cmd = [sys.executable, "-m", "ham.cli_mujoco", "render", "--object", "1", "--x", "1.0"]
+    cmd = [sys.executable, "-m", "ham.cli.mujoco_cmds", "render", "--object", "1", "--x", "1.0"]
     cmd += ["--phi", "0.0", "--out", str(out), "--width", "320", "--height", "240"]
     p = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=120)
     if p.returncode == 0:

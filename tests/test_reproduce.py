@@ -5,7 +5,7 @@ import json
 import pytest
 
 from ham.errors import HamError
-from ham.reproduce import PROFILES, plan, reproduce
+from ham.experiments.reproduce import PROFILES, plan, reproduce
 
 
 @pytest.fixture(scope="module")

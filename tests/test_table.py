@@ -8,9 +8,9 @@ import pytest
 import torch
 
 from ham.errors import HamError
-from ham.glance import FastSimulator
-from ham.table import GlanceTable, build_table, grid_values, import_authors, table_info
-from ham.world import WorldConfig, make_simulator
+from ham.world.config import WorldConfig, make_simulator
+from ham.world.glance import FastSimulator
+from ham.world.table import GlanceTable, build_table, grid_values, import_authors, table_info
 
 GRID = 11
 

@@ -13,16 +13,16 @@ from pathlib import Path
 import pytest
 import torch
 
-from ham.agent import HamConfig
 from ham.errors import HamError
-from ham.train import TrainConfig, load_run, resume, train
+from ham.learn.train import TrainConfig, load_run, resume, train
+from ham.model.agent import HamConfig
 
 TINY = ["--glances", "2", "--batch-size", "8", "--eval-batches", "2", "--no-progress"]
 
 
 def ham_inprocess(capsys, *args: str) -> tuple[int, str, str]:
     """The same ``ham`` command line, run in this process (faster than a subprocess)."""
-    from ham.cli import main
+    from ham.cli.main import main
 
     code = main(list(args))
     out, err = capsys.readouterr()
@@ -119,7 +119,7 @@ def test_cli_train_evaluate_heatmap(tmp_path, capsys):
     assert sum(c for obj in h["counts"] for row in obj for c in row) == 3 * 8
     assert len(h["mu_mean"]) == 4
 
-    from ham.figures import plot_training_curve
+    from ham.experiments.figures import plot_training_curve
 
     assert plot_training_curve(m, tmp_path / "curve.png").stat().st_size > 0
 
@@ -220,8 +220,8 @@ def test_variants_train(tmp_path, model):
 
 
 def test_train_from_a_glance_table(tmp_path):
-    from ham.table import build_table
-    from ham.world import WorldConfig
+    from ham.world.config import WorldConfig
+    from ham.world.table import build_table
 
     path = build_table(WorldConfig(), 5, tmp_path / "t.h5", progress=False)
     m = train(tiny(table=str(path), steps=2), tmp_path / "r", progress=False)

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import torch
 
-from ham import objects
 from ham.errors import HamError
-from ham.glance import FastSimulator, PoseConfig, _solve_stop_height
-from ham.sensor import SensorConfig, normalize
-from ham.world import WorldConfig, make_simulator
+from ham.world import objects
+from ham.world.config import WorldConfig, make_simulator
+from ham.world.glance import FastSimulator, PoseConfig, _solve_stop_height
+from ham.world.sensor import SensorConfig, normalize
 
 PAPER = objects.resolve_set("paper")
 

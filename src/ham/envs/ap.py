@@ -41,7 +41,7 @@ from ham.envs.haptic import (
     observation_space,
 )
 from ham.errors import HamError
-from ham.world import WorldConfig
+from ham.world.config import WorldConfig
 
 try:
     import ap_gym

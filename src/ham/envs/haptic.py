@@ -20,7 +20,7 @@ Spaces:
   (``q_x, q_phi``; ``x = q_x * zone``, ``phi = q_phi * pi/2``; values outside ``[-1, 1]`` are
   clipped) and the object the agent believes it touches.
 
-Glances come from the batched glance sources of :mod:`ham.environment`: a glance table
+Glances come from the batched glance sources of :mod:`ham.learn.environment`: a glance table
 (``table=FILE``, the nearest grid point, as in the paper) or the fast simulator online (exact
 poses). :class:`HapticGlanceVectorEnv` runs ``num_envs`` episodes in lockstep with one batched
 glance per step (true vectorization) and resets them all on the step after they end
@@ -37,7 +37,7 @@ import numpy as np
 import torch
 
 from ham.errors import HamError
-from ham.world import WorldConfig
+from ham.world.config import WorldConfig
 
 ENV_NORMALIZATIONS: tuple[str, ...] = ("l2", "l1", "none")
 RENDER_MODES: tuple[str, ...] = ("rgb_array",)
@@ -64,7 +64,7 @@ class GlanceBackend:
 
     Args:
         table: a glance table (HDF5) to look glances up in; ``None``: simulate them online.
-        world: the world simulated online (:class:`ham.world.WorldConfig` or its dict; paper
+        world: the world simulated online (:class:`ham.world.config.WorldConfig` or its dict; paper
             defaults); ignored with a table, which carries its own.
         normalization: ``l2`` (paper), ``l1`` (authors' code) or ``none`` (raw pressure, Pa).
         device: where glances are computed (``cpu`` or ``cuda``); observations are NumPy.
@@ -77,7 +77,7 @@ class GlanceBackend:
         normalization: str = "l2",
         device: str = "cpu",
     ) -> None:
-        from ham.environment import make_source
+        from ham.world.source import make_source
 
         if normalization not in ENV_NORMALIZATIONS:
             raise HamError(
@@ -101,7 +101,7 @@ class GlanceBackend:
 
     def glance(self, objects: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """Pressure images ``(N, 16, 16)`` float32 of ``objects`` ``(N,)`` at ``poses`` ``(N, 2)``."""
-        from ham.sensor import normalize
+        from ham.world.sensor import normalize
 
         ids = torch.as_tensor(np.asarray(objects, dtype=np.int64), device=self.device)
         q = torch.as_tensor(np.asarray(poses, dtype=np.float32), device=self.device)

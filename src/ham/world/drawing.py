@@ -16,7 +16,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ham.errors import HamError  # noqa: E402
-from ham.objects import HapticObject  # noqa: E402
+from ham.world.objects import HapticObject  # noqa: E402
 
 
 def _save(fig, out: str | os.PathLike) -> Path:
@@ -46,7 +46,7 @@ def draw_objects(objs: list[HapticObject], out: str | os.PathLike) -> Path:
     cols = min(n, 4)
     rows = math.ceil(n / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(3.0 * cols, 2.3 * rows), squeeze=False)
-    from ham.objects import object_id
+    from ham.world.objects import object_id
 
     for ax, obj in zip(axes.flat, objs, strict=False):
         ax.axhline(0, color="0.4", lw=2)
@@ -68,7 +68,7 @@ def draw_glance(
 ) -> Path:
     """The pad at the end of a glance over the object's profile, beside its 16 x 16 image.
 
-    ``result`` is :meth:`ham.glance.GlanceResult.to_json` of one glance.
+    ``result`` is :meth:`ham.world.glance.GlanceResult.to_json` of one glance.
     """
     fig, (a0, a1) = plt.subplots(1, 2, figsize=(8.4, 3.4), gridspec_kw={"width_ratios": [1.5, 1]})
     a0.axhline(0, color="0.4", lw=2)

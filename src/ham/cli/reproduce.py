@@ -1,4 +1,4 @@
-"""``ham reproduce``: the paper's tables and figures from one command (see :mod:`ham.reproduce`)."""
+"""``ham reproduce``: the paper's tables and figures from one command (see :mod:`ham.experiments.reproduce`)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from ham.reproduce import EXECUTORS, PROFILES, TARGETS, TRAINED_VARIANTS, reproduce
+from ham.experiments.reproduce import EXECUTORS, PROFILES, TARGETS, TRAINED_VARIANTS, reproduce
 
 
 def add_commands(subparsers) -> None:

@@ -1,5 +1,5 @@
 """The agent half of ``make demo``: train a HAM briefly on the demo's glance table, evaluate it,
-and write its training curve, pose heat map and a short report (see :mod:`ham.demo`)."""
+and write its training curve, pose heat map and a short report (see :mod:`ham.experiments.demo`)."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
-from ham.agent import HamConfig
-from ham.evaluation import evaluate, heatmap_data
-from ham.figures import plot_heatmap, plot_training_curve
-from ham.train import TrainConfig, load_run, resume, train
+from ham.experiments.figures import plot_heatmap, plot_training_curve
+from ham.learn.evaluation import evaluate, heatmap_data
+from ham.learn.train import TrainConfig, load_run, resume, train
+from ham.model.agent import HamConfig
 
 #: The demo's run: the paper's network and training rule at 3 glances, shortened.
 DEMO_TRAIN = TrainConfig(model=HamConfig(glances=3), steps=1500, eval_every=100, eval_batches=20)

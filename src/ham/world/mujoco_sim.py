@@ -2,7 +2,7 @@
 
 The paper's data came from a physics engine (Gazebo with ODE). This module performs the same
 low-level glance (section "Haptic Control of the Simulated Myrmex") in MuJoCo, behind the same
-interface as :class:`ham.glance.FastSimulator`, so that ``ham glance --simulator mujoco`` and
+interface as :class:`ham.world.glance.FastSimulator`, so that ``ham glance --simulator mujoco`` and
 ``ham table build --simulator mujoco`` work unchanged.
 
 Scene (one model for the whole object set, like the paper's Fig. "Gazebo Simulation"):
@@ -73,7 +73,7 @@ import numpy as np
 import torch
 
 from ham.errors import HamError
-from ham.glance import (
+from ham.world.glance import (
     FastSimulator,
     GlanceConfig,
     GlanceResult,
@@ -81,8 +81,8 @@ from ham.glance import (
     as_action,
     as_object_ids,
 )
-from ham.objects import HapticObject
-from ham.sensor import SensorConfig
+from ham.world.objects import HapticObject
+from ham.world.sensor import SensorConfig
 
 Readout = Literal["taxels", "gazebo"]
 READOUTS: tuple[str, ...] = ("taxels", "gazebo")
@@ -498,7 +498,7 @@ class _Worker:
 
 
 class MujocoSimulator:
-    """Glances in the MuJoCo physics engine, behind the :class:`ham.glance.Simulator` interface.
+    """Glances in the MuJoCo physics engine, behind the :class:`ham.world.glance.Simulator` interface.
 
     Args:
         objects: the object set; object ``i`` stands at world x ``i * object_spacing``.
@@ -822,7 +822,7 @@ def calibrate_foam_stiffness(
     the face below the box top (float64, settled to 1e-9 m/s), and returns ``F / (64 cm^2 * depth)``: the fast model's
     flat-face compression is ``F / (foam_stiffness * area)`` (section "The Tactile Sensor Array").
     """
-    from ham.objects import get
+    from ham.world.objects import get
 
     # Settle far tighter than a table glance: the depth is micrometres.
     config = replace(

@@ -99,8 +99,8 @@ def render_glance(
         raise HamError(
             f"MuJoCo could not load with MUJOCO_GL={backend}: {exc}. {GL_HELP}"
         ) from None
-    from ham import objects as _objects
-    from ham.mujoco_sim import STATUS_NAMES, MujocoSimulator
+    from ham.world import objects as _objects
+    from ham.world.mujoco_sim import STATUS_NAMES, MujocoSimulator
 
     objs = _objects.resolve_set(object_set)
     target = _objects.get(obj)
@@ -157,7 +157,7 @@ def render_glance(
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Stand-alone entry (``python -m ham.cli_mujoco render ...``) until ``ham`` wires it in."""
+    """Stand-alone entry (``python -m ham.cli.mujoco_cmds render ...``) until ``ham`` wires it in."""
     parser = argparse.ArgumentParser(prog="ham-mujoco")
     add_commands(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(argv)

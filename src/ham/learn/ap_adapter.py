@@ -4,7 +4,7 @@ The Active Perception Gym (``ap_gym``, PyPI ``ap-gym``) offers image classificat
 which an agent moves a small glimpse over an image: observation ``{"glimpse": (G, G, C),
 "glimpse_pos": (2,) in [-1, 1], ...}``, action ``{"action": movement (2,), "prediction":
 logits (K,)}``. :class:`ApGymGlanceEnv` presents such a vector environment to the HAM exactly
-like :class:`ham.environment.HapticEnv` presents the haptic world:
+like :class:`ham.learn.environment.HapticEnv` presents the haptic world:
 
 * ``sample_objects()`` resets a batch of ``batch_size`` episodes and returns their class labels
   (the "objects" the HAM classifies);
@@ -28,7 +28,7 @@ Actions (``actions``):
   glances, which go anywhere.
 
 The reward the HAM trains on is its own, as in the paper: 1 at the end of the episode if the
-arg-max class after the last glance is right, else 0 (:mod:`ham.hybrid_loss`); the environment's
+arg-max class after the last glance is right, else 0 (:mod:`ham.learn.hybrid_loss`); the environment's
 reward (base reward minus normalized cross-entropy) is not used, and the adapter sends uniform
 logits as the environment's ``prediction``.
 
@@ -37,7 +37,7 @@ same id) reseeded at every evaluation, so every evaluation sees the same images 
 glimpses. Labels come from the environment's data and are not balanced by class.
 
 :func:`train_on_ap_gym` trains and evaluates a HAM through the regular training loop
-(:mod:`ham.train`) on such an environment and writes a regular run directory.
+(:mod:`ham.learn.train`) on such an environment and writes a regular run directory.
 """
 
 from __future__ import annotations
@@ -52,8 +52,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from ham.agent import HamConfig, HapticAttentionModel
 from ham.errors import HamError
+from ham.model.agent import HamConfig, HapticAttentionModel
 
 ACTIONS: tuple[str, ...] = ("relative", "absolute")
 NORMALIZATIONS: tuple[str, ...] = ("none", "l2", "l1")
@@ -123,7 +123,7 @@ def _as_target_array(target: Any) -> np.ndarray:
 
 class ApGymGlanceEnv:
     """An ap_gym active classification vector environment with the interface of
-    :class:`ham.environment.HapticEnv` (``sample_objects``, ``balanced_objects``, ``glance``,
+    :class:`ham.learn.environment.HapticEnv` (``sample_objects``, ``balanced_objects``, ``glance``,
     ``n_objects``, ``batch_size``, ``device``, ``state_dict``), plus ``observed_location``.
 
     Args:
@@ -398,8 +398,8 @@ def make_env(
     settings: dict, batch_size: int, seed: int, device: str | torch.device = "cpu"
 ) -> ApGymGlanceEnv:
     """The adapter a run's ``config.json`` describes (``settings``: :meth:`ApGymGlanceEnv.settings`),
-    with the seeds of :mod:`ham.train` (stream 0 trains, stream 2 evaluates)."""
-    from ham.train import stream_seed
+    with the seeds of :mod:`ham.learn.train` (stream 0 trains, stream 2 evaluates)."""
+    from ham.learn.train import stream_seed
 
     return ApGymGlanceEnv(
         settings["env"],
@@ -447,13 +447,13 @@ def train_on_ap_gym(
 ) -> dict:
     """Train a HAM on the ap_gym environment ``env_id`` into run directory ``out``.
 
-    The HAM's own loop (:mod:`ham.train`): hybrid loss, 0/1 reward at the end, SGD with Nesterov
+    The HAM's own loop (:mod:`ham.learn.train`): hybrid loss, 0/1 reward at the end, SGD with Nesterov
     momentum, evaluations every ``eval_every`` steps on ``eval_batches`` batches, TensorBoard,
     checkpoint, metrics.json. ``policy='random'`` trains the random-location baseline (the
     paper's ``pi_rloc``). ``model`` and ``train`` override fields of :class:`HamConfig` and
-    :class:`ham.train.TrainConfig`. Returns the metrics (also in ``out/metrics.json``).
+    :class:`ham.learn.train.TrainConfig`. Returns the metrics (also in ``out/metrics.json``).
     """
-    from ham import train as ham_train
+    from ham.learn import train as ham_train
 
     out = Path(out)
     if (out / ham_train.CHECKPOINT_FILE).exists():
@@ -484,7 +484,7 @@ def train_on_ap_gym(
             seed=seed,
             **train_fields,
         )
-        torch.manual_seed(config.seed)  # the initial weights, as ham.train does
+        torch.manual_seed(config.seed)  # the initial weights, as ham.learn.train does
         agent = LocatedAttentionModel(config.model).to(config.device)
         optimizer = torch.optim.SGD(
             agent.parameters(), lr=config.lr, momentum=config.momentum, nesterov=config.nesterov

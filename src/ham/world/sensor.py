@@ -44,7 +44,7 @@ class SensorConfig:
         foam_stiffness: pressure per metre of compression (Pa/m). 4e7 Pa/m presses a flat face
             7.8 um deep at 2 N and lets a 27-degree ramp edge carry 2 N within about 0.8 mm;
             calibrated so that the MuJoCo backend sinks as deep on the flat box
-            (``ham.mujoco_sim.calibrate_foam_stiffness``).
+            (``ham.world.mujoco_sim.calibrate_foam_stiffness``).
         foam_thickness: the foam's depth (m); when an object compresses it fully, it meets the
             rigid pad and the glance stops there.
         housing_thickness: the rigid pad body behind the foam (m); its sides stop a steeply

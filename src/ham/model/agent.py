@@ -25,12 +25,17 @@ from dataclasses import asdict, dataclass, fields
 import torch
 from torch import nn
 
-from ham.baseline import Baseline
-from ham.classifier import Classifier
-from ham.core import ACTIVATIONS, CORES, State, make_core
 from ham.errors import HamError
-from ham.location_net import STD_ACTIVATIONS, LocationNetwork, truncated_normal, uniform_locations
-from ham.tactile_net import COMBINERS, TactileNetwork
+from ham.model.baseline import Baseline
+from ham.model.classifier import Classifier
+from ham.model.core import ACTIVATIONS, CORES, State, make_core
+from ham.model.location_net import (
+    STD_ACTIVATIONS,
+    LocationNetwork,
+    truncated_normal,
+    uniform_locations,
+)
+from ham.model.tactile_net import COMBINERS, TactileNetwork
 
 POLICIES: tuple[str, ...] = ("learned", "random")
 
@@ -47,7 +52,7 @@ class HamConfig:
         where_units: location layer of the tactile network (64, the code's width).
         combiner: what & where combiner: concat2 (paper), concat1, add, mul.
         combine_units: width of the layers after a concatenation (256, the authors' code; the
-            paper's table says 64 for "linear layers", see :mod:`ham.tactile_net`).
+            paper's table says 64 for "linear layers", see :mod:`ham.model.tactile_net`).
         core: ``lstm`` (paper) or ``mlp`` (the ablation).
         hidden_units: core width (256).
         lstm_activation: ``tanh`` (paper, standard LSTM) or ``relu`` (authors' code).

@@ -21,8 +21,8 @@ What is detached from what, all explicit below or in the modules:
 
 * the sampled poses ``q`` carry no gradient (``.detach()`` here; they are drawn detached);
 * the advantage ``r - b`` is detached: REINFORCE does not train the baseline;
-* the baseline reads the core output detached (:class:`ham.baseline.Baseline`): ``L_b`` does not
-  train the core; the location network reads it detached too (:class:`ham.location_net.LocationNetwork`).
+* the baseline reads the core output detached (:class:`ham.model.baseline.Baseline`): ``L_b`` does not
+  train the core; the location network reads it detached too (:class:`ham.model.location_net.LocationNetwork`).
 """
 
 from __future__ import annotations
@@ -32,9 +32,9 @@ from dataclasses import dataclass
 import torch
 from torch.nn import functional as F
 
-from ham.agent import Episode
 from ham.errors import HamError
-from ham.location_net import gaussian_log_prob
+from ham.model.agent import Episode
+from ham.model.location_net import gaussian_log_prob
 
 REDUCTIONS: tuple[str, ...] = ("sum", "mean")
 

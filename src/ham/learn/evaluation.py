@@ -25,9 +25,9 @@ from dataclasses import asdict, dataclass
 
 import torch
 
-from ham.agent import HapticAttentionModel
-from ham.environment import HapticEnv
 from ham.errors import HamError
+from ham.learn.environment import HapticEnv
+from ham.model.agent import HapticAttentionModel
 
 
 @dataclass

@@ -9,10 +9,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ham import objects
-from ham.drawing import draw_glance, draw_objects, draw_table_grid
-from ham.table import GlanceTable, build_table, grid_values
-from ham.world import WorldConfig, make_simulator
+from ham.world import objects
+from ham.world.config import WorldConfig, make_simulator
+from ham.world.drawing import draw_glance, draw_objects, draw_table_grid
+from ham.world.table import GlanceTable, build_table, grid_values
 
 #: One telling pose per paper object (q_x, q_phi): where its shape shows.
 DEMO_POSES = {
@@ -48,7 +48,7 @@ def run_demo(out: Path, *, quick: bool = False) -> dict:
         draw_table_grid(p, (q[pick], q[pick]), f"{name}: table images", out / f"table_{name}.png")
     summary = {"table": str(table_path), "glance_pictures": pictures}
     try:
-        from ham.demo_agent import run_agent_demo  # added by the agent issue
+        from ham.experiments.demo_agent import run_agent_demo  # added by the agent issue
     except ModuleNotFoundError:
         run_agent_demo = None
     if run_agent_demo is not None:

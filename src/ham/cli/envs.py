@@ -6,9 +6,9 @@
   ``ham/HapticGlance-v0`` and ``ham/HapticGlanceAP-v0`` (dense and ``-sparse``), then one
   random-policy episode through ``ap_gym.make`` and ``ap_gym.make_vec``;
 * ``ham envs train ap_gym:ENV_ID --glances S --steps N --out DIR``: the HAM on another world
-  (:func:`ham.ap_adapter.train_on_ap_gym`).
+  (:func:`ham.learn.ap_adapter.train_on_ap_gym`).
 
-``ham.cli`` adds them through :func:`add_commands`; each returns an exit code and raises
+``ham.cli.main`` adds them through :func:`add_commands`; each returns an exit code and raises
 :class:`ham.errors.HamError` for bad input.
 """
 
@@ -88,7 +88,7 @@ def ap_gym_classification_envs() -> list[dict]:
     each with ``offline``: whether its data is built locally (no hub download)."""
     import gymnasium as gym
 
-    from ham.ap_adapter import import_ap_gym
+    from ham.learn.ap_adapter import import_ap_gym
 
     import_ap_gym()
     from ap_gym.envs.registration import DEPRECATED_ENV_IDS
@@ -156,7 +156,7 @@ def check_all(table: str | None = None, glances: int = 3, num_envs: int = 8) -> 
     from gymnasium.utils.env_checker import check_env
 
     import ham.envs
-    from ham.ap_adapter import import_ap_gym
+    from ham.learn.ap_adapter import import_ap_gym
 
     ap_gym = import_ap_gym()
     from ham.envs import ap
@@ -244,7 +244,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     import torch
 
     import ham.envs
-    from ham.ap_adapter import import_ap_gym
+    from ham.learn.ap_adapter import import_ap_gym
 
     if args.threads < 1 or any(n < 1 for n in args.num_envs):
         raise HamError("--threads and --num-envs take integers >= 1")
@@ -291,7 +291,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------- train
 def parse_max_step_length(text: str | None) -> float | None:
     """``None``, ``teleport`` or a number > 0 (for ``--max-step-length``)."""
-    from ham.ap_adapter import TELEPORT_STEP
+    from ham.learn.ap_adapter import TELEPORT_STEP
 
     if text is None:
         return None
@@ -313,7 +313,7 @@ def train_from_args(args: argparse.Namespace) -> int:
     ``eval_every``, ``eval_batches``, ``policy``, ``threads``) and the adapter's own
     (``actions``, ``max_step_length``, ``normalization``, ``eval_env``), each optional.
     """
-    from ham.ap_adapter import train_on_ap_gym
+    from ham.learn.ap_adapter import train_on_ap_gym
 
     def get(name: str, default):
         value = getattr(args, name, None)

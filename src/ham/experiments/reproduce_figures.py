@@ -21,7 +21,7 @@ import numpy as np  # noqa: E402
 
 
 def _histories(root: Path, jobs, variant: str, glances: int) -> list[list[dict]]:
-    from ham.reproduce import run_dir
+    from ham.experiments.runs import run_dir
 
     out = []
     for j in jobs:
@@ -97,10 +97,10 @@ def draw_figures(root: Path, jobs, profile) -> list[Path]:
 
 
 def _heatmaps(root: Path, jobs, profile, figs: Path) -> list[Path]:
-    from ham.evaluation import heatmap_data
-    from ham.figures import plot_heatmap
-    from ham.reproduce import is_finished, run_dir
-    from ham.train import load_run
+    from ham.experiments.figures import plot_heatmap
+    from ham.experiments.runs import is_finished, run_dir
+    from ham.learn.evaluation import heatmap_data
+    from ham.learn.train import load_run
 
     out = []
     for g in sorted({3, max(profile.glances)} & set(profile.glances)):

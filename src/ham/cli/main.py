@@ -9,101 +9,22 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
 import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 from ham import __version__
+from ham.cli.options import add_world_options, finite_float, print_json, world_from_args  # noqa: F401
 from ham.errors import HamError
 
 # Modules that add subcommands; a missing optional one is skipped.
-_COMMAND_MODULES = ("ham.cli_agent", "ham.cli_mujoco", "ham.cli_reproduce", "ham.cli_envs")
-
-
-# --------------------------------------------------------------------------- shared options
-def finite_float(text: str) -> float:
-    """argparse type: a float; NaN and inf pass through so the glance check can name them."""
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-
-
-def add_world_options(p: argparse.ArgumentParser, *, objects: bool = True) -> None:
-    """Options that build a :class:`ham.world.WorldConfig` (paper defaults)."""
-    if objects:
-        p.add_argument(
-            "--objects",
-            default="paper",
-            help="object set: paper (default), mhsb, all, or a comma list of names/ids",
-        )
-    p.add_argument("--simulator", default="fast", help="fast (default) or mujoco")
-    p.add_argument(
-        "--sensor",
-        default="taxels",
-        choices=("taxels", "gazebo"),
-        help="read-out: taxels (default; edges are lines) or gazebo (MuJoCo only: contact points "
-        "spread by a 5 mm Gaussian, the paper's plugin: edges are blobs)",
-    )
-    p.add_argument(
-        "--pose",
-        default="paper",
-        choices=("paper", "authors"),
-        help="pose mapping: paper (phi = q*pi/2, default) or authors (phi = q*0.3pi, pivot shift)",
-    )
-    p.add_argument("--foam-stiffness", type=finite_float, default=None, help="Pa per m")
-    p.add_argument(
-        "--spread-sigma",
-        type=finite_float,
-        default=None,
-        help="Gaussian spread (m) like the paper's Gazebo plugin, e.g. 0.005",
-    )
-    p.add_argument("--quantize-bits", type=int, default=None, help="e.g. 12, like the real sensor")
-
-
-def world_from_args(args: argparse.Namespace, objects: str | None = None):
-    from dataclasses import replace
-
-    from ham.glance import PoseConfig
-    from ham.sensor import SensorConfig
-    from ham.world import WorldConfig
-
-    sensor = SensorConfig()
-    changes = {}
-    if args.foam_stiffness is not None:
-        changes["foam_stiffness"] = args.foam_stiffness
-    if args.spread_sigma is not None:
-        changes["spread_sigma"] = args.spread_sigma
-    if args.quantize_bits is not None:
-        changes["quantize_bits"] = args.quantize_bits
-    sensor = replace(sensor, **changes)
-    mujoco = {}
-    if args.sensor == "gazebo":
-        if args.simulator != "mujoco":
-            raise HamError(
-                f"--sensor gazebo needs --simulator mujoco (got {args.simulator!r}): the fast "
-                "model has no contact points to spread; for a Gazebo-like blur use --spread-sigma 0.005"
-            )
-        mujoco["readout"] = "gazebo"
-    return WorldConfig(
-        objects=objects or getattr(args, "objects", "paper"),
-        simulator=args.simulator,
-        sensor=sensor,
-        pose=PoseConfig.preset(args.pose),
-        mujoco=mujoco,
-    )
-
-
-def _print_json(obj) -> None:
-    json.dump(obj, sys.stdout, indent=None, allow_nan=True)
-    sys.stdout.write("\n")
+_COMMAND_MODULES = ("ham.cli.agent", "ham.cli.mujoco_cmds", "ham.cli.reproduce", "ham.cli.envs")
 
 
 # --------------------------------------------------------------------------- objects
 def cmd_objects(args: argparse.Namespace) -> int:
-    from ham import objects
+    from ham.world import objects
 
     objs = objects.resolve_set(args.set)
     rows = [
@@ -117,11 +38,11 @@ def cmd_objects(args: argparse.Namespace) -> int:
         for o in objs
     ]
     if args.out:
-        from ham.drawing import draw_objects
+        from ham.world.drawing import draw_objects
 
         draw_objects(objs, args.out)
     if args.json:
-        _print_json(rows)
+        print_json(rows)
     else:
         for r in rows:
             print(f"{r['id']:>3}  {r['name']:<13} {r['description']}")
@@ -132,8 +53,8 @@ def cmd_objects(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------- glance
 def cmd_glance(args: argparse.Namespace) -> int:
-    from ham import objects
-    from ham.world import make_simulator
+    from ham.world import objects
+    from ham.world.config import make_simulator
 
     obj = objects.get(args.object)
     world = world_from_args(args, objects=obj.name)
@@ -143,11 +64,11 @@ def cmd_glance(args: argparse.Namespace) -> int:
     data.update(object=obj.name, object_id=objects.object_id(obj.name), simulator=sim.name)
     data["q"] = [args.x, args.phi]
     if args.out:
-        from ham.drawing import draw_glance
+        from ham.world.drawing import draw_glance
 
         draw_glance(obj, data, world.sensor.size, args.out)
     if args.json:
-        _print_json(data)
+        print_json(data)
     else:
         print(
             f"{obj.name} at q = ({args.x:+.3f}, {args.phi:+.3f}) -> x = {data['x'] * 100:.2f} cm, "
@@ -161,7 +82,7 @@ def cmd_glance(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------- table
 def cmd_table_build(args: argparse.Namespace) -> int:
-    from ham.table import build_table
+    from ham.world.table import build_table
 
     world = world_from_args(args)
     out = build_table(
@@ -172,11 +93,11 @@ def cmd_table_build(args: argparse.Namespace) -> int:
 
 
 def cmd_table_info(args: argparse.Namespace) -> int:
-    from ham.table import table_info
+    from ham.world.table import table_info
 
     info = table_info(args.file)
     if args.json:
-        _print_json(info.to_dict())
+        print_json(info.to_dict())
         return 0
     print(f"{info.path}: {len(info.objects)} objects x {info.grid} x {info.grid} glances")
     print(f"  objects:   {', '.join(info.objects)}")
@@ -191,8 +112,8 @@ def cmd_table_info(args: argparse.Namespace) -> int:
 def cmd_table_show(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from ham.drawing import draw_table_grid
-    from ham.table import GlanceTable, grid_values
+    from ham.world.drawing import draw_table_grid
+    from ham.world.table import GlanceTable, grid_values
 
     table = GlanceTable.load(args.file)
     names = table.objects
@@ -216,7 +137,7 @@ def cmd_table_show(args: argparse.Namespace) -> int:
 
 
 def cmd_table_import(args: argparse.Namespace) -> int:
-    from ham.table import import_authors
+    from ham.world.table import import_authors
 
     out = import_authors(
         args.file, args.out, axes=args.axes, command="ham " + " ".join(sys.argv[1:])
@@ -227,7 +148,7 @@ def cmd_table_import(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------- demo
 def cmd_demo(args: argparse.Namespace) -> int:
-    from ham.demo import run_demo
+    from ham.experiments.demo import run_demo
 
     run_demo(Path(args.out), quick=args.quick)
     return 0

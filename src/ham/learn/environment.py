@@ -6,82 +6,16 @@ no fixed training set. :class:`HapticEnv` draws such batches from its own seeded
 ``torch.Generator`` and answers glances ``q = (q_x, q_phi) in [-1, 1]^2`` with normalized
 pressure vectors (L2 by default, the paper; L1 as in the authors' code).
 
-Glances come from a :class:`GlanceSource`:
-
-* :class:`TableSource`: a pre-recorded glance table, the closest grid point (the paper's way);
-* :class:`OnlineSource`: the fast simulator itself, at the exact pose (no grid; beyond the paper).
-
-Both run on CPU or CUDA. Evaluation uses balanced batches (:meth:`HapticEnv.balanced_objects`).
+Glances come from a :class:`ham.world.source.GlanceSource`. Evaluation uses balanced batches (:meth:`HapticEnv.balanced_objects`).
 """
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Protocol, runtime_checkable
-
 import torch
 
 from ham.errors import HamError
-from ham.sensor import NORMALIZATIONS, normalize
-from ham.world import WorldConfig, make_simulator
-
-
-@runtime_checkable
-class GlanceSource(Protocol):
-    """Anything that answers batches of glances with raw pressure images."""
-
-    n_objects: int
-    objects: list
-
-    def lookup(
-        self, object_ids: torch.Tensor, q_x: torch.Tensor, q_phi: torch.Tensor
-    ) -> torch.Tensor:
-        """Raw pressure ``(B, 16, 16)`` for objects ``(B,)`` at normalized poses ``(B,)``."""
-        ...
-
-
-class OnlineSource:
-    """Glances simulated on demand by a simulator (``FastSimulator``: CPU or CUDA, no grid)."""
-
-    def __init__(self, simulator) -> None:
-        self.simulator = simulator
-        self.objects = [o.name for o in simulator.objects]
-        self.n_objects = len(self.objects)
-
-    def lookup(
-        self, object_ids: torch.Tensor, q_x: torch.Tensor, q_phi: torch.Tensor
-    ) -> torch.Tensor:
-        return self.simulator.glance(object_ids, q_x, q_phi).pressure
-
-
-class TableSource:
-    """Glances looked up in a :class:`ham.table.GlanceTable`: the closest grid point (the paper)."""
-
-    def __init__(self, table) -> None:
-        self.table = table
-        self.objects = list(table.objects)
-        self.n_objects = len(self.objects)
-
-    def lookup(
-        self, object_ids: torch.Tensor, q_x: torch.Tensor, q_phi: torch.Tensor
-    ) -> torch.Tensor:
-        # The environment's own actions are always in range: skip the per-call validation.
-        return self.table.lookup(object_ids, q_x, q_phi, check=False)
-
-
-def make_source(
-    table: str | Path | None = None,
-    world: WorldConfig | None = None,
-    device: str | torch.device = "cpu",
-) -> tuple[GlanceSource, WorldConfig]:
-    """A glance table's source when ``table`` is given, else the online simulator of ``world``."""
-    if table is not None:
-        from ham.table import GlanceTable
-
-        t = GlanceTable.load(table, device=str(device))
-        return TableSource(t), t.world
-    world = world or WorldConfig()
-    return OnlineSource(make_simulator(world, device=str(device))), world
+from ham.world.sensor import NORMALIZATIONS, normalize
+from ham.world.source import GlanceSource
 
 
 class HapticEnv:

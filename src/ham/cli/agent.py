@@ -1,7 +1,7 @@
 """``ham train``, ``ham evaluate``, ``ham heatmap``: the agent's subcommands.
 
-``ham.cli`` adds them through :func:`add_commands`; each command returns an exit code and raises
-:class:`ham.errors.HamError` for anything the user got wrong (printed as one line by ``ham.cli``).
+``ham.cli.main`` adds them through :func:`add_commands`; each command returns an exit code and raises
+:class:`ham.errors.HamError` for anything the user got wrong (printed as one line by ``ham.cli.main``).
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ PAPER_PARAMETERS = 741_248
 
 def add_commands(subparsers) -> None:
     """Add ``train``, ``evaluate`` and ``heatmap`` to an argparse subparsers object."""
-    from ham.agent import HamConfig
-    from ham.train import TrainConfig
+    from ham.learn.train import TrainConfig
+    from ham.model.agent import HamConfig
 
     d, m = TrainConfig(), HamConfig()
     p = subparsers.add_parser(
@@ -133,14 +133,14 @@ def add_commands(subparsers) -> None:
 
 def _add_world_options(p: argparse.ArgumentParser) -> None:
     try:
-        from ham.cli import add_world_options
-    except ImportError:  # pragma: no cover - ham.cli is part of the package
+        from ham.cli.options import add_world_options
+    except ImportError:  # pragma: no cover - ham.cli.main is part of the package
         return
     add_world_options(p)
 
 
 def _world_from_args(args: argparse.Namespace):
-    from ham.cli import world_from_args
+    from ham.cli.options import world_from_args
 
     return world_from_args(args)
 
@@ -156,14 +156,14 @@ def _set_threads(threads: int | None) -> None:
 
 
 def _config_from_args(args: argparse.Namespace):
-    from ham.agent import HamConfig
-    from ham.objects import resolve_set
-    from ham.train import TrainConfig
+    from ham.learn.train import TrainConfig
+    from ham.model.agent import HamConfig
+    from ham.world.objects import resolve_set
 
     world = _world_from_args(args)
     n_objects = None
     if args.table:
-        from ham.table import table_info
+        from ham.world.table import table_info
 
         if not Path(args.table).exists():
             raise HamError(f"glance table {args.table!r} does not exist")
@@ -206,11 +206,11 @@ def _config_from_args(args: argparse.Namespace):
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from ham.train import resume, train
+    from ham.learn.train import resume, train
 
     _set_threads(args.threads)
-    if args.env:  # another world: the ap_gym adapter (ham.ap_adapter)
-        from ham.cli_envs import train_from_args
+    if args.env:  # another world: the ap_gym adapter (ham.learn.ap_adapter)
+        from ham.cli.envs import train_from_args
 
         return train_from_args(args)
     progress = not args.no_progress
@@ -249,7 +249,7 @@ def cmd_train(args: argparse.Namespace) -> int:
             raise HamError("ham train needs --out DIR (or --resume DIR)")
         config = _config_from_args(args)
         out = Path(args.out)
-        from ham.agent import HapticAttentionModel, count_parameters
+        from ham.model.agent import HapticAttentionModel, count_parameters
 
         n = count_parameters(HapticAttentionModel(config.model))
         print(
@@ -259,7 +259,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         )
         metrics = train(config, out, progress=progress)
     _print_summary(metrics, out)
-    from ham.figures import plot_training_curve
+    from ham.experiments.figures import plot_training_curve
 
     print(f"wrote {plot_training_curve(metrics, out / 'training_curve.png')}")
     return 0
@@ -274,8 +274,8 @@ def _print_summary(metrics: dict, out: Path) -> None:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from ham.evaluation import evaluate
-    from ham.train import load_run
+    from ham.learn.evaluation import evaluate
+    from ham.learn.train import load_run
 
     run = load_run(args.run, device=args.device)
     policy = args.eval_policy or run.config.eval_policy
@@ -299,9 +299,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def cmd_heatmap(args: argparse.Namespace) -> int:
-    from ham.evaluation import heatmap_data
-    from ham.figures import plot_heatmap
-    from ham.train import load_run
+    from ham.experiments.figures import plot_heatmap
+    from ham.learn.evaluation import heatmap_data
+    from ham.learn.train import load_run
 
     run = load_run(args.run, device=args.device)
     policy = args.eval_policy or run.config.eval_policy
@@ -315,7 +315,7 @@ def cmd_heatmap(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Stand-alone entry (``python -m ham.cli_agent``), the same as ``ham <command>``."""
+    """Stand-alone entry (``python -m ham.cli.agent``), the same as ``ham <command>``."""
     parser = argparse.ArgumentParser(prog="ham")
     add_commands(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(argv)

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ham.errors import HamError
+from ham.experiments.runs import is_finished, run_dir
 
 TARGETS = ("table1", "table2", "figures", "all")
 EXECUTORS = ("local", "ray")
@@ -157,8 +158,8 @@ class Job:
 # --------------------------------------------------------------------------- plan
 def plan(target: str, profile: Profile, seeds: int, table: str, device: str = "cpu") -> list[Job]:
     """The runs ``target`` needs, deduplicated (Table 2's concat2 run is Table 1's full model)."""
-    from ham.agent import HamConfig
-    from ham.train import TrainConfig
+    from ham.learn.train import TrainConfig
+    from ham.model.agent import HamConfig
 
     if target not in TARGETS:
         raise HamError(f"target {target!r}; accepted: {', '.join(TARGETS)}")
@@ -191,18 +192,6 @@ def plan(target: str, profile: Profile, seeds: int, table: str, device: str = "c
 
 
 # --------------------------------------------------------------------------- run one job
-def run_dir(root: Path, key: str) -> Path:
-    return Path(root) / "runs" / key
-
-
-def is_finished(out: Path, steps: int) -> bool:
-    try:
-        metrics = json.loads((out / "metrics.json").read_text())
-    except (OSError, ValueError):
-        return False
-    return int(metrics.get("steps", -1)) >= steps
-
-
 def run_job(job: dict, root: str, world: dict, grid: int) -> dict:
     """Train one run to completion (resuming it if it was interrupted); runs in a worker.
 
@@ -211,7 +200,7 @@ def run_job(job: dict, root: str, world: dict, grid: int) -> dict:
     """
     import torch
 
-    from ham.train import TrainConfig, resume, train
+    from ham.learn.train import TrainConfig, resume, train
 
     torch.set_num_threads(1)
     started = time.perf_counter()
@@ -230,8 +219,8 @@ def run_job(job: dict, root: str, world: dict, grid: int) -> dict:
 def _ensure_table(path: Path, world: dict, grid: int) -> None:
     if path.exists():
         return
-    from ham.table import build_table
-    from ham.world import WorldConfig
+    from ham.world.config import WorldConfig
+    from ham.world.table import build_table
 
     build_table(WorldConfig.from_dict(world), grid, path, progress=False, command="ham reproduce")
 
@@ -417,8 +406,8 @@ def reproduce(
     """
     from tqdm.auto import tqdm
 
-    from ham.table import build_table
-    from ham.world import WorldConfig
+    from ham.world.config import WorldConfig
+    from ham.world.table import build_table
 
     if profile_name not in PROFILES:
         raise HamError(f"profile {profile_name!r}; accepted: {', '.join(PROFILES)}")
@@ -485,7 +474,7 @@ def write_outputs(
     executor: str,
 ) -> dict:
     """Tables (Markdown + JSON), figures (PNG) and ``report.md`` from the finished runs."""
-    from ham.reproduce_figures import draw_figures
+    from ham.experiments.reproduce_figures import draw_figures
 
     summary: dict = {"target": target, "profile": asdict(profile), "failures": failures}
     sections = []

@@ -1,11 +1,11 @@
 """Training the HAM (section "Training"), readable top to bottom.
 
 Each step: draw a fresh batch of 64 objects uniformly, play ``S`` glances (the first random, the
-rest from the location policy), compute the hybrid loss (:mod:`ham.hybrid_loss`), take one SGD
+rest from the location policy), compute the hybrid loss (:mod:`ham.learn.hybrid_loss`), take one SGD
 step with Nesterov momentum 0.9 at the learning rate
 ``lr_t = max(lr_min, lr * lr_decay^(t / lr_step))`` (8e-4, 0.97, T = 800; the authors' code uses
 T = 200). Every ``eval_every`` steps (200) evaluate 100 fresh balanced batches
-(:mod:`ham.evaluation`), track the best accuracy, log to TensorBoard, and write a checkpoint.
+(:mod:`ham.learn.evaluation`), track the best accuracy, log to TensorBoard, and write a checkpoint.
 
 A run directory holds::
 
@@ -32,13 +32,14 @@ from pathlib import Path
 import torch
 from tqdm.auto import tqdm
 
-from ham.agent import HamConfig, HapticAttentionModel, count_parameters
-from ham.environment import HapticEnv, make_source
 from ham.errors import HamError
-from ham.evaluation import EVAL_POLICIES, evaluate
-from ham.hybrid_loss import REDUCTIONS, HybridLoss, hybrid_loss
-from ham.sensor import NORMALIZATIONS
-from ham.world import WorldConfig
+from ham.learn.environment import HapticEnv
+from ham.learn.evaluation import EVAL_POLICIES, evaluate
+from ham.learn.hybrid_loss import REDUCTIONS, HybridLoss, hybrid_loss
+from ham.model.agent import HamConfig, HapticAttentionModel, count_parameters
+from ham.world.config import WorldConfig
+from ham.world.sensor import NORMALIZATIONS
+from ham.world.source import make_source
 
 CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.json"
@@ -52,7 +53,7 @@ class TrainConfig:
     """Every training hyperparameter, with the paper's value as its default (Table Hyperparameters).
 
     Attributes:
-        model: the network (:class:`ham.agent.HamConfig`), glances included.
+        model: the network (:class:`ham.model.agent.HamConfig`), glances included.
         steps: training steps (50,000).
         batch_size: objects per batch (64).
         lr: initial learning rate alpha_0 (8e-4).
@@ -71,7 +72,7 @@ class TrainConfig:
         eval_every: steps between evaluations and checkpoints (200, the authors' code).
         eval_batches: balanced batches per evaluation (100).
         eval_policy: the location policy during evaluation: ``mean`` poses (training stopped)
-            or ``sample`` (as in training); see :mod:`ham.evaluation`.
+            or ``sample`` (as in training); see :mod:`ham.learn.evaluation`.
         seed: seeds the initial weights and the generators of objects, poses and evaluation.
         normalization: pressure normalization, l2 (paper), l1 (authors' code) or none.
         table: a glance table file (the paper's pre-recorded data set); ``None``: online.

@@ -35,7 +35,7 @@ from tqdm.auto import tqdm
 
 import ham
 from ham.errors import HamError
-from ham.world import WorldConfig, make_simulator
+from ham.world.config import WorldConfig, make_simulator
 
 FORMAT = "ham-glance-table"
 FORMAT_VERSION = 1
@@ -281,7 +281,7 @@ class GlanceTable:
         return GlanceTable(self.info, self.pressure.to(device), self.extras)
 
     def indices(self, q_x, q_phi) -> tuple[torch.Tensor, torch.Tensor]:
-        from ham.glance import as_action
+        from ham.world.glance import as_action
 
         qx = as_action("q_x", q_x, self.device)
         qp = as_action("q_phi", q_phi, self.device)
@@ -293,7 +293,7 @@ class GlanceTable:
         ``check=False`` skips input validation (the training loop's own samples are in range).
         """
         if check:
-            from ham.glance import as_object_ids
+            from ham.world.glance import as_object_ids
 
             ids = as_object_ids(object_ids, self.n_objects, self.device)
             ix, ip = self.indices(q_x, q_phi)

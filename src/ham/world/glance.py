@@ -34,8 +34,8 @@ import numpy as np
 import torch
 
 from ham.errors import HamError
-from ham.objects import HapticObject
-from ham.sensor import Myrmex, SensorConfig
+from ham.world.objects import HapticObject
+from ham.world.sensor import Myrmex, SensorConfig
 
 #: Authors' exploration-zone widths (m) for the paper objects, from their Gazebo code.
 AUTHORS_ZONE_WIDTHS: dict[str, float] = {

@@ -3,8 +3,8 @@
 ``WorldConfig`` is the one config object for everything a glance depends on; it is saved beside
 every table and run. ``make_simulator`` builds the simulator it names:
 
-* ``fast``: the vectorized foam-contact model (:class:`ham.glance.FastSimulator`), CPU or CUDA;
-* ``mujoco``: the MuJoCo physics engine (:mod:`ham.mujoco_sim`), when installed.
+* ``fast``: the vectorized foam-contact model (:class:`ham.world.glance.FastSimulator`), CPU or CUDA;
+* ``mujoco``: the MuJoCo physics engine (:mod:`ham.world.mujoco_sim`), when installed.
 
 Third parties add a simulator with :func:`register_simulator`.
 """
@@ -14,18 +14,18 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 
-from ham import objects as _objects
 from ham.errors import HamError
-from ham.glance import FastSimulator, GlanceConfig, PoseConfig, Simulator
-from ham.objects import HapticObject
-from ham.sensor import SensorConfig
+from ham.world import objects as _objects
+from ham.world.glance import FastSimulator, GlanceConfig, PoseConfig, Simulator
+from ham.world.objects import HapticObject
+from ham.world.sensor import SensorConfig
 
 
 @dataclass(frozen=True)
 class WorldConfig:
     """Objects, sensor, pose mapping, glance rule and simulator (paper defaults).
 
-    ``mujoco`` holds :class:`ham.mujoco_sim.MujocoConfig` overrides (e.g. ``{"readout": "gazebo"}``)
+    ``mujoco`` holds :class:`ham.world.mujoco_sim.MujocoConfig` overrides (e.g. ``{"readout": "gazebo"}``)
     for the MuJoCo simulator; the fast simulator ignores it.
     """
 
@@ -83,7 +83,7 @@ def make_simulator(
         )
     if name == "mujoco" and name not in _SIMULATORS:
         try:
-            from ham.mujoco_sim import MujocoSimulator
+            from ham.world.mujoco_sim import MujocoSimulator
         except ImportError as exc:  # pragma: no cover - depends on the installation
             raise HamError(f"simulator 'mujoco' is not available: {exc}") from None
         return MujocoSimulator(

@@ -1,0 +1,87 @@
+"""Options shared by the ``ham`` subcommands: the world a command runs in, numbers, JSON output."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from ham.errors import HamError
+
+
+def finite_float(text: str) -> float:
+    """argparse type: a float; NaN and inf pass through so the glance check can name them."""
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+
+
+def add_world_options(p: argparse.ArgumentParser, *, objects: bool = True) -> None:
+    """Options that build a :class:`ham.world.config.WorldConfig` (paper defaults)."""
+    if objects:
+        p.add_argument(
+            "--objects",
+            default="paper",
+            help="object set: paper (default), mhsb, all, or a comma list of names/ids",
+        )
+    p.add_argument("--simulator", default="fast", help="fast (default) or mujoco")
+    p.add_argument(
+        "--sensor",
+        default="taxels",
+        choices=("taxels", "gazebo"),
+        help="read-out: taxels (default; edges are lines) or gazebo (MuJoCo only: contact points "
+        "spread by a 5 mm Gaussian, the paper's plugin: edges are blobs)",
+    )
+    p.add_argument(
+        "--pose",
+        default="paper",
+        choices=("paper", "authors"),
+        help="pose mapping: paper (phi = q*pi/2, default) or authors (phi = q*0.3pi, pivot shift)",
+    )
+    p.add_argument("--foam-stiffness", type=finite_float, default=None, help="Pa per m")
+    p.add_argument(
+        "--spread-sigma",
+        type=finite_float,
+        default=None,
+        help="Gaussian spread (m) like the paper's Gazebo plugin, e.g. 0.005",
+    )
+    p.add_argument("--quantize-bits", type=int, default=None, help="e.g. 12, like the real sensor")
+
+
+def world_from_args(args: argparse.Namespace, objects: str | None = None):
+    from dataclasses import replace
+
+    from ham.world.config import WorldConfig
+    from ham.world.glance import PoseConfig
+    from ham.world.sensor import SensorConfig
+
+    sensor = SensorConfig()
+    changes = {}
+    if args.foam_stiffness is not None:
+        changes["foam_stiffness"] = args.foam_stiffness
+    if args.spread_sigma is not None:
+        changes["spread_sigma"] = args.spread_sigma
+    if args.quantize_bits is not None:
+        changes["quantize_bits"] = args.quantize_bits
+    sensor = replace(sensor, **changes)
+    mujoco = {}
+    if args.sensor == "gazebo":
+        if args.simulator != "mujoco":
+            raise HamError(
+                f"--sensor gazebo needs --simulator mujoco (got {args.simulator!r}): the fast "
+                "model has no contact points to spread; for a Gazebo-like blur use --spread-sigma 0.005"
+            )
+        mujoco["readout"] = "gazebo"
+    return WorldConfig(
+        objects=objects or getattr(args, "objects", "paper"),
+        simulator=args.simulator,
+        sensor=sensor,
+        pose=PoseConfig.preset(args.pose),
+        mujoco=mujoco,
+    )
+
+
+def print_json(obj) -> None:
+    json.dump(obj, sys.stdout, indent=None, allow_nan=True)
+    sys.stdout.write("\n")

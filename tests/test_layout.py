@@ -1,0 +1,102 @@
+"""The package's architecture: layers import only downward, and no module imports itself back.
+
+Layers, lowest first: ``errors`` -> ``world`` -> ``model`` -> ``learn`` -> ``envs`` ->
+``experiments`` -> ``cli``. A module may import from its own layer or a lower one. Every
+``import``/``from ... import`` counts, also those inside functions (lazy imports still couple).
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src" / "ham"
+LAYERS = ["errors", "world", "model", "learn", "envs", "experiments", "cli"]
+TOP_LEVEL = {"__init__", "__main__"}  # the package root and `python -m ham` sit above all layers
+
+
+def module_name(path: Path) -> str:
+    rel = path.relative_to(SRC.parent).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def ham_imports(path: Path) -> set[str]:
+    """The ``ham`` modules ``path`` imports (``from ham.x import y`` counts ``ham.x.y`` when that
+    is a module, else ``ham.x``)."""
+    modules = {module_name(p) for p in SRC.rglob("*.py")}
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names = [f"{node.module}.{a.name}" for a in node.names] + [node.module]
+        else:
+            continue
+        for name in names:
+            if name.startswith("ham") and name in modules:
+                found.add(name)
+    # `from ham.x import y` where y is a module names both ham.x and ham.x.y: keep the deepest
+    return {m for m in found if not any(o.startswith(m + ".") for o in found)} or found
+
+
+def layer_of(module: str) -> int | None:
+    parts = module.split(".")
+    if len(parts) == 1 or parts[1] in TOP_LEVEL:
+        return None
+    return LAYERS.index(parts[1])
+
+
+def graph() -> dict[str, set[str]]:
+    return {module_name(p): ham_imports(p) for p in sorted(SRC.rglob("*.py"))}
+
+
+def test_every_module_is_in_a_layer():
+    stray = [m for m in graph() if m != "ham" and layer_of(m) is None and m != "ham.__main__"]
+    missing = [m for m in stray if m.split(".")[1] not in LAYERS]
+    assert not missing, f"modules outside the layers {LAYERS}: {missing}"
+
+
+def test_imports_point_down_the_layers():
+    wrong = []
+    for module, imports in graph().items():
+        here = layer_of(module)
+        if here is None:
+            continue
+        for target in imports:
+            there = layer_of(target)
+            if there is not None and there > here:
+                wrong.append(f"{module} -> {target}")
+    assert not wrong, "imports that point up the layers:\n" + "\n".join(wrong)
+
+
+def test_no_import_cycles():
+    g = graph()
+    state: dict[str, int] = {}
+    cycles: list[list[str]] = []
+
+    def visit(node: str, stack: list[str]) -> None:
+        state[node] = 1
+        for nxt in sorted(g.get(node, ())):
+            nxt_key = nxt if nxt in g else None
+            if nxt_key is None or nxt == node:
+                continue
+            if state.get(nxt) == 1:
+                cycles.append(stack[stack.index(nxt) :] + [nxt])
+            elif nxt not in state:
+                visit(nxt, stack + [nxt])
+        state[node] = 2
+
+    for node in g:
+        if node not in state:
+            visit(node, [node])
+    assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)
+
+
+@pytest.mark.parametrize("layer", LAYERS[1:])
+def test_each_layer_is_a_package(layer):
+    assert (SRC / layer).is_dir() and (SRC / layer / "__init__.py").is_file()
