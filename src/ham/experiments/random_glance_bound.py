@@ -1,6 +1,6 @@
 """How well can any classifier do from random glances? A Bayes estimate from a glance table.
 
-    .venv/bin/python benchmarks/random_glance_bound.py [--table FILE] [--tolerance 1e-6]
+    .venv/bin/python -m ham.experiments.random_glance_bound [--table FILE] [--tolerance 1e-6]
 
 The random-location model of Table 1 (pi_rloc) glances at poses drawn uniformly from [-1, 1]^2.
 The world is deterministic: object and pose fix the image. A classifier that knows the poses and
