@@ -18,10 +18,10 @@ PAPER_PARAMETERS = 741_248
 
 def add_commands(subparsers) -> None:
     """Add ``train``, ``evaluate`` and ``heatmap`` to an argparse subparsers object."""
+    from ham.cli.config_args import add_config_options, choices
     from ham.learn.train import TrainConfig
     from ham.model.agent import HamConfig
 
-    d, m = TrainConfig(), HamConfig()
     p = subparsers.add_parser(
         "train",
         help="train a Haptic Attention Model (hybrid REINFORCE), or --resume one",
@@ -30,21 +30,11 @@ def add_commands(subparsers) -> None:
         "simulator (--online: exact poses, no grid). Writes DIR/config.json, DIR/metrics.json, "
         "DIR/checkpoint.pt and TensorBoard scalars in DIR/tb.",
     )
-    p.add_argument("--glances", type=int, help=f"glances per episode (default {m.glances})")
-    p.add_argument(
-        "--steps",
-        type=int,
-        help=f"training steps (default {d.steps}; with --resume: the new total)",
-    )
-    p.add_argument(
-        "--seed", type=int, help=f"seed of weights, objects and poses (default {d.seed})"
-    )
-    p.add_argument("--core", choices=("lstm", "mlp"), help="core network (default lstm)")
-    p.add_argument(
-        "--policy", choices=("learned", "random"), help="location policy (default learned)"
-    )
-    p.add_argument("--combiner", choices=("concat2", "concat1", "add", "mul"),
-                   help="what & where combiner (default concat2)")  # fmt: skip
+    # Every hyperparameter once: the options come from TrainConfig and HamConfig themselves.
+    hyper = p.add_argument_group("training (TrainConfig; paper defaults)")
+    add_config_options(hyper, TrainConfig, skip={"model", "world", "table"})
+    net = p.add_argument_group("network (HamConfig; paper defaults)")
+    add_config_options(net, HamConfig, skip={"n_objects", "pressure_dim"})
     src = p.add_mutually_exclusive_group()
     src.add_argument("--table", metavar="FILE", help="glance table (HDF5) to look glances up in")
     src.add_argument("--online", action="store_true",
@@ -57,48 +47,6 @@ def add_commands(subparsers) -> None:
                    help="with --env: image env step length, a number or 'teleport'")  # fmt: skip
     p.add_argument("--eval-env", metavar="ap_gym:ENV_ID",
                    help="with --env: evaluation environment (default: the training one)")  # fmt: skip
-    p.add_argument("--device", help="cpu (default) or cuda")
-    p.add_argument(
-        "--eval-every", type=int, help=f"steps between evaluations (default {d.eval_every})"
-    )
-    p.add_argument(
-        "--eval-batches", type=int, help=f"batches per evaluation (default {d.eval_batches})"
-    )
-    p.add_argument("--eval-policy", choices=("mean", "sample"),
-                   help="location policy when evaluating: mean poses (default) or sampled")  # fmt: skip
-    p.add_argument("--batch-size", type=int, help=f"objects per batch (default {d.batch_size})")
-    p.add_argument("--lr", type=float, help=f"initial learning rate (default {d.lr})")
-    p.add_argument(
-        "--lr-step",
-        type=int,
-        help=f"learning-rate decay step T (default {d.lr_step}; authors' code 200)",
-    )
-    p.add_argument(
-        "--beta", type=float, help=f"location weight of the hybrid loss (default {d.beta})"
-    )
-    p.add_argument("--classification-reduction", choices=("sum", "mean"),
-                   help=f"batch reduction of the classification term (default {d.classification_reduction})")  # fmt: skip
-    p.add_argument("--reinforce-reduction", choices=("sum", "mean"),
-                   help=f"batch reduction of the REINFORCE term (default {d.reinforce_reduction})")  # fmt: skip
-    p.add_argument(
-        "--normalization", choices=("l2", "l1", "none"), help="pressure normalization (default l2)"
-    )
-    p.add_argument(
-        "--lstm-activation", choices=("tanh", "relu"), help="LSTM cell activation (default tanh)"
-    )
-    p.add_argument(
-        "--std-activation",
-        choices=("softplus", "sigmoid"),
-        help="sigma activation (default softplus)",
-    )
-    p.add_argument(
-        "--truncate-bptt",
-        action="store_true",
-        help="no backpropagation through time (authors' code)",
-    )
-    p.add_argument(
-        "--no-bias", action="store_true", help="no biases outside the LSTM (authors' layout)"
-    )
     p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--out", metavar="DIR", help="run directory to create")
@@ -111,7 +59,7 @@ def add_commands(subparsers) -> None:
     p.add_argument("--batches", type=int, default=100, help="balanced batches (default 100)")
     p.add_argument("--seed", type=int, default=12345, help="seed of the poses (default 12345)")
     p.add_argument("--device", help="cpu or cuda (default: the run's)")
-    p.add_argument("--eval-policy", choices=("mean", "sample"),
+    p.add_argument("--eval-policy", choices=choices(TrainConfig, "eval_policy"),
                    help="location policy: mean poses or sampled (default: the run's)")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=cmd_evaluate)
@@ -125,7 +73,7 @@ def add_commands(subparsers) -> None:
     p.add_argument("--bins", type=int, default=20, help="bins per axis (default 20)")
     p.add_argument("--seed", type=int, default=12345, help="seed of the poses (default 12345)")
     p.add_argument("--device", help="cpu or cuda (default: the run's)")
-    p.add_argument("--eval-policy", choices=("mean", "sample"),
+    p.add_argument("--eval-policy", choices=choices(TrainConfig, "eval_policy"),
                    help="location policy: mean poses or sampled (default: the run's)")  # fmt: skip
     p.add_argument("--json", metavar="FILE", help="also write the heat map data as JSON")
     p.set_defaults(func=cmd_heatmap)
@@ -156,6 +104,7 @@ def _set_threads(threads: int | None) -> None:
 
 
 def _config_from_args(args: argparse.Namespace):
+    from ham.cli.config_args import overrides
     from ham.learn.train import TrainConfig
     from ham.model.agent import HamConfig
     from ham.world.objects import resolve_set
@@ -170,39 +119,9 @@ def _config_from_args(args: argparse.Namespace):
         n_objects = len(table_info(args.table).objects)
     else:
         n_objects = len(resolve_set(world.objects))
-    model_args = {
-        "glances": args.glances,
-        "combiner": args.combiner,
-        "core": args.core,
-        "policy": args.policy,
-        "lstm_activation": args.lstm_activation,
-        "std_activation": args.std_activation,
-        "truncate_bptt": True if args.truncate_bptt else None,
-        "bias": False if args.no_bias else None,
-    }
-    model = HamConfig(n_objects=n_objects, **{k: v for k, v in model_args.items() if v is not None})
-    train_args = {
-        "steps": args.steps,
-        "seed": args.seed,
-        "device": args.device,
-        "eval_every": args.eval_every,
-        "eval_batches": args.eval_batches,
-        "eval_policy": args.eval_policy,
-        "batch_size": args.batch_size,
-        "lr": args.lr,
-        "lr_step": args.lr_step,
-        "beta": args.beta,
-        "classification_reduction": args.classification_reduction,
-        "reinforce_reduction": args.reinforce_reduction,
-        "normalization": args.normalization,
-    }
+    model = HamConfig(n_objects=n_objects, **overrides(args, HamConfig))
     table = str(Path(args.table).resolve()) if args.table else None
-    return TrainConfig(
-        model=model,
-        table=table,
-        world=world,
-        **{k: v for k, v in train_args.items() if v is not None},
-    )
+    return TrainConfig(model=model, table=table, world=world, **overrides(args, TrainConfig))
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -217,26 +136,10 @@ def cmd_train(args: argparse.Namespace) -> int:
     if args.resume:
         if args.out:
             raise HamError("give either --resume DIR or --out DIR, not both")
-        ignored = [
-            f"--{k.replace('_', '-')}"
-            for k in (
-                "glances",
-                "seed",
-                "core",
-                "policy",
-                "combiner",
-                "table",
-                "device",
-                "eval_every",
-                "eval_batches",
-                "eval_policy",
-                "batch_size",
-                "lr",
-                "lr_step",
-                "beta",
-            )  # fmt: skip
-            if getattr(args, k) is not None
-        ]
+        from ham.cli.config_args import given
+
+        ignored = [flag for flag in given(args) if flag != "--steps"]
+        ignored += ["--table"] if args.table else []
         if ignored:
             raise HamError(
                 f"--resume continues the run with its own config; remove {', '.join(ignored)} "

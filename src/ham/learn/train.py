@@ -32,7 +32,7 @@ from pathlib import Path
 import torch
 from tqdm.auto import tqdm
 
-from ham.errors import HamError
+from ham.errors import HamError, check_choices
 from ham.learn.environment import HapticEnv
 from ham.learn.evaluation import EVAL_POLICIES, evaluate
 from ham.learn.hybrid_loss import REDUCTIONS, HybridLoss, hybrid_loss
@@ -91,13 +91,13 @@ class TrainConfig:
     momentum: float = 0.9
     nesterov: bool = True
     beta: float = 0.4
-    classification_reduction: str = "sum"
-    reinforce_reduction: str = "mean"
+    classification_reduction: str = field(default="sum", metadata={"choices": REDUCTIONS})
+    reinforce_reduction: str = field(default="mean", metadata={"choices": REDUCTIONS})
     eval_every: int = 200
     eval_batches: int = 100
-    eval_policy: str = "mean"
+    eval_policy: str = field(default="mean", metadata={"choices": EVAL_POLICIES})
     seed: int = 0
-    normalization: str = "l2"
+    normalization: str = field(default="l2", metadata={"choices": NORMALIZATIONS})
     table: str | None = None
     world: WorldConfig = field(default_factory=WorldConfig)
     device: str = "cpu"
@@ -121,17 +121,7 @@ class TrainConfig:
             raise HamError(f"beta = {self.beta!r}; accepted: a finite number >= 0")
         if not isinstance(self.seed, int) or self.seed < 0:
             raise HamError(f"seed = {self.seed!r}; accepted: an integer >= 0")
-        for name in ("classification_reduction", "reinforce_reduction"):
-            if getattr(self, name) not in REDUCTIONS:
-                raise HamError(f"{name} {getattr(self, name)!r}; accepted: {', '.join(REDUCTIONS)}")
-        if self.eval_policy not in EVAL_POLICIES:
-            raise HamError(
-                f"eval_policy {self.eval_policy!r}; accepted: {', '.join(EVAL_POLICIES)}"
-            )
-        if self.normalization not in NORMALIZATIONS:
-            raise HamError(
-                f"normalization {self.normalization!r}; accepted: {', '.join(NORMALIZATIONS)}"
-            )
+        check_choices(self)
         if self.device.split(":")[0] not in DEVICES:
             raise HamError(f"device {self.device!r}; accepted: {', '.join(DEVICES)}")
 

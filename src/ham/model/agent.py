@@ -20,12 +20,12 @@ default; where the authors' code differs, the field offers the code's choice as 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field, fields
 
 import torch
 from torch import nn
 
-from ham.errors import HamError
+from ham.errors import HamError, check_choices
 from ham.model.baseline import Baseline
 from ham.model.classifier import Classifier
 from ham.model.core import ACTIVATIONS, CORES, State, make_core
@@ -71,15 +71,15 @@ class HamConfig:
     pressure_dim: int = 256
     what_units: int = 64
     where_units: int = 64
-    combiner: str = "concat2"
+    combiner: str = field(default="concat2", metadata={"choices": COMBINERS})
     combine_units: int = 256
-    core: str = "lstm"
+    core: str = field(default="lstm", metadata={"choices": CORES})
     hidden_units: int = 256
-    lstm_activation: str = "tanh"
+    lstm_activation: str = field(default="tanh", metadata={"choices": ACTIVATIONS})
     forget_bias: float = 1.0
     truncate_bptt: bool = False
-    policy: str = "learned"
-    std_activation: str = "softplus"
+    policy: str = field(default="learned", metadata={"choices": POLICIES})
+    std_activation: str = field(default="softplus", metadata={"choices": STD_ACTIVATIONS})
     sigma_min: float = 1e-3
     phi_scale: float = math.pi / 2
     bias: bool = True
@@ -92,15 +92,7 @@ class HamConfig:
                 raise HamError(f"{name} = {v!r}; accepted: an integer >= 1")
         if self.n_objects < 2:
             raise HamError(f"n_objects = {self.n_objects}; accepted: >= 2 objects to classify")
-        for name, allowed in (
-            ("combiner", COMBINERS),
-            ("core", CORES),
-            ("lstm_activation", ACTIVATIONS),
-            ("policy", POLICIES),
-            ("std_activation", STD_ACTIVATIONS),
-        ):
-            if getattr(self, name) not in allowed:
-                raise HamError(f"{name} = {getattr(self, name)!r}; accepted: {', '.join(allowed)}")
+        check_choices(self)
 
     def to_dict(self) -> dict:
         return asdict(self)
