@@ -1,7 +1,7 @@
 """Glances per second of the MuJoCo simulator, and the projected time of the paper's glance table.
 
 The paper's pre-recorded data set is a 201 x 201 grid of poses per object (section "Classification
-Task"; REFERENCE.md), 4 x 201 x 201 = 161,604 glances. This benchmark times MuJoCo glances on a
+Task"; docs/sources.md), 4 x 201 x 201 = 161,604 glances. This benchmark times MuJoCo glances on a
 seeded random sample of that grid (all phi, so steep tilts are included in their true share), on
 one thread and on all cores, beside the fast simulator, and prints the projection.
 

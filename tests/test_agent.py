@@ -27,7 +27,7 @@ def env() -> HapticEnv:
 def test_parameter_count_default_and_authors_layout():
     # Ours: the authors' LSTM model plus a bias on every dense layer (docs/agent.md).
     assert count_parameters(HapticAttentionModel(HamConfig())) == 643_081
-    # Without the dense biases: exactly the authors' LSTM model (REFERENCE.md): 642,432.
+    # Without the dense biases: exactly the authors' LSTM model (docs/sources.md): 642,432.
     assert count_parameters(HapticAttentionModel(HamConfig(bias=False))) == 642_432
 
 

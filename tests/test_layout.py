@@ -100,3 +100,20 @@ def test_no_import_cycles():
 @pytest.mark.parametrize("layer", LAYERS[1:])
 def test_each_layer_is_a_package(layer):
     assert (SRC / layer).is_dir() and (SRC / layer / "__init__.py").is_file()
+
+
+def test_the_project_stands_alone():
+    """No code, doc or test cites or loads anything outside the repository (docs/sources.md holds
+    the facts we rely on, with their public sources)."""
+    root = SRC.parents[1]
+    needles = ("REFERENCE" + ".md", ".." + "/shared")
+    hits = []
+    for folder in ("src", "tests", "docs", "benchmarks"):
+        for path in (root / folder).rglob("*"):
+            if path.suffix in (".py", ".md", ".toml", ".json", ".sh", ".txt"):
+                text = path.read_text(errors="replace")
+                hits += [f"{path.relative_to(root)}: {n}" for n in needles if n in text]
+    readme = (root / "README.md").read_text()
+    hits += [f"README.md: {n}" for n in needles if n in readme]
+    assert not hits, hits
+    assert (root / "docs" / "sources.md").is_file()

@@ -2,8 +2,8 @@
 
 Section "Training": trained separately with the mean squared error to the reward over every
 sub-sequence ``1..s`` (Eq baseline). Its input is the core output *detached*: the baseline's
-loss trains the baseline layer only, never the core (REFERENCE.md: "the baseline layer is
-updated separately").
+loss trains the baseline layer only, never the core (docs/sources.md, "The
+network").
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ features ``g_1 .. g_s`` into the accumulated feature ``tau_{1:s}`` that the clas
 network and the baseline read. The ablation of section "Experiments" replaces it by one dense
 ReLU layer of the same size (the MLP core), which sees only the current glance.
 
-Options from the authors' code (REFERENCE.md):
+Options from the authors' code (docs/sources.md, "The network"):
 
 * ``activation="relu"``: ReLU instead of tanh for the cell input and the cell output;
 * ``truncate_bptt=True``: the state enters each step detached from the graph, as in the authors'

@@ -10,8 +10,8 @@ A sample outside ``[-1, 1]`` is "resampled" (the paper): we draw from the Gaussi
 ``[-1, 1]`` directly by inverse-CDF sampling, which is the same distribution, vectorized, with no
 loop. The pose is then ``l = (q_x, q_phi * pi/2) = (x, phi)``.
 
-What is detached (paper and REFERENCE.md: "the core output is not trained through the location
-branch's sampling"):
+What is detached (paper; the authors' code, docs/sources.md "The network": the core is not
+trained through the location branch):
 
 * the core output enters the location network detached: the REINFORCE term trains only the
   location heads, never the core or the tactile network;

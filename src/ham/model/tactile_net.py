@@ -12,7 +12,7 @@ ReLU layer of 64 units ("where"); the two are combined by one of four combiners 
 
 Widths: the paper's hyperparameter table says "size of linear layers: 64 neurons"; the authors'
 code uses 256 units for each of the two layers after the concatenation, and only with 256 does the
-paper's parameter count (741,248, REFERENCE.md) come out. We follow the code: ``combine_units``
+paper's parameter count (741,248; docs/sources.md) come out. We follow the code: ``combine_units``
 = 256 by default, a parameter to set 64 for the table's reading.
 """
 
