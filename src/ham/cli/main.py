@@ -19,7 +19,13 @@ from ham.cli.options import add_world_options, finite_float, print_json, world_f
 from ham.errors import HamError
 
 # Modules that add subcommands; a missing optional one is skipped.
-_COMMAND_MODULES = ("ham.cli.agent", "ham.cli.mujoco_cmds", "ham.cli.reproduce", "ham.cli.envs")
+_COMMAND_MODULES = (
+    "ham.cli.agent",
+    "ham.cli.baselines",
+    "ham.cli.mujoco_cmds",
+    "ham.cli.reproduce",
+    "ham.cli.envs",
+)
 
 
 # --------------------------------------------------------------------------- objects

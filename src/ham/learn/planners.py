@@ -1,0 +1,281 @@
+"""Reference policies on a glance table, computed exactly: random, grid, infogain and oracle.
+
+A glance table makes the world deterministic and finite: object ``k`` at grid pose ``p`` gives
+one image. An observer who knows the poses and sees the images can only confuse objects whose
+images agree at every glance so far, so its knowledge after a glance sequence is the *consistent
+set* ``S`` (the Bayes posterior is uniform on ``S`` under the uniform prior over objects), and the
+best classifier is right with probability ``1 / |S|``. Each pose splits ``S`` into the classes
+of objects with equal images (:class:`Partitions`); poses with the same split are one action.
+Everything below is exact dynamic programming over consistent sets (``2^K`` of them), not Monte
+Carlo:
+
+* ``random``: poses drawn uniformly from ``[-1, 1]^2`` and looked up at the nearest grid point,
+  as the random-location model (pi_rloc) draws them; the Bayes accuracy of any classifier of such
+  glances (the exact version of :mod:`ham.experiments.random_glance_bound`).
+* ``grid``: a fixed systematic sweep, the same ``G`` poses for every object (:func:`sweep`).
+* ``infogain``: greedy expected information gain: each glance takes the pose whose split of the
+  current consistent set leaves the least expected entropy ``sum_c |c|/|S| log|c|``.
+* ``oracle``: a perfect planner: ``max`` over poses of the expected accuracy after ``G`` glances,
+  and ``N*``, the smallest expected number of glances that identifies the object (up to objects
+  no pose tells apart).
+
+``first="random"`` makes the first glance uniform, as the HAM's is (its location network acts
+from glance 2 on), so learned policies can be judged against planners with the same handicap.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import cache, lru_cache
+
+import numpy as np
+import torch
+
+from ham.errors import HamError
+
+POLICIES: tuple[str, ...] = ("random", "grid", "infogain", "oracle")
+FIRST: tuple[str, ...] = ("planned", "random")
+#: Consistent sets are bit masks over objects: 2^K states.
+MAX_OBJECTS = 20
+
+
+@dataclass(frozen=True)
+class Partitions:
+    """How each distinct pose action splits the objects.
+
+    Attributes:
+        labels: ``(U, K)`` int: objects with equal labels give equal images at that action.
+        weight: ``(U,)`` probability of the action under uniform poses (nearest grid point).
+        pose: ``(U, 2)`` one grid pose ``(q_x, q_phi)`` that realizes the action.
+        grid_action: ``(grid, grid)`` the action index of every grid pose.
+    """
+
+    labels: np.ndarray
+    weight: np.ndarray
+    pose: np.ndarray
+    grid_action: np.ndarray
+
+    @property
+    def n_objects(self) -> int:
+        return self.labels.shape[1]
+
+    @classmethod
+    def from_table(cls, table, tolerance: float = 1e-6) -> Partitions:
+        """Split each grid pose's objects by their L2-normalized images (the agent's input):
+        two images are equal when they differ by at most ``tolerance`` in L2 norm."""
+        from ham.world.sensor import normalize
+        from ham.world.table import grid_values
+
+        if not (math.isfinite(tolerance) and tolerance >= 0):
+            raise HamError(f"tolerance = {tolerance!r}; accepted: a finite number >= 0")
+        k, g = table.n_objects, table.grid
+        if k > MAX_OBJECTS:
+            raise HamError(
+                f"the table has {k} objects; exact planners accept at most {MAX_OBJECTS}"
+            )
+        p = normalize(table.pressure.double(), "l2")  # (K, g, g, D)
+        p = p.permute(1, 2, 0, 3).reshape(g * g, k, -1)
+        same = (torch.cdist(p, p) <= tolerance).numpy()  # (P, K, K)
+        # label = the first object equal to this one (exact equality makes this a partition)
+        labels = same.argmax(-1).astype(np.int64)  # (P, K)
+        rows, action = np.unique(labels, axis=0, return_inverse=True)
+        action = action.reshape(-1)
+        q = grid_values(g)
+        cell = np.full(g, 2.0 / (g - 1))
+        cell[[0, -1]] /= 2  # the nearest grid point of a uniform q: half cells at the ends
+        w_pose = np.outer(cell, cell).reshape(-1) / 4.0
+        weight = np.bincount(action, weights=w_pose, minlength=len(rows))
+        first = np.full(len(rows), -1)
+        for i in range(g * g - 1, -1, -1):
+            first[action[i]] = i
+        pose = np.stack([q[first // g], q[first % g]], axis=1)
+        return cls(rows, weight, pose, action.reshape(g, g))
+
+    def split(self, mask: int, action: int) -> list[int]:
+        """The classes (bit masks) an action splits the consistent set ``mask`` into."""
+        classes: dict[int, int] = {}
+        for k in range(self.n_objects):
+            if mask >> k & 1:
+                lab = int(self.labels[action, k])
+                classes[lab] = classes.get(lab, 0) | (1 << k)
+        return list(classes.values())
+
+    def splits_of(self, mask: int) -> list[tuple[int, list[int]]]:
+        """Distinct splits of ``mask`` (one action each, the first that realizes it)."""
+        seen: dict[tuple[int, ...], int] = {}
+        out = []
+        for a in range(len(self.labels)):
+            parts = self.split(mask, a)
+            key = tuple(sorted(parts))
+            if key not in seen:
+                seen[key] = a
+                out.append((a, parts))
+        return out
+
+
+def _size(mask: int) -> int:
+    return bin(mask).count("1")
+
+
+def _entropy_left(parts: list[int], size: int) -> float:
+    """Expected posterior entropy (nats) after a split: ``sum_c |c|/|S| log|c|``."""
+    return sum(_size(c) / size * math.log(_size(c)) for c in parts)
+
+
+def sweep(glances: int) -> np.ndarray:
+    """The grid policy's poses: ``G`` cell centres of the smallest near-square raster over
+    ``[-1, 1]^2`` with at least ``G`` cells, row by row (``(G, 2)`` of ``(q_x, q_phi)``)."""
+    nx = math.ceil(math.sqrt(glances))
+    nphi = math.ceil(glances / nx)
+    xs = -1 + (2 * np.arange(nx) + 1) / nx
+    ps = -1 + (2 * np.arange(nphi) + 1) / nphi
+    return np.array([(x, p) for p in ps for x in xs][:glances])
+
+
+class Planner:
+    """Exact accuracies of the reference policies on one :class:`Partitions`."""
+
+    def __init__(self, partitions: Partitions) -> None:
+        self.parts = partitions
+        self.k = partitions.n_objects
+        self.full = (1 << self.k) - 1
+
+    # ------------------------------------------------------------------ one object's view
+    def _mean_over_objects(self, value) -> float:
+        """``value(mask_after_first_information)``: averaged over the true object."""
+        return float(np.mean([value(k) for k in range(self.k)]))
+
+    def _after(self, mask: int, action: int, k: int) -> int:
+        """The consistent set after seeing object ``k``'s image at ``action``."""
+        lab = self.parts.labels[action]
+        keep = 0
+        for j in range(self.k):
+            if mask >> j & 1 and lab[j] == lab[k]:
+                keep |= 1 << j
+        return keep
+
+    # ------------------------------------------------------------------ policies
+    def random(self, glances: int) -> float:
+        """Bayes accuracy of ``glances`` uniform random poses: exact expectation over poses."""
+        w = self.parts.weight
+
+        @cache
+        def acc(mask: int, k: int, g: int) -> float:
+            if g == 0:
+                return 1.0 / _size(mask)
+            return sum(w[a] * acc(self._after(mask, a, k), k, g - 1) for a in range(len(w)))
+
+        return self._mean_over_objects(lambda k: acc(self.full, k, glances))
+
+    def grid(self, glances: int) -> float:
+        """Bayes accuracy of the fixed sweep :func:`sweep` (the same poses for every object)."""
+        from ham.world.table import nearest_index
+
+        g = self.parts.grid_action.shape[0]
+        poses = torch.from_numpy(sweep(glances))
+        ix = nearest_index(poses[:, 0], g).numpy()
+        ip = nearest_index(poses[:, 1], g).numpy()
+        actions = self.parts.grid_action[ix, ip]
+
+        def one(k: int) -> float:
+            mask = self.full
+            for a in actions:
+                mask = self._after(mask, int(a), k)
+            return 1.0 / _size(mask)
+
+        return self._mean_over_objects(one)
+
+    def _greedy_action(self, mask: int) -> int:
+        best, best_h = 0, math.inf
+        size = _size(mask)
+        for a, parts in self.parts.splits_of(mask):
+            h = _entropy_left(parts, size)
+            if h < best_h - 1e-12:
+                best, best_h = a, h
+        return best
+
+    def infogain(self, glances: int, first: str = "planned") -> float:
+        """Accuracy of greedy expected-information-gain glances (ties: the first action)."""
+        greedy = lru_cache(maxsize=None)(self._greedy_action)
+
+        @cache
+        def acc(mask: int, k: int, g: int) -> float:
+            if g == 0:
+                return 1.0 / _size(mask)
+            return acc(self._after(mask, greedy(mask), k), k, g - 1)
+
+        return self._with_first(acc, glances, first)
+
+    def oracle(self, glances: int, first: str = "planned") -> float:
+        """The best expected accuracy any policy reaches with ``glances`` glances (exact)."""
+
+        @cache
+        def best(mask: int, g: int) -> float:
+            size = _size(mask)
+            if g == 0 or size == 1:
+                return 1.0 / size
+            return max(
+                sum(_size(c) / size * best(c, g - 1) for c in parts)
+                for _, parts in self.parts.splits_of(mask)
+            )
+
+        if first == "planned":
+            return best(self.full, glances)
+        return self._with_first(lambda m, k, g: best(m, g), glances, first)
+
+    def _with_first(self, acc, glances: int, first: str) -> float:
+        if first not in FIRST:
+            raise HamError(f"first = {first!r}; accepted: {', '.join(FIRST)}")
+        if glances < 1:
+            raise HamError(f"glances = {glances!r}; accepted: an integer >= 1")
+        if first == "planned":
+            return self._mean_over_objects(lambda k: acc(self.full, k, glances))
+        w = self.parts.weight
+        return self._mean_over_objects(
+            lambda k: sum(
+                w[a] * acc(self._after(self.full, a, k), k, glances - 1) for a in range(len(w))
+            )
+        )
+
+    # ------------------------------------------------------------------ glances to identify
+    def expected_glances(self, policy: str = "oracle", first: str = "planned") -> float:
+        """Expected glances until the consistent set cannot shrink any more: ``N*`` for the
+        ``oracle`` (optimal over all adaptive policies), the greedy planner's for ``infogain``;
+        with ``first="random"`` the first glance is uniform and counts as one."""
+        if policy not in ("oracle", "infogain"):
+            raise HamError(f"policy = {policy!r}; accepted: oracle, infogain")
+        if first not in FIRST:
+            raise HamError(f"first = {first!r}; accepted: {', '.join(FIRST)}")
+
+        @lru_cache(maxsize=None)
+        def cost(mask: int) -> float:
+            splits = [(a, p) for a, p in self.parts.splits_of(mask) if len(p) > 1]
+            if not splits:
+                return 0.0  # identified, or no pose tells these objects apart
+            size = _size(mask)
+            if policy == "infogain":
+                parts = self.parts.split(mask, self._greedy_action(mask))
+                return 1 + sum(_size(c) / size * cost(c) for c in parts)
+            return 1 + min(sum(_size(c) / size * cost(c) for c in p) for _, p in splits)
+
+        if first == "planned":
+            return cost(self.full)
+        w = self.parts.weight
+        return 1 + self._mean_over_objects(
+            lambda k: sum(w[a] * cost(self._after(self.full, a, k)) for a in range(len(w)))
+        )
+
+    def accuracy(self, policy: str, glances: int, first: str = "planned") -> float:
+        """Expected accuracy of ``policy`` after ``glances`` glances."""
+        if not (isinstance(glances, int) and glances >= 1):
+            raise HamError(f"glances = {glances!r}; accepted: an integer >= 1")
+        if policy == "random":
+            return self.random(glances)
+        if policy == "grid":
+            return self.grid(glances)
+        if policy == "infogain":
+            return self.infogain(glances, first)
+        if policy == "oracle":
+            return self.oracle(glances, first)
+        raise HamError(f"policy = {policy!r}; accepted: {', '.join(POLICIES)}")
