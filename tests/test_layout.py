@@ -1,7 +1,7 @@
 """The package's architecture: layers import only downward, and no module imports itself back.
 
-Layers, lowest first: ``errors`` -> ``world`` -> ``model`` -> ``learn`` -> ``envs`` ->
-``experiments`` -> ``cli``. A module may import from its own layer or a lower one. Every
+Layers, lowest first: ``errors`` -> ``world`` -> ``envs`` (the world as Gymnasium/ap_gym
+environments) -> ``model`` -> ``learn`` -> ``experiments`` -> ``cli``. A module may import from its own layer or a lower one. Every
 ``import``/``from ... import`` counts, also those inside functions (lazy imports still couple).
 """
 
@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "ham"
-LAYERS = ["errors", "world", "model", "learn", "envs", "experiments", "cli"]
+LAYERS = ["errors", "world", "envs", "model", "learn", "experiments", "cli"]
 TOP_LEVEL = {"__init__", "__main__"}  # the package root and `python -m ham` sit above all layers
 
 

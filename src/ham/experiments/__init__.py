@@ -1,2 +1,2 @@
 """Experiments: the paper's tables and figures (``reproduce``), the demo, plots and reports.
-Depends on ``world``, ``model``, ``learn`` and ``envs``."""
+Depends on ``world``, ``envs``, ``model`` and ``learn``."""

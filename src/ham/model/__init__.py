@@ -1,2 +1,2 @@
 """The Haptic Attention Model's networks: tactile net, core, location net, classifier, baseline and
-the whole agent. Depends on nothing else in ``ham`` (it sees glances only as tensors)."""
+the whole agent. It sees glances only as tensors: it imports nothing but ``ham.errors``."""
