@@ -14,7 +14,7 @@ $(BIN)/python:
 # never pulls the multi-GB CUDA build.
 $(STAMP): $(BIN)/python pyproject.toml
 	$(BIN)/python -m pip install -q torch==2.13.0
-	$(BIN)/python -m pip install -q -e ".[test,cluster,ap]"
+	$(BIN)/python -m pip install -q -e ".[test,cluster,ap,baselines]"
 	touch $(STAMP)
 
 demo: $(STAMP)

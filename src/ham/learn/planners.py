@@ -248,7 +248,7 @@ class Planner:
         if first not in FIRST:
             raise HamError(f"first = {first!r}; accepted: {', '.join(FIRST)}")
 
-        @lru_cache(maxsize=None)
+        @cache
         def cost(mask: int) -> float:
             splits = [(a, p) for a, p in self.parts.splits_of(mask) if len(p) > 1]
             if not splits:

@@ -1,0 +1,292 @@
+"""Off-the-shelf agents as baselines: Stable-Baselines3 PPO and SAC, sb3-contrib CrossQ.
+
+An active classification environment (``ap_gym``'s protocol, which ours follow too:
+``ham/HapticGlanceAP-v0``, ``ap_gym:CircleSquare-v0``, ...) asks each step for a glance *and* a
+prediction, and rewards the prediction (base reward minus its cross-entropy). SB3's agents act
+in one box, so :class:`SupervisedPrediction` splits the job as the APPLE study does:
+
+* the SB3 agent chooses only the glance (``action``), from an observation that holds the whole
+  episode so far (every glance flattened, zero-padded to the episode length, and the step's
+  fraction): a memoryless agent that still sees its history;
+* a :class:`PredictionHead` (an MLP on the same observation) makes the prediction and is trained
+  by supervision (cross-entropy to the true class, which the environment reports after each
+  step) from a buffer of recent steps; it is shared by all sub-environments.
+
+The reward the agent sees is the environment's own, computed with the head's prediction: the
+drop of cross-entropy per glance, a dense information reward. Environment steps count glances,
+as the APPLE study counts them. :func:`train_sb3` trains, evaluates and writes
+``metrics.json``/``config.json`` (atomically) and the SB3 model and head beside them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+from torch import nn
+
+from ham.errors import HamError, check_choices
+
+ALGOS: tuple[str, ...] = ("ppo", "sac", "crossq")
+
+
+def _write_json(path: Path, obj: Any) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=1) + "\n")
+    os.replace(tmp, path)
+
+
+class PredictionHead(nn.Module):
+    """An MLP from the episode-so-far observation to class logits, trained by cross-entropy."""
+
+    def __init__(self, obs_dim: int, n_classes: int, hidden: int = 256, lr: float = 1e-3,
+                 buffer: int = 50_000, batch: int = 256, seed: int = 0) -> None:  # fmt: skip
+        super().__init__()
+        gen = torch.Generator().manual_seed(seed)
+        self.net = nn.Sequential(
+            nn.Linear(obs_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
+            nn.Linear(hidden, n_classes),
+        )  # fmt: skip
+        with torch.no_grad():  # seeded initial weights, independent of torch's global state
+            for p in self.net.parameters():
+                p.copy_(torch.empty_like(p).uniform_(-1, 1, generator=gen) / math.sqrt(p.shape[-1]))
+        self.optimizer = torch.optim.Adam(self.net.parameters(), lr=lr)
+        self.obs = np.zeros((buffer, obs_dim), np.float32)
+        self.target = np.zeros(buffer, np.int64)
+        self.size = self.next = 0
+        self.batch = batch
+        self.rng = np.random.default_rng(seed)
+
+    @torch.no_grad()
+    def logits(self, obs: np.ndarray) -> np.ndarray:
+        return self.net(torch.as_tensor(obs, dtype=torch.float32)).numpy()
+
+    def remember(self, obs: np.ndarray, target: int) -> None:
+        self.obs[self.next], self.target[self.next] = obs, target
+        self.next = (self.next + 1) % len(self.obs)
+        self.size = min(self.size + 1, len(self.obs))
+
+    def learn(self) -> float:
+        """One Adam step of cross-entropy on a batch drawn from the buffer."""
+        if self.size < self.batch:
+            return float("nan")
+        i = self.rng.integers(0, self.size, self.batch)
+        loss = nn.functional.cross_entropy(
+            self.net(torch.from_numpy(self.obs[i])), torch.from_numpy(self.target[i])
+        )
+        self.optimizer.zero_grad()
+        loss.backward()
+        self.optimizer.step()
+        return loss.item()
+
+
+class SupervisedPrediction(gym.Wrapper):
+    """The glance for the SB3 agent, the prediction from a shared supervised head."""
+
+    def __init__(self, env: gym.Env, head: PredictionHead | None = None, *,
+                 learn_every: int = 4) -> None:  # fmt: skip
+        super().__init__(env)
+        space = env.action_space
+        if not (isinstance(space, gym.spaces.Dict) and {"action", "prediction"} <= set(space)):
+            raise HamError(
+                f"action space {space}; accepted: an active classification environment with "
+                "Dict(action=..., prediction=...) (ap_gym's protocol)"
+            )
+        self.horizon = episode_length(env)
+        self.step_dim = gym.spaces.flatdim(env.observation_space)
+        self.n_classes = int(np.prod(space["prediction"].shape))
+        self.observation_space = gym.spaces.Box(
+            -np.inf, np.inf, (self.horizon * self.step_dim + 1,), np.float32
+        )
+        self.action_space = space["action"]
+        self.head = head or PredictionHead(self.observation_space.shape[0], self.n_classes)
+        self.learn_every = learn_every
+        self.t = 0
+        self.steps = 0
+        self.history = np.zeros(self.observation_space.shape, np.float32)
+        self.last_correct: list[bool] = []
+
+    def _record(self, obs) -> np.ndarray:
+        flat = gym.spaces.flatten(self.env.observation_space, obs).astype(np.float32)
+        if self.t < self.horizon:
+            self.history[self.t * self.step_dim : (self.t + 1) * self.step_dim] = flat
+        self.history[-1] = self.t / self.horizon
+        return self.history.copy()
+
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        self.t = 0
+        self.history[:] = 0
+        self.last_correct = []
+        return self._record(obs), info
+
+    def step(self, action):
+        seen = self.history.copy()
+        logits = self.head.logits(seen[None])[0]
+        obs, reward, terminated, truncated, info = self.env.step(
+            {"action": np.asarray(action, np.float32), "prediction": logits}
+        )
+        target = int(info["prediction"]["target"])
+        self.head.remember(seen, target)
+        self.last_correct.append(bool(logits.argmax() == target))
+        info = dict(info, correct=self.last_correct[-1])
+        self.steps += 1
+        if self.steps % self.learn_every == 0:
+            self.head.learn()
+        self.t += 1
+        return self._record(obs), float(reward), terminated, truncated, info
+
+
+def episode_length(env: gym.Env) -> int:
+    """Glances per episode: the environment's time limit or its ``glances`` setting."""
+    for candidate in (
+        getattr(env.spec, "max_episode_steps", None) if env.spec else None,
+        getattr(env.unwrapped, "glances", None),
+        getattr(env.unwrapped, "episode_length", None),
+        (getattr(env.unwrapped, "spec", None) and env.unwrapped.spec.max_episode_steps),
+    ):
+        if isinstance(candidate, int) and candidate > 0:
+            return candidate
+    raise HamError("the environment names no episode length (max_episode_steps or glances)")
+
+
+@dataclass(frozen=True)
+class Sb3Config:
+    """An SB3 baseline run.
+
+    Attributes:
+        algo: ppo (Stable-Baselines3), sac (Stable-Baselines3) or crossq (sb3-contrib).
+        env: ``ap_gym:ENV_ID`` or one of ours (``ham/HapticGlanceAP-v0``).
+        env_kwargs: keyword arguments of the environment (e.g. ``{"glances": 10}``).
+        env_steps: environment steps (glances) to train for.
+        n_envs: parallel environments (sub-environments of one process).
+        seed: seeds the agent, the head and the environments.
+        eval_episodes: episodes per evaluation.
+        eval_every: environment steps between evaluations.
+        device: cpu or cuda.
+        algo_kwargs: keyword arguments of the SB3 algorithm (its defaults otherwise), e.g.
+            ``{"n_steps": 256}`` for PPO or ``{"learning_starts": 1000}`` for SAC.
+    """
+
+    algo: str = field(default="sac", metadata={"choices": ALGOS})
+    env: str = "ap_gym:CircleSquare-v0"
+    env_kwargs: dict = field(default_factory=dict)
+    env_steps: int = 250_000
+    n_envs: int = 1
+    seed: int = 0
+    eval_episodes: int = 200
+    eval_every: int = 10_000
+    device: str = "cpu"
+    algo_kwargs: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        check_choices(self)
+        for name in ("env_steps", "n_envs", "eval_episodes", "eval_every"):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
+                raise HamError(f"{name} = {v!r}; accepted: an integer >= 1")
+        if not (isinstance(self.seed, int) and self.seed >= 0):
+            raise HamError(f"seed = {self.seed!r}; accepted: an integer >= 0")
+
+
+def make_env(name: str, kwargs: dict | None = None) -> gym.Env:
+    """``ap_gym:ID`` through ``ap_gym.make``; our ids through ``ap_gym.make`` after registering."""
+    kwargs = dict(kwargs or {})
+    try:
+        import ap_gym
+    except ImportError as exc:
+        raise HamError(f"ap_gym is not available ({exc}); pip install 'ham[ap]'") from None
+    import ham.envs  # noqa: F401  (registers ham/...)
+
+    env_id = name.split(":", 1)[1] if name.startswith("ap_gym:") else name
+    if env_id not in gym.registry:
+        raise HamError(f"environment {name!r} is not registered; e.g. ap_gym:CircleSquare-v0")
+    return ap_gym.make(env_id, **kwargs)
+
+
+def evaluate_agent(model, env: SupervisedPrediction, episodes: int, seed: int) -> dict:
+    """Deterministic glances; the head's accuracy after each glance, averaged over episodes."""
+    per_step = np.zeros(env.horizon)
+    for e in range(episodes):
+        obs, _ = env.reset(seed=seed + e)
+        done = False
+        while not done:
+            action, _ = model.predict(obs, deterministic=True)
+            obs, _, terminated, truncated, _ = env.step(action)
+            done = terminated or truncated
+        per_step[: len(env.last_correct)] += env.last_correct
+    acc = per_step / episodes
+    return {
+        "accuracy_per_glance": acc.tolist(),
+        "final_accuracy": float(acc[-1]),
+        "average_accuracy": float(acc.mean()),
+    }
+
+
+def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dict:
+    """Train ``config.algo`` on ``config.env`` with a supervised prediction head; evaluate every
+    ``eval_every`` environment steps; write ``out/metrics.json``, ``config.json``, the model."""
+    from stable_baselines3 import PPO, SAC
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    out = Path(out)
+    if out.exists() and any(out.iterdir()):
+        raise HamError(f"output directory {str(out)!r} exists and is not empty")
+    out.mkdir(parents=True, exist_ok=True)
+    _write_json(out / "config.json", asdict(config))
+    probe = SupervisedPrediction(make_env(config.env, config.env_kwargs))
+    head = PredictionHead(probe.observation_space.shape[0], probe.n_classes, seed=config.seed)
+    probe.close()
+    venv = DummyVecEnv(
+        [lambda: SupervisedPrediction(make_env(config.env, config.env_kwargs), head)]
+        * config.n_envs
+    )
+    venv.seed(config.seed)
+    eval_env = SupervisedPrediction(make_env(config.env, config.env_kwargs), head)
+    if config.algo == "crossq":
+        from sb3_contrib import CrossQ as algo
+    else:
+        algo = {"ppo": PPO, "sac": SAC}[config.algo]
+    try:
+        model = algo(
+            "MlpPolicy", venv, seed=config.seed, device=config.device, verbose=0,
+            **config.algo_kwargs,
+        )  # fmt: skip
+    except TypeError as exc:
+        raise HamError(f"algo_kwargs {config.algo_kwargs!r} for {config.algo}: {exc}") from None
+    history: list[dict] = []
+    started = time.time()
+
+    class Evaluate(BaseCallback):
+        def _on_step(self) -> bool:
+            if self.num_timesteps % config.eval_every < config.n_envs:
+                row = evaluate_agent(model, eval_env, config.eval_episodes, 10**6)
+                row["env_steps"] = int(self.num_timesteps)
+                history.append(row)
+            return True
+
+    model.learn(total_timesteps=config.env_steps, callback=Evaluate(), progress_bar=progress)
+    final = evaluate_agent(model, eval_env, config.eval_episodes, 10**6)
+    metrics = {
+        "algo": config.algo,
+        "env": config.env,
+        "env_steps": int(model.num_timesteps),
+        **final,
+        "best_accuracy": max([final["final_accuracy"]] + [h["final_accuracy"] for h in history]),
+        "history": history,
+        "seconds": time.time() - started,
+    }
+    model.save(out / "model.zip")
+    torch.save(head.state_dict(), out / "head.pt.tmp")
+    os.replace(out / "head.pt.tmp", out / "head.pt")
+    _write_json(out / "metrics.json", metrics)
+    return metrics

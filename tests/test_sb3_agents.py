@@ -1,0 +1,64 @@
+"""Stable-Baselines3 agents as baselines, through the supervised-prediction wrapper (real SB3,
+real ap_gym environments)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+pytest.importorskip("ap_gym")
+
+from ham.errors import HamError  # noqa: E402
+from ham.learn.sb3_agents import Sb3Config, SupervisedPrediction, make_env, train_sb3  # noqa: E402
+
+
+def test_wrapper_shows_the_history_and_predicts_from_the_head():
+    env = SupervisedPrediction(make_env("ham/HapticGlanceAP-v0", {"glances": 3}))
+    obs, _ = env.reset(seed=0)
+    assert env.horizon == 3 and obs.shape == env.observation_space.shape
+    d = env.step_dim
+    assert np.any(obs[:d]) and not np.any(obs[d : 3 * d])  # only the first glance so far
+    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+    assert np.any(obs[d : 2 * d]) and isinstance(info["correct"], bool)
+    assert np.isfinite(reward) and env.head.size == 1
+
+
+def test_the_same_wrapper_serves_ap_gym():
+    env = SupervisedPrediction(make_env("ap_gym:CircleSquare-v0"))
+    assert env.horizon == 16 and env.n_classes == 2
+    env.reset(seed=0)
+    env.step(env.action_space.sample())
+
+
+@pytest.mark.parametrize(
+    ("algo", "kwargs"),
+    [
+        ("ppo", {"n_steps": 64, "batch_size": 32, "n_epochs": 1}),
+        ("sac", {"learning_starts": 32, "batch_size": 32}),
+        ("crossq", {"learning_starts": 32, "batch_size": 32}),
+    ],
+)
+def test_train_writes_metrics_with_env_steps(tmp_path, algo, kwargs):
+    config = Sb3Config(
+        algo=algo, env="ham/HapticGlanceAP-v0", env_kwargs={"glances": 2}, env_steps=128,
+        eval_every=64, eval_episodes=8, algo_kwargs=kwargs,
+    )  # fmt: skip
+    m = train_sb3(config, tmp_path / algo)
+    saved = json.loads((tmp_path / algo / "metrics.json").read_text())
+    assert saved["env_steps"] == m["env_steps"] >= 128
+    assert 0 <= saved["final_accuracy"] <= 1 and len(saved["accuracy_per_glance"]) == 2
+    assert [h["env_steps"] for h in saved["history"]] == [64, 128]
+    assert (tmp_path / algo / "model.zip").is_file() and (tmp_path / algo / "head.pt").is_file()
+    assert not list((tmp_path / algo).glob("*.tmp"))
+
+
+def test_bad_configs():
+    with pytest.raises(HamError, match="algo = 'dqn'; accepted: ppo, sac, crossq"):
+        Sb3Config(algo="dqn")
+    with pytest.raises(HamError, match="env_steps = 0"):
+        Sb3Config(env_steps=0)
+    with pytest.raises(HamError, match="not registered"):
+        make_env("ap_gym:NoSuchEnv-v0")
