@@ -22,7 +22,9 @@ def add_commands(subparsers) -> None:
         "`ham reproduce grid FILE` runs any grid of runs from a TOML or JSON file (docs/grids.md).",
     )
     p.add_argument("target", choices=(*TARGETS, GRID))
-    p.add_argument("file", nargs="?", metavar="FILE", help="with grid: the grid file (.toml, .json)")
+    p.add_argument(
+        "file", nargs="?", metavar="FILE", help="with grid: the grid file (.toml, .json)"
+    )
     p.add_argument(
         "--profile",
         default=None,

@@ -343,7 +343,9 @@ class Grid:
         if self.key is None:
             parts = []
             for n, v in zip(names, combo, strict=True):
-                parts.append(v["name"] if isinstance(v, Mapping) else f"{_short(n)}={_fmt_value(v)}")
+                parts.append(
+                    v["name"] if isinstance(v, Mapping) else f"{_short(n)}={_fmt_value(v)}"
+                )
             return "_".join(parts) or "base"
         config = self.config(overrides, self.seeds[0], None)
         values = {f.name: getattr(config, f.name) for f in fields(config)}
@@ -487,4 +489,3 @@ def load_grid(path: str | Path) -> Grid:
 def settings_text(settings: Mapping) -> str:
     """``glances=3, policy=random`` for a report."""
     return ", ".join(f"{_short(k)}={_value_text(v)}" for k, v in settings.items())
-

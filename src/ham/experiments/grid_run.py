@@ -180,7 +180,9 @@ def aggregate(root: Path, grid: Grid, jobs: list[GridJob]) -> list[dict]:
                 {
                     **spec,
                     "accuracy": _stat(e["accuracy"] for e in evals[i]),
-                    "accuracy_per_glance": _mean_lists([e["accuracy_per_glance"] for e in evals[i]]),
+                    "accuracy_per_glance": _mean_lists(
+                        [e["accuracy_per_glance"] for e in evals[i]]
+                    ),
                 }
                 for i, spec in enumerate(grid.evaluate)
             ],
@@ -192,9 +194,7 @@ def aggregate(root: Path, grid: Grid, jobs: list[GridJob]) -> list[dict]:
             and (p := _per_object(m["history"][-1], m.get("objects", []))) is not None
         ]
         if per_object and all(p.keys() == per_object[0].keys() for p in per_object):
-            row["per_object_accuracy"] = {
-                o: _stat(p[o] for p in per_object) for o in per_object[0]
-            }
+            row["per_object_accuracy"] = {o: _stat(p[o] for p in per_object) for o in per_object[0]}
         cells.append(row)
     return cells
 
