@@ -148,6 +148,7 @@ def test_the_agent_grid_is_the_old_script(tmp_path):
         ('name = "x"\n[table]\ngrid = 1\n', r"table grid = 1; accepted: an integer >= 2"),
         ('name = "x"\nkey = "{varient}"\n[axes]\nvariant = [{name = "a"}]\n',
          r"key '\{varient\}' cannot be formatted .*accepted fields: variant, model.glances"),
+        ('name = "x"\nkey = "{name}"\n', r"key '\{name\}' names the axes' cells, but there are no axes"),
         ('name = "x y"\n', r"grid name 'x y'; accepted: letters, digits"),
         ('name = "x"\n[base\n', r"is not valid TOML"),
     ],

@@ -243,6 +243,8 @@ class Grid:
         object.__setattr__(self, "evaluate", evals)
         if self.key is not None and not isinstance(self.key, str):
             raise HamError(f"{w}: key = {self.key!r}; accepted: a format string")
+        if self.key is not None and not self.axes:
+            raise HamError(f"{w}: key {self.key!r} names the axes' cells, but there are no axes")
         # build every cell's config now: a bad value stops the grid before any run starts
         names: dict[str, Cell] = {}
         seen: dict[str, str] = {}
