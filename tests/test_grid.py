@@ -252,3 +252,26 @@ def test_grid_arguments(tmp_path, capsys):
     (tmp_path / "bad.toml").write_text('name = "g"\n[base]\nmodel.glance = 3\n')
     assert main(["reproduce", "grid", str(tmp_path / "bad.toml"), "--out", str(tmp_path)]) == 2
     assert "unknown key 'model.glance'; accepted:" in capsys.readouterr().err
+
+
+def test_the_report_shows_per_object_accuracy_when_runs_have_a_confusion_matrix(tiny_run, tmp_path):
+    import shutil
+
+    from ham.experiments.grid_run import write_report
+
+    out = tmp_path / "out"
+    shutil.copytree(tiny_run[0] / "runs", out / "runs")
+    grid = Grid.from_dict(json.loads((tiny_run[0] / "grid.json").read_text()))
+    jobs = grid.jobs(grid.table_path(tiny_run[0]))
+    for seed, hits in ((0, 5), (1, 3)):  # rows: true object; 8 episodes of each
+        path = out / "runs" / f"glances=1-s{seed}" / "metrics.json"
+        m = json.loads(path.read_text())
+        m["history"][-1]["confusion"] = [[hits, 8 - hits, 0, 0]] + [[0, 0, 8, 0]] * 3
+        path.write_text(json.dumps(m))
+    summary = write_report(out, grid, jobs, [], command=None, executor="local")
+    per = summary["cells"][0]["per_object_accuracy"]
+    assert list(per) == json.loads(path.read_text())["objects"]
+    first = per[list(per)[0]]
+    assert (first["mean"], first["n"]) == (0.5, 2)  # 5/8 and 3/8
+    assert "## Accuracy per object" in (out / "report.md").read_text()
+    assert "per_object_accuracy" not in summary["cells"][1]  # glances=2: no matrix, no column

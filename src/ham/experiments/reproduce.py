@@ -185,12 +185,21 @@ PAPER_GRIDS = {
 }  # fmt: skip
 
 
-def paper_grid(name: str, profile: Profile, seeds: int | None = None, device: str = "cpu"):
+def paper_grid(
+    name: str,
+    profile: Profile,
+    seeds: int | None = None,
+    device: str = "cpu",
+    world: dict | None = None,
+):
     """Table 1 (``table1``, also the figures' runs: ``figures``) or Table 2 as a :class:`Grid`,
-    cut to ``profile``'s protocol, glance counts and variants."""
+    cut to ``profile``'s protocol, glance counts and variants, in ``world`` (default: the paper's).
+    """
     from ham.experiments.grid import Grid
 
     d = json.loads(json.dumps(PAPER_GRIDS["table2" if name == "table2" else "table1"]))
+    if world is not None:
+        d["world"] = world
     d["seeds"] = profile.seeds if seeds is None else seeds
     d["table"] = {"grid": profile.table_grid}
     d["base"].update(steps=profile.steps, eval_every=profile.eval_every,
@@ -208,15 +217,25 @@ def paper_grid(name: str, profile: Profile, seeds: int | None = None, device: st
     return Grid.from_dict(d)
 
 
-def plan(target: str, profile: Profile, seeds: int, table: str, device: str = "cpu") -> list[Job]:
-    """The runs ``target`` needs, deduplicated (Table 2's concat2 run is Table 1's full model)."""
+def plan(
+    target: str,
+    profile: Profile,
+    seeds: int,
+    table: str,
+    device: str = "cpu",
+    world: dict | None = None,
+) -> list[Job]:
+    """The runs ``target`` needs, deduplicated (Table 2's concat2 run is Table 1's full model).
+
+    ``world`` (a WorldConfig dict; default the paper's) is recorded in every run's config.
+    """
     if target not in TARGETS:
         raise HamError(f"target {target!r}; accepted: {', '.join(TARGETS)}")
     names = {"table1": ["table1"], "table2": ["table2"], "figures": ["figures"],
              "all": ["table1", "table2", "figures"]}[target]  # fmt: skip
     jobs: dict[str, Job] = {}
     for name in names:
-        grid = paper_grid(name, profile, seeds, device)
+        grid = paper_grid(name, profile, seeds, device, world)
         for j in grid.jobs(table) if grid is not None else []:
             if j.key not in jobs:
                 model = j.config["model"]
@@ -298,10 +317,12 @@ def execute_local(
     workers: int,
     on_result: Callable[[dict], None],
 ) -> None:
-    """A process pool over the cores, one torch thread per worker."""
+    """A process pool over the cores, one torch thread per worker (no more workers than jobs;
+    one job, or one worker, runs in this process)."""
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
+    workers = min(workers, len(jobs))
     if workers <= 1:
         for job in jobs:
             on_result(_safe_run(job.to_dict(), str(root), world, grid))
@@ -513,7 +534,7 @@ def reproduce(
     table = root / f"table_{profile.table_grid}.h5"
     if not table.exists():
         build_table(world, profile.table_grid, table, progress=progress, command="ham reproduce")
-    jobs = plan(target, profile, profile.seeds, str(table), device)
+    jobs = plan(target, profile, profile.seeds, str(table), device, world.to_dict())
     (root / "plan.json").write_text(json.dumps([j.to_dict() for j in jobs], indent=1))
 
     todo = [j for j in jobs if not is_finished(run_dir(root, j.key), profile.steps)]
