@@ -194,7 +194,7 @@ class Grid:
         w = f"grid {self.name!r}"
         if not (isinstance(self.name, str) and _NAME.match(self.name)):
             raise HamError(
-                f"grid name {self.name!r}; accepted: letters, digits and . _ - (not empty)"
+                f"grid name {self.name!r}; accepted: letters, digits and . _ = , + - (not empty)"
             )
         if not isinstance(self.base, Mapping):
             raise HamError(f"{w}: base = {self.base!r}; accepted: a table of overrides")
