@@ -136,3 +136,24 @@ def test_paper_profile_is_the_papers_protocol():
     jobs = plan("all", p, p.seeds, "t.h5")
     # 3 trained variants x 7 glance counts + 3 more combiners, each over 10 seeds
     assert len(jobs) == (3 * 7 + 3) * 10
+
+
+def test_the_plans_are_the_papers_runs():
+    """Table 1 and Table 2 come from grids (docs/grids.md); each run is exactly the paper's config."""
+    from ham.experiments.reproduce import TRAINED_VARIANTS
+    from ham.learn.train import TrainConfig
+    from ham.model.agent import HamConfig
+
+    p = PROFILES["quick"]
+    jobs = plan("all", p, 2, "t.h5", device="cuda")
+    wanted = [(v, "concat2", g) for v in TRAINED_VARIANTS for g in p.glances]
+    wanted += [("full", c, 3) for c in ("mul", "concat1", "add")]
+    assert [(j.variant, j.combiner, j.glances, j.seed) for j in jobs] == [
+        (*w, s) for w in wanted for s in (0, 1)
+    ]
+    for j in jobs:
+        model = HamConfig(glances=j.glances, combiner=j.combiner, **TRAINED_VARIANTS[j.variant])
+        config = TrainConfig(model=model, steps=p.steps, eval_every=p.eval_every,
+                             eval_batches=p.eval_batches, seed=j.seed, table="t.h5", device="cuda")  # fmt: skip
+        assert j.config == config.to_dict(), j.key
+        assert j.key == f"{j.variant}-{j.combiner}-g{j.glances}-s{j.seed}"

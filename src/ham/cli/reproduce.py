@@ -1,4 +1,5 @@
-"""``ham reproduce``: the paper's tables and figures from one command (see :mod:`ham.experiments.reproduce`)."""
+"""``ham reproduce``: the paper's tables and figures from one command (see :mod:`ham.experiments.reproduce`),
+and ``ham reproduce grid FILE``: any grid of runs from a TOML/JSON file (:mod:`ham.experiments.grid`)."""
 
 from __future__ import annotations
 
@@ -6,25 +7,37 @@ import argparse
 import json
 import sys
 
+from ham.errors import HamError
 from ham.experiments.reproduce import EXECUTORS, PROFILES, TARGETS, TRAINED_VARIANTS, reproduce
+
+GRID = "grid"
 
 
 def add_commands(subparsers) -> None:
     p = subparsers.add_parser(
         "reproduce",
-        help="reproduce the paper's Table 1, Table 2 and figures",
+        help="reproduce the paper's Table 1, Table 2 and figures, or run a grid file",
         description="Plan the paper's grid of training runs, run what is not finished in OUT "
-        "(locally or on Ray), and write tables, figures and OUT/report.md.",
+        "(locally or on Ray), and write tables, figures and OUT/report.md. "
+        "`ham reproduce grid FILE` runs any grid of runs from a TOML or JSON file (docs/grids.md).",
     )
-    p.add_argument("target", choices=TARGETS)
+    p.add_argument("target", choices=(*TARGETS, GRID))
+    p.add_argument(
+        "file", nargs="?", metavar="FILE", help="with grid: the grid file (.toml, .json)"
+    )
     p.add_argument(
         "--profile",
-        default="quick",
+        default=None,
         choices=tuple(PROFILES),
         help="paper: the full protocol (50k steps, 10 seeds); quick: the same grid, reduced, "
-        "<= 30 min on 2 cores; smoke: seconds (default quick)",
+        "<= 30 min on 2 cores; smoke: seconds (default quick; not with grid)",
     )
-    p.add_argument("--seeds", type=int, default=None, help="override the profile's seed count")
+    p.add_argument(
+        "--seeds",
+        type=int,
+        default=None,
+        help="override the profile's seed count (grid: run seeds 0..N-1 in every cell)",
+    )
     p.add_argument(
         "--glances",
         type=int,
@@ -46,7 +59,7 @@ def add_commands(subparsers) -> None:
         "--ray-address", default=None, help="a running Ray cluster (default: start a local one)"
     )
     p.add_argument("--workers", type=int, default=None, help="local processes (default: all cores)")
-    p.add_argument("--device", default="cpu", help="cpu or cuda")
+    p.add_argument("--device", default=None, help="cpu or cuda (default cpu; grid: the file's)")
     p.add_argument("--retries", type=int, default=1, help="re-runs of a failed run (default 1)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -55,15 +68,19 @@ def add_commands(subparsers) -> None:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
+    if args.target == GRID:
+        return cmd_grid(args)
+    if args.file is not None:
+        raise HamError(f"FILE {args.file!r} goes with `ham reproduce grid FILE`, not {args.target}")
     summary = reproduce(
         args.target,
-        args.profile,
+        args.profile or "quick",
         args.out,
         seeds=args.seeds,
         executor=args.executor,
         workers=args.workers,
         ray_address=args.ray_address,
-        device=args.device,
+        device=args.device or "cpu",
         retries=args.retries,
         progress=not args.quiet,
         command="ham " + " ".join(sys.argv[1:]),
@@ -79,6 +96,40 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
             if name in summary:
                 print(f"wrote {args.out}/{name}.md")
         print(f"wrote {args.out}/report.md")
+    return _failures(summary)
+
+
+def cmd_grid(args: argparse.Namespace) -> int:
+    from ham.experiments.grid_run import run_grid
+
+    if args.file is None:
+        raise HamError("ham reproduce grid needs a grid FILE (.toml or .json); see docs/grids.md")
+    given = [f"--{k}" for k in ("profile", "glances", "variants") if getattr(args, k) is not None]
+    if given:
+        raise HamError(f"{', '.join(given)} apply to the paper's tables, not to a grid file")
+    summary = run_grid(
+        args.file,
+        args.out,
+        seeds=args.seeds,
+        executor=args.executor,
+        workers=args.workers,
+        ray_address=args.ray_address,
+        device=args.device,
+        retries=args.retries,
+        progress=not args.quiet,
+        command="ham " + " ".join(sys.argv[1:]),
+    )
+    if args.json:
+        json.dump(summary, sys.stdout, default=str)
+        print()
+    else:
+        print(f"ran {summary['ran']} run(s), skipped {summary['skipped']} finished")
+        print(f"wrote {args.out}/results.json")
+        print(f"wrote {args.out}/report.md")
+    return _failures(summary)
+
+
+def _failures(summary: dict) -> int:
     failures = summary["failures"]
     if failures:
         for f in failures:

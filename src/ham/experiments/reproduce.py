@@ -156,64 +156,126 @@ class Job:
 
 
 # --------------------------------------------------------------------------- plan
-def plan(target: str, profile: Profile, seeds: int, table: str, device: str = "cpu") -> list[Job]:
-    """The runs ``target`` needs, deduplicated (Table 2's concat2 run is Table 1's full model)."""
-    from ham.learn.train import TrainConfig
-    from ham.model.agent import HamConfig
+#: The trained variants of Table 1 as a label axis of a grid (the overrides each stands for).
+VARIANT_AXIS = [{"name": v, **{f"model.{k}": x for k, x in o.items()}}
+                for v, o in TRAINED_VARIANTS.items()]  # fmt: skip
+#: The paper's grids at the paper's protocol (docs/grids/table1.toml and table2.toml hold the
+#: same): Table 1 is the variants x glances, Table 2 the combiners at 3 glances; the figures use
+#: Table 1's full-model and random-location runs. A run is ``<variant>-<combiner>-g<G>-s<seed>``.
+PAPER_GRIDS = {
+    "table1": {
+        "name": "table1",
+        "description": "Table 1: best accuracy per number of glances and variant",
+        "key": "{variant}-{model.combiner}-g{model.glances}",
+        "seeds": 10,
+        "table": {"grid": 201},
+        "base": {"steps": 50_000, "eval_every": 200, "eval_batches": 100,
+                 "model.combiner": "concat2"},
+        "axes": {"variant": VARIANT_AXIS, "model.glances": list(GLANCES)},
+    },
+    "table2": {
+        "name": "table2",
+        "description": "Table 2: what & where combiners, 3 glances",
+        "key": "{variant}-{model.combiner}-g{model.glances}",
+        "seeds": 10,
+        "table": {"grid": 201},
+        "base": {"steps": 50_000, "eval_every": 200, "eval_batches": 100, "model.glances": 3},
+        "axes": {"variant": VARIANT_AXIS[:1], "model.combiner": list(PAPER_TABLE2)},
+    },
+}  # fmt: skip
 
+
+def paper_grid(
+    name: str,
+    profile: Profile,
+    seeds: int | None = None,
+    device: str = "cpu",
+    world: dict | None = None,
+):
+    """Table 1 (``table1``, also the figures' runs: ``figures``) or Table 2 as a :class:`Grid`,
+    cut to ``profile``'s protocol, glance counts and variants, in ``world`` (default: the paper's).
+    """
+    from ham.experiments.grid import Grid
+
+    d = json.loads(json.dumps(PAPER_GRIDS["table2" if name == "table2" else "table1"]))
+    if world is not None:
+        d["world"] = world
+    d["seeds"] = profile.seeds if seeds is None else seeds
+    d["table"] = {"grid": profile.table_grid}
+    d["base"].update(steps=profile.steps, eval_every=profile.eval_every,
+                     eval_batches=profile.eval_batches)  # fmt: skip
+    if device != "cpu":
+        d["base"]["device"] = device
+    if name != "table2":
+        kept = [v for v in profile.variants if name == "table1" or v in ("full", "rloc")]
+        d["axes"]["variant"] = [v for v in VARIANT_AXIS if v["name"] in kept]
+        d["axes"]["model.glances"] = list(profile.glances)
+    if name == "figures":
+        d["name"], d["description"] = "figures", "the figures' runs"
+    if not d["axes"]["variant"]:
+        return None
+    return Grid.from_dict(d)
+
+
+def plan(
+    target: str,
+    profile: Profile,
+    seeds: int,
+    table: str,
+    device: str = "cpu",
+    world: dict | None = None,
+) -> list[Job]:
+    """The runs ``target`` needs, deduplicated (Table 2's concat2 run is Table 1's full model).
+
+    ``world`` (a WorldConfig dict; default the paper's) is recorded in every run's config.
+    """
     if target not in TARGETS:
         raise HamError(f"target {target!r}; accepted: {', '.join(TARGETS)}")
-    wanted: list[tuple[str, str, int]] = []
-    if target in ("table1", "all"):
-        wanted += [(v, "concat2", g) for v in profile.variants for g in profile.glances]
-    if target in ("table2", "all"):
-        wanted += [("full", c, 3) for c in PAPER_TABLE2]
-    if target in ("figures", "all"):
-        figure_variants = [v for v in ("full", "rloc") if v in profile.variants]
-        wanted += [(v, "concat2", g) for v in figure_variants for g in profile.glances]
+    names = {"table1": ["table1"], "table2": ["table2"], "figures": ["figures"],
+             "all": ["table1", "table2", "figures"]}[target]  # fmt: skip
     jobs: dict[str, Job] = {}
-    for variant, combiner, g in wanted:
-        for seed in range(seeds):
-            key = f"{variant}-{combiner}-g{g}-s{seed}"
-            if key in jobs:
-                continue
-            model = HamConfig(glances=g, combiner=combiner, **TRAINED_VARIANTS[variant])
-            cfg = TrainConfig(
-                model=model,
-                steps=profile.steps,
-                eval_every=profile.eval_every,
-                eval_batches=profile.eval_batches,
-                seed=seed,
-                table=table,
-                device=device,
-            )
-            jobs[key] = Job(key, variant, combiner, g, seed, cfg.to_dict())
+    for name in names:
+        grid = paper_grid(name, profile, seeds, device, world)
+        for j in grid.jobs(table) if grid is not None else []:
+            if j.key not in jobs:
+                model = j.config["model"]
+                jobs[j.key] = Job(j.key, j.labels["variant"], model["combiner"],
+                                  model["glances"], j.seed, j.config)  # fmt: skip
     return list(jobs.values())
 
 
 # --------------------------------------------------------------------------- run one job
-def run_job(job: dict, root: str, world: dict, grid: int) -> dict:
+def run_job(job: dict, root: str, world: dict, grid: int | None) -> dict:
     """Train one run to completion (resuming it if it was interrupted); runs in a worker.
 
     The worker builds the glance table itself when it is missing (on a cluster node without the
-    shared file): the build is deterministic, so every node trains on identical glances.
+    shared file): the build is deterministic, so every node trains on identical glances. A run
+    without a table (``config.table`` is ``None``) glances online. The job's ``evaluate`` specs
+    (grids) re-evaluate the final checkpoint, once each.
     """
     import torch
 
+    from ham.experiments.runs import evaluate_final, has_evaluation
     from ham.learn.train import TrainConfig, resume, train
 
     torch.set_num_threads(1)
     started = time.perf_counter()
     out = run_dir(Path(root), job["key"])
     config = TrainConfig.from_dict(job["config"])
-    if is_finished(out, config.steps):
-        return {"key": job["key"], "status": "skipped", "seconds": 0.0}
-    _ensure_table(Path(config.table), world, grid)
-    if (out / "checkpoint.pt").exists():
-        resume(out, progress=False)
-    else:
-        train(config, out, progress=False)
-    return {"key": job["key"], "status": "done", "seconds": time.perf_counter() - started}
+    status = "skipped"
+    if not is_finished(out, config.steps):
+        if config.table is not None:
+            _ensure_table(Path(config.table), world, grid)
+        if (out / "checkpoint.pt").exists():
+            resume(out, progress=False)
+        else:
+            train(config, out, progress=False)
+        status = "done"
+    for spec in job.get("evaluate", ()):
+        if not has_evaluation(out, spec, config.steps):
+            evaluate_final(out, spec)
+            status = "done"
+    return {"key": job["key"], "status": status, "seconds": time.perf_counter() - started}
 
 
 def _ensure_table(path: Path, world: dict, grid: int) -> None:
@@ -255,10 +317,12 @@ def execute_local(
     workers: int,
     on_result: Callable[[dict], None],
 ) -> None:
-    """A process pool over the cores, one torch thread per worker."""
+    """A process pool over the cores, one torch thread per worker (no more workers than jobs;
+    one job, or one worker, runs in this process)."""
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
+    workers = min(workers, len(jobs))
     if workers <= 1:
         for job in jobs:
             on_result(_safe_run(job.to_dict(), str(root), world, grid))
@@ -297,6 +361,50 @@ def execute_ray(
     finally:
         if started_here:
             ray.shutdown()
+
+
+def execute(
+    jobs: list,
+    todo: list,
+    root: Path,
+    world: dict,
+    grid: int | None,
+    *,
+    executor: str,
+    workers: int,
+    ray_address: str | None,
+    retries: int,
+    progress: bool,
+    desc: str,
+) -> tuple[dict[str, dict], list[dict]]:
+    """Run ``todo`` (a part of ``jobs``) on ``executor``, re-running failed runs ``retries`` times.
+
+    Returns every run's last result by key and the results of the runs that failed every try.
+    """
+    from tqdm.auto import tqdm
+
+    results: dict[str, dict] = {}
+    bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc=desc, unit="run",
+               disable=not progress, file=sys.stderr)  # fmt: skip
+
+    def on_result(r: dict) -> None:
+        results[r["key"]] = r
+        if r["status"] != "failed":
+            bar.update(1)
+        bar.set_postfix(failed=sum(x["status"] == "failed" for x in results.values()))
+
+    for attempt in range(retries + 1):
+        if not todo:
+            break
+        if attempt:
+            print(f"retrying {len(todo)} failed run(s) (attempt {attempt + 1})", file=sys.stderr)
+        if executor == "ray":
+            execute_ray(todo, root, world, grid, ray_address, on_result)
+        else:
+            execute_local(todo, root, world, grid, workers, on_result)
+        todo = [j for j in todo if results.get(j.key, {}).get("status") == "failed"]
+    bar.close()
+    return results, [results[j.key] for j in todo]
 
 
 # --------------------------------------------------------------------------- aggregate
@@ -404,8 +512,6 @@ def reproduce(
     ``glances`` and ``variants`` cut Table 1 and the figures to a part of the grid (Table 2 is
     always the four combiners at 3 glances), e.g. the paper's protocol for one row on a laptop.
     """
-    from tqdm.auto import tqdm
-
     from ham.world.config import WorldConfig
     from ham.world.table import build_table
 
@@ -428,33 +534,16 @@ def reproduce(
     table = root / f"table_{profile.table_grid}.h5"
     if not table.exists():
         build_table(world, profile.table_grid, table, progress=progress, command="ham reproduce")
-    jobs = plan(target, profile, profile.seeds, str(table), device)
+    jobs = plan(target, profile, profile.seeds, str(table), device, world.to_dict())
     (root / "plan.json").write_text(json.dumps([j.to_dict() for j in jobs], indent=1))
 
-    results: dict[str, dict] = {}
     todo = [j for j in jobs if not is_finished(run_dir(root, j.key), profile.steps)]
+    results, failures = execute(
+        jobs, todo, root, world.to_dict(), profile.table_grid,
+        executor=executor, workers=workers, ray_address=ray_address, retries=retries,
+        progress=progress, desc=f"reproduce {target} ({profile.name})",
+    )  # fmt: skip
     skipped = len(jobs) - len(todo)
-    bar = tqdm(total=len(jobs), initial=skipped, desc=f"reproduce {target} ({profile.name})",
-               unit="run", disable=not progress, file=sys.stderr)  # fmt: skip
-
-    def on_result(r: dict) -> None:
-        results[r["key"]] = r
-        if r["status"] != "failed":
-            bar.update(1)
-        bar.set_postfix(failed=sum(x["status"] == "failed" for x in results.values()))
-
-    for attempt in range(retries + 1):
-        if not todo:
-            break
-        if attempt:
-            print(f"retrying {len(todo)} failed run(s) (attempt {attempt + 1})", file=sys.stderr)
-        if executor == "ray":
-            execute_ray(todo, root, world.to_dict(), profile.table_grid, ray_address, on_result)
-        else:
-            execute_local(todo, root, world.to_dict(), profile.table_grid, workers, on_result)
-        todo = [j for j in todo if results.get(j.key, {}).get("status") == "failed"]
-    bar.close()
-    failures = [results[j.key] for j in todo]
     summary = write_outputs(
         root, target, profile, jobs, failures, command=command, executor=executor
     )

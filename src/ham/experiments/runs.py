@@ -16,3 +16,32 @@ def is_finished(out: Path, steps: int) -> bool:
     except (OSError, ValueError):
         return False
     return int(metrics.get("steps", -1)) >= steps
+
+
+def evaluation_path(out: Path, spec: dict) -> Path:
+    """Where the re-evaluation ``spec`` (policy, batches, seed) of a run's final checkpoint lives."""
+    return Path(out) / f"eval_{spec['policy']}_{spec['batches']}b_seed{spec['seed']}.json"
+
+
+def has_evaluation(out: Path, spec: dict, steps: int) -> bool:
+    try:
+        return int(json.loads(evaluation_path(out, spec).read_text())["steps"]) >= steps
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+
+
+def evaluate_final(out: Path, spec: dict) -> dict:
+    """Re-evaluate a finished run's last checkpoint (as ``ham evaluate``) and keep the result."""
+    import os
+
+    from ham.learn.evaluation import evaluate
+    from ham.learn.train import load_run
+
+    run = load_run(out)
+    result = evaluate(run.agent, run.env, spec["batches"], seed=spec["seed"], policy=spec["policy"])
+    d = {"steps": run.step, "eval_policy": spec["policy"], "seed": spec["seed"], **result.to_dict()}
+    path = evaluation_path(out, spec)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(d, indent=1) + "\n")
+    os.replace(tmp, path)
+    return d

@@ -1,0 +1,493 @@
+"""A grid of training runs as data: config overrides x seeds x world, loaded from TOML or JSON.
+
+A grid file names dotted keys into :class:`ham.learn.train.TrainConfig` (``steps``, ``lr``,
+``eval_every``, ``model.glances``, ``model.core``, ``model.policy``, ``model.combiner``, ...)::
+
+    name = "policies"
+    seeds = 3                      # or a list: [0, 1, 2]
+    evaluate = [{policy = "sample", batches = 100}]   # re-evaluate each final checkpoint
+
+    [table]                        # glances from a glance table (the paper's way); no [table]:
+    grid = 201                     # the online fast simulator, as `ham train` does
+
+    [world]                        # a WorldConfig dict (default: the paper's world)
+    objects = "paper"
+
+    [base]                         # every run
+    steps = 3000
+    eval_every = 250
+
+    [axes]                         # the cartesian product of these value lists
+    model.glances = [2, 3]
+    model.policy = ["learned", "random"]
+
+    [[cells]]                      # and runs listed one by one (added to the product)
+    name = "g10"
+    model.glances = 10
+    steps = 1500
+    seeds = [0]
+
+An axis whose name is not a config key is a *label* axis: its values are tables, each a ``name``
+and the overrides it stands for (Table 1's variants: ``{name = "rloc", model.policy = "random"}``).
+A cell's name is ``key`` formatted over the label axes and the resolved config (e.g.
+``"{variant}-{model.combiner}-g{model.glances}"``), else ``glances=2_policy=random`` from its
+axis values; a run's key is ``<cell>-s<seed>`` and its directory ``runs/<key>``.
+
+Every key is checked against the config dataclasses and every cell's config is built when the
+grid is loaded, so a typo or a bad value stops the grid before any run starts.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import re
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from ham.errors import HamError
+
+#: Top-level keys of a grid file.
+GRID_KEYS = ("name", "description", "seeds", "key", "base", "axes", "cells", "world", "table",
+             "evaluate")  # fmt: skip
+#: TrainConfig fields a grid sets itself rather than through overrides.
+RESERVED = {
+    "seed": "the grid's seeds",
+    "table": "the grid's [table]",
+    "world": "the grid's [world]",
+    "model.n_objects": "the number of the world's objects",
+}
+EVAL_SEED = 12345  # the default seed of `ham evaluate`
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._=,+-]*$")
+
+
+def override_keys() -> list[str]:
+    """The dotted keys a grid may set: TrainConfig's fields and ``model.<HamConfig field>``."""
+    from ham.learn.train import TrainConfig
+    from ham.model.agent import HamConfig
+
+    keys = [f.name for f in fields(TrainConfig) if f.name not in ("model", "world")]
+    keys += [f"model.{f.name}" for f in fields(HamConfig)]
+    return [k for k in keys if k not in RESERVED]
+
+
+def flatten(d: Mapping, prefix: str = "") -> dict[str, Any]:
+    """``{"model": {"glances": 3}}`` -> ``{"model.glances": 3}`` (TOML's dotted keys nest)."""
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, Mapping):
+            out.update(flatten(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def _check_keys(keys, where: str) -> None:
+    accepted = override_keys()
+    for k in keys:
+        if k in RESERVED:
+            raise HamError(f"{where}: key {k!r} is set by {RESERVED[k]}, not by an override")
+        if k not in accepted:
+            raise HamError(f"{where}: unknown key {k!r}; accepted: {', '.join(accepted)}")
+
+
+def _seeds(v, where: str) -> tuple[int, ...]:
+    def ok(x) -> bool:
+        return isinstance(x, int) and not isinstance(x, bool) and x >= 0
+
+    if ok(v) and v >= 1:
+        return tuple(range(v))
+    if isinstance(v, (list, tuple)) and v and all(ok(x) for x in v) and len(set(v)) == len(v):
+        return tuple(v)
+    raise HamError(
+        f"{where}: seeds = {v!r}; accepted: a count >= 1 or a list of distinct integers >= 0"
+    )
+
+
+def _value_text(v) -> str:
+    if isinstance(v, float):
+        return f"{v:g}"
+    return str(v).lower() if isinstance(v, bool) else str(v)
+
+
+def _short(key: str) -> str:
+    return key.rsplit(".", 1)[-1]
+
+
+def _fmt_value(v) -> str:
+    """A value for a Markdown cell or a run name."""
+    return re.sub(r"[^A-Za-z0-9._+-]", "-", _value_text(v))
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One point of the grid: its overrides (base included) and the seeds it runs."""
+
+    name: str
+    overrides: dict
+    seeds: tuple[int, ...]
+    #: what distinguishes it from the base: the axis values or the explicit cell's own keys
+    settings: dict = field(default_factory=dict)
+    #: label-axis values (e.g. ``{"variant": "rloc"}``)
+    labels: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class GridJob:
+    """One training run of a grid."""
+
+    key: str
+    cell: str
+    seed: int
+    labels: dict
+    config: dict
+    evaluate: list
+
+    def to_dict(self) -> dict:
+        return {
+            "key": self.key,
+            "cell": self.cell,
+            "seed": self.seed,
+            "labels": self.labels,
+            "config": self.config,
+            "evaluate": self.evaluate,
+        }
+
+
+@dataclass(frozen=True)
+class Grid:
+    """A validated grid of runs: ``base`` overrides, ``axes`` (product) and/or ``cells``, x seeds.
+
+    Attributes:
+        name: the grid's name (titles of the report).
+        base: dotted overrides applied to every run.
+        axes: axis -> values; a dotted config key takes scalar values, a label axis tables of
+            ``name`` + overrides. Their cartesian product, in file order, are cells.
+        cells: more cells, each a table of overrides with an optional ``name`` and ``seeds``.
+        seeds: the seeds of every cell without its own.
+        key: a format string naming the product's cells (fields: label axes, config values).
+        world: the :class:`ham.world.config.WorldConfig` dict every run uses.
+        table_grid: ``N`` trains on an N x N glance table built from ``world``; ``None`` online.
+        evaluate: re-evaluations of each run's final checkpoint: ``policy``, ``batches``, ``seed``.
+    """
+
+    name: str
+    base: dict = field(default_factory=dict)
+    axes: dict = field(default_factory=dict)
+    cells: list = field(default_factory=list)
+    seeds: tuple[int, ...] = (0,)
+    key: str | None = None
+    world: dict = field(default_factory=dict)
+    table_grid: int | None = None
+    evaluate: list = field(default_factory=list)
+    description: str = ""
+
+    # ------------------------------------------------------------------ validation
+    def __post_init__(self) -> None:
+        from ham.learn.evaluation import EVAL_POLICIES
+        from ham.world.config import WorldConfig
+
+        w = f"grid {self.name!r}"
+        if not (isinstance(self.name, str) and _NAME.match(self.name)):
+            raise HamError(
+                f"grid name {self.name!r}; accepted: letters, digits and . _ = , + - (not empty)"
+            )
+        if not isinstance(self.base, Mapping):
+            raise HamError(f"{w}: base = {self.base!r}; accepted: a table of overrides")
+        object.__setattr__(self, "base", flatten(self.base))
+        _check_keys(self.base, f"{w} base")
+        object.__setattr__(self, "seeds", _seeds(self.seeds, w))
+        object.__setattr__(self, "axes", self._checked_axes(w))
+        object.__setattr__(self, "cells", self._checked_cells(w))
+        # the world: its top-level keys here (WorldConfig.from_dict ignores unknown ones)
+        accepted = [f.name for f in fields(WorldConfig)]
+        if not isinstance(self.world, Mapping):
+            raise HamError(f"{w}: world = {self.world!r}; accepted: a WorldConfig table")
+        for k in self.world:
+            if k not in accepted:
+                raise HamError(f"{w} world: unknown key {k!r}; accepted: {', '.join(accepted)}")
+        world = WorldConfig.from_dict(dict(self.world))
+        object.__setattr__(self, "world", world.to_dict())
+        object.__setattr__(self, "_n_objects", len(world.resolve_objects()))
+        if self.table_grid is not None and not (
+            isinstance(self.table_grid, int)
+            and not isinstance(self.table_grid, bool)
+            and self.table_grid >= 2
+        ):
+            raise HamError(f"{w}: table grid = {self.table_grid!r}; accepted: an integer >= 2")
+        evals = []
+        for i, spec in enumerate(self.evaluate):
+            where = f"{w} evaluate[{i}]"
+            if not isinstance(spec, Mapping):
+                raise HamError(f"{where} = {spec!r}; accepted: a table of policy, batches, seed")
+            bad = set(spec) - {"policy", "batches", "seed"}
+            if bad:
+                raise HamError(
+                    f"{where}: unknown key {sorted(bad)[0]!r}; accepted: policy, batches, seed"
+                )
+            s = {"policy": "mean", "batches": 100, "seed": EVAL_SEED, **spec}
+            if s["policy"] not in EVAL_POLICIES:
+                raise HamError(
+                    f"{where}: policy {s['policy']!r}; accepted: {', '.join(EVAL_POLICIES)}"
+                )
+            for k, low in (("batches", 1), ("seed", 0)):
+                if not (isinstance(s[k], int) and not isinstance(s[k], bool) and s[k] >= low):
+                    raise HamError(f"{where}: {k} = {s[k]!r}; accepted: an integer >= {low}")
+            if s in evals:
+                raise HamError(f"{where}: {s} is listed twice")
+            evals.append(s)
+        object.__setattr__(self, "evaluate", evals)
+        if self.key is not None and not isinstance(self.key, str):
+            raise HamError(f"{w}: key = {self.key!r}; accepted: a format string")
+        if self.key is not None and not self.axes:
+            raise HamError(f"{w}: key {self.key!r} names the axes' cells, but there are no axes")
+        # build every cell's config now: a bad value stops the grid before any run starts
+        names: dict[str, Cell] = {}
+        seen: dict[str, str] = {}
+        for cell in self.expand():
+            if not _NAME.match(cell.name):
+                raise HamError(
+                    f"{w}: cell name {cell.name!r}; accepted: letters, digits and . _ = , + -"
+                )
+            if cell.name in names:
+                raise HamError(f"{w}: duplicate cell {cell.name!r}")
+            try:
+                config = self.config(cell.overrides, cell.seeds[0], None)
+            except HamError as exc:
+                raise HamError(f"{w} cell {cell.name!r}: {exc}") from None
+            same = json.dumps({**config.to_dict(), "seed": None}, sort_keys=True)
+            if same in seen and set(names[seen[same]].seeds) & set(cell.seeds):
+                raise HamError(
+                    f"{w}: duplicate cell: {cell.name!r} runs the same config as {seen[same]!r}"
+                )
+            names[cell.name] = cell
+            seen[same] = cell.name
+
+    def _checked_axes(self, w: str) -> dict:
+        if not isinstance(self.axes, Mapping):
+            raise HamError(f"{w}: axes = {self.axes!r}; accepted: a table of value lists")
+        axes = {}
+        for name, values in _axis_items(self.axes):
+            where = f"{w} axis {name!r}"
+            if not isinstance(values, list) or not values:
+                raise HamError(f"{where} = {values!r}; accepted: a non-empty list of values")
+            if all(isinstance(v, Mapping) for v in values):  # a label axis
+                if name in override_keys() or name in RESERVED:
+                    raise HamError(f"{where}: a config key takes values, not tables")
+                out = []
+                for v in values:
+                    v = flatten(v)
+                    if not isinstance(v.get("name"), str) or not v["name"]:
+                        raise HamError(f"{where}: value {v!r} has no name")
+                    _check_keys([k for k in v if k != "name"], f"{where} {v['name']!r}")
+                    out.append(v)
+                names = [v["name"] for v in out]
+            else:
+                _check_keys([name], w)
+                if any(isinstance(v, (Mapping, list)) for v in values):
+                    raise HamError(f"{where} = {values!r}; accepted: a list of plain values")
+                out, names = list(values), [json.dumps(v) for v in values]
+            dup = next((n for n in names if names.count(n) > 1), None)
+            if dup is not None:
+                raise HamError(f"{where}: value {dup} is listed twice")
+            axes[name] = out
+        return axes
+
+    def _checked_cells(self, w: str) -> list:
+        if not isinstance(self.cells, list):
+            raise HamError(f"{w}: cells = {self.cells!r}; accepted: a list of tables")
+        out = []
+        for i, c in enumerate(self.cells):
+            if not isinstance(c, Mapping):
+                raise HamError(f"{w} cells[{i}] = {c!r}; accepted: a table of overrides")
+            c = flatten(c)
+            where = f"{w} cell {c.get('name', i)!r}"
+            _check_keys([k for k in c if k not in ("name", "seeds")], where)
+            if "seeds" in c:
+                c["seeds"] = list(_seeds(c["seeds"], where))
+            out.append(c)
+        return out
+
+    # ------------------------------------------------------------------ expansion
+    def expand(self) -> list[Cell]:
+        """The cells: the product of the axes (when there are axes), then the listed cells.
+
+        With neither axes nor cells the grid is one cell, the base.
+        """
+        cells = []
+        if self.axes or not self.cells:
+            names = list(self.axes)
+            for combo in itertools.product(*(self.axes[n] for n in names)):
+                overrides, settings, labels = dict(self.base), {}, {}
+                for n, v in zip(names, combo, strict=True):
+                    if isinstance(v, Mapping):
+                        labels[n] = v["name"]
+                        own = {k: x for k, x in v.items() if k != "name"}
+                        overrides.update(own)
+                        settings.update(own)
+                    else:
+                        overrides[n] = v
+                        settings[n] = v
+                name = self._name(overrides, labels, names, combo)
+                cells.append(Cell(name, overrides, self.seeds, settings, labels))
+        for c in self.cells:
+            own = {k: v for k, v in c.items() if k not in ("name", "seeds")}
+            name = c.get("name") or _default_name(own)
+            seeds = tuple(c["seeds"]) if "seeds" in c else self.seeds
+            cells.append(Cell(name, {**self.base, **own}, seeds, own))
+        return cells
+
+    def _name(self, overrides: dict, labels: dict, names: list, combo: tuple) -> str:
+        if self.key is None:
+            parts = []
+            for n, v in zip(names, combo, strict=True):
+                parts.append(
+                    v["name"] if isinstance(v, Mapping) else f"{_short(n)}={_fmt_value(v)}"
+                )
+            return "_".join(parts) or "base"
+        config = self.config(overrides, self.seeds[0], None)
+        values = {f.name: getattr(config, f.name) for f in fields(config)}
+        try:
+            return self.key.format(**{**values, **labels})
+        except (KeyError, AttributeError, IndexError, ValueError) as exc:
+            fields_ = ", ".join([*labels, *(f"model.{k}" for k in config.model.to_dict()), "..."])
+            raise HamError(
+                f"grid {self.name!r}: key {self.key!r} cannot be formatted ({exc}); "
+                f"accepted fields: {fields_}"
+            ) from None
+
+    def config(self, overrides: Mapping, seed: int, table: str | None):
+        """The TrainConfig of one run (raises the config's own HamError for a bad value)."""
+        from ham.learn.train import TrainConfig
+        from ham.model.agent import HamConfig
+        from ham.world.config import WorldConfig
+
+        model: dict = {"n_objects": self._n_objects}
+        train: dict = {}
+        for k, v in overrides.items():
+            if k.startswith("model."):
+                model[k[len("model.") :]] = v
+            else:
+                train[k] = v
+        return TrainConfig(
+            model=HamConfig(**model),
+            world=WorldConfig.from_dict(self.world),
+            seed=seed,
+            table=table,
+            **train,
+        )
+
+    def table_path(self, root: str | Path) -> str | None:
+        """Where the grid's glance table lives in the output folder (``None``: online)."""
+        if self.table_grid is None:
+            return None
+        return str(Path(root) / f"table_{self.table_grid}.h5")
+
+    def jobs(self, table: str | None = None) -> list[GridJob]:
+        """Every run: cells in order, seeds within a cell; ``table`` is the glance table's path."""
+        if (table is None) != (self.table_grid is None):
+            raise HamError(
+                f"grid {self.name!r}: a table path goes with [table] grid (got {table!r})"
+            )
+        out = []
+        for cell in self.expand():
+            for seed in cell.seeds:
+                config = self.config(cell.overrides, seed, table).to_dict()
+                key = f"{cell.name}-s{seed}"
+                out.append(GridJob(key, cell.name, seed, dict(cell.labels), config,
+                                   list(self.evaluate)))  # fmt: skip
+        return out
+
+    # ------------------------------------------------------------------ files
+    def to_dict(self) -> dict:
+        """The grid as a JSON/TOML-shaped dict that :meth:`from_dict` reads back."""
+        d: dict = {"name": self.name}
+        if self.description:
+            d["description"] = self.description
+        d["seeds"] = list(self.seeds)
+        if self.key is not None:
+            d["key"] = self.key
+        d["base"] = dict(self.base)
+        if self.axes:
+            d["axes"] = dict(self.axes)
+        if self.cells:
+            d["cells"] = list(self.cells)
+        d["world"] = dict(self.world)
+        if self.table_grid is not None:
+            d["table"] = {"grid": self.table_grid}
+        if self.evaluate:
+            d["evaluate"] = list(self.evaluate)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: Mapping, source: str = "grid") -> Grid:
+        if not isinstance(d, Mapping):
+            raise HamError(f"{source}: a grid is a table; got {type(d).__name__}")
+        bad = [k for k in d if k not in GRID_KEYS]
+        if bad:
+            raise HamError(f"{source}: unknown key {bad[0]!r}; accepted: {', '.join(GRID_KEYS)}")
+        table = d.get("table")
+        if table is not None:
+            if not isinstance(table, Mapping) or set(table) - {"grid"} or "grid" not in table:
+                raise HamError(f"{source}: table = {table!r}; accepted: a table with grid = N")
+            table = table["grid"]
+        for k in ("evaluate",):
+            if not isinstance(d.get(k, []), list):
+                raise HamError(f"{source}: {k} = {d[k]!r}; accepted: a list of tables")
+        return cls(
+            name=d.get("name", Path(source).stem if source != "grid" else "grid"),
+            description=str(d.get("description", "")),
+            base=d.get("base", {}),
+            axes=d.get("axes", {}),
+            cells=d.get("cells", []),
+            seeds=d.get("seeds", 1),
+            key=d.get("key"),
+            world=d.get("world", {}),
+            table_grid=table,
+            evaluate=d.get("evaluate", []),
+        )
+
+
+def _axis_items(axes: Mapping):
+    """Axis name -> values; TOML's ``model.glances = [...]`` arrives nested, so flatten it."""
+    for k, v in axes.items():
+        if isinstance(v, Mapping):
+            for kk, vv in _axis_items(v):
+                yield f"{k}.{kk}", vv
+        else:
+            yield k, v
+
+
+def _default_name(own: Mapping) -> str:
+    return "_".join(f"{_short(k)}={_fmt_value(v)}" for k, v in own.items()) or "base"
+
+
+def load_grid(path: str | Path) -> Grid:
+    """Read a grid from a ``.toml`` or ``.json`` file (validated; one-line HamError if not)."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise HamError(f"grid file {str(path)!r} cannot be read: {exc.strerror}") from None
+    if path.suffix == ".toml":
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise HamError(f"grid file {str(path)!r} is not valid TOML: {exc}") from None
+    elif path.suffix == ".json":
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise HamError(f"grid file {str(path)!r} is not valid JSON: {exc}") from None
+    else:
+        raise HamError(f"grid file {str(path)!r}; accepted: a .toml or .json file")
+    return Grid.from_dict(data, source=str(path))
+
+
+def settings_text(settings: Mapping) -> str:
+    """``glances=3, policy=random`` for a report."""
+    return ", ".join(f"{_short(k)}={_value_text(v)}" for k, v in settings.items())

@@ -1,0 +1,337 @@
+"""``ham reproduce grid FILE``: run any grid of training runs (:mod:`ham.experiments.grid`) and report.
+
+Runs go to ``DIR/runs/<cell>-s<seed>`` on the executors of ``ham reproduce`` (a local process
+pool or Ray); a finished run is skipped, an interrupted one resumes, a failed one is retried and
+then reported. Beside the runs: ``grid.json`` (the grid as read, re-runnable), ``plan.json``
+(every run's resolved TrainConfig), ``results.json`` and ``report.md`` (best and final accuracy
+per cell, mean ± standard error of the mean over seeds) and ``curves.png`` (accuracy during
+training per cell, mean over seeds).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from ham.errors import HamError
+from ham.experiments.grid import Grid, GridJob, load_grid, settings_text
+from ham.experiments.reproduce import EXECUTORS, _environment, _fmt, _write_json, execute, mean_sem
+from ham.experiments.runs import evaluation_path, has_evaluation, is_finished, run_dir
+
+#: Keys of a run's config that may differ between invocations without making it another run.
+_PLACE_KEYS = ("device", "table")
+
+
+def run_grid(
+    grid: Grid | str | os.PathLike,
+    out: str | os.PathLike,
+    *,
+    seeds: int | None = None,
+    executor: str = "local",
+    workers: int | None = None,
+    ray_address: str | None = None,
+    device: str | None = None,
+    retries: int = 1,
+    progress: bool = True,
+    command: str | None = None,
+) -> dict:
+    """Run what is not finished of ``grid`` (a :class:`Grid` or a grid file) into ``out``.
+
+    ``seeds`` replaces every cell's seeds by ``0..seeds-1``; ``device`` sets every run's device.
+    Returns the summary (``results.json`` plus ``ran``, ``skipped`` and ``failures``).
+    """
+    from ham.world.config import WorldConfig
+    from ham.world.table import build_table
+
+    if not isinstance(grid, Grid):
+        grid = load_grid(grid)
+    if executor not in EXECUTORS:
+        raise HamError(f"executor {executor!r}; accepted: {', '.join(EXECUTORS)}")
+    if seeds is not None:
+        if not (isinstance(seeds, int) and not isinstance(seeds, bool) and seeds >= 1):
+            raise HamError(f"seeds = {seeds!r}; accepted: an integer >= 1")
+        cells = [{k: v for k, v in c.items() if k != "seeds"} for c in grid.cells]
+        grid = replace(grid, seeds=seeds, cells=cells)
+    if device is not None:
+        grid = replace(grid, base={**grid.base, "device": device})
+    workers = workers or os.cpu_count() or 1
+    if workers < 1:
+        raise HamError(f"workers = {workers}; accepted: >= 1")
+    if not (isinstance(retries, int) and retries >= 0):
+        raise HamError(f"retries = {retries!r}; accepted: an integer >= 0")
+    root = Path(out).resolve()
+    root.mkdir(parents=True, exist_ok=True)
+    table = grid.table_path(root)
+    jobs = grid.jobs(table)
+    _check_existing_runs(root, jobs)
+    if table is not None and not Path(table).exists():
+        build_table(WorldConfig.from_dict(grid.world), grid.table_grid, table, progress=progress,
+                    command="ham reproduce grid")  # fmt: skip
+    _write_json(root / "grid.json", grid.to_dict())
+    _write_json(root / "plan.json", [j.to_dict() for j in jobs])
+
+    todo = [j for j in jobs if not _complete(root, j)]
+    results, failures = execute(
+        jobs, todo, root, grid.world, grid.table_grid,
+        executor=executor, workers=workers, ray_address=ray_address, retries=retries,
+        progress=progress, desc=f"grid {grid.name}",
+    )  # fmt: skip
+    summary = write_report(root, grid, jobs, failures, command=command, executor=executor)
+    summary["skipped"] = len(jobs) - len(todo)
+    summary["ran"] = sum(r["status"] == "done" for r in results.values())
+    return summary
+
+
+def _complete(root: Path, job: GridJob) -> bool:
+    out, steps = run_dir(root, job.key), job.config["steps"]
+    return is_finished(out, steps) and all(has_evaluation(out, s, steps) for s in job.evaluate)
+
+
+def _check_existing_runs(root: Path, jobs: list[GridJob]) -> None:
+    """A run directory of the same key but another config is another experiment: stop."""
+    for job in jobs:
+        path = run_dir(root, job.key) / "config.json"
+        try:
+            old = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue
+        new = json.loads(json.dumps(job.config))  # tuples -> lists, as in the file
+        for k in _PLACE_KEYS:
+            old.pop(k, None)
+            new.pop(k, None)
+        if old != new:
+            diff = _first_difference(old, new)
+            raise HamError(
+                f"{path.parent} holds a run with another config ({diff}); "
+                "use another --out or remove that run"
+            )
+
+
+def _first_difference(old: dict, new: dict, prefix: str = "") -> str:
+    for k in sorted(set(old) | set(new)):
+        a, b = old.get(k), new.get(k)
+        if isinstance(a, dict) and isinstance(b, dict):
+            if a != b:
+                return _first_difference(a, b, f"{prefix}{k}.")
+        elif a != b:
+            return f"{prefix}{k} {a!r} there, {b!r} in the grid"
+    return "?"
+
+
+# --------------------------------------------------------------------------- aggregate
+def _stat(values) -> dict:
+    m, s, n = mean_sem(values)
+    return {"mean": m, "sem": s, "n": n}
+
+
+def _mean_lists(lists: list) -> list[float] | None:
+    lists = [x for x in lists if x]
+    if not lists or len({len(x) for x in lists}) != 1:
+        return None
+    return [float(v) for v in np.mean(np.asarray(lists, dtype=float), axis=0)]
+
+
+def _per_object(record: dict, objects: list) -> dict | None:
+    """Per-object accuracy from an evaluation's confusion matrix (rows: the true object), if any."""
+    confusion = record.get("confusion")
+    try:
+        c = np.asarray(confusion, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    if confusion is None or c.ndim != 2 or c.shape[0] != c.shape[1] or len(objects) != len(c):
+        return None
+    totals = c.sum(1)
+    return {o: float(c[i, i] / totals[i]) if totals[i] else math.nan for i, o in enumerate(objects)}
+
+
+def aggregate(root: Path, grid: Grid, jobs: list[GridJob]) -> list[dict]:
+    """Per cell: best/final accuracy and the re-evaluations, mean ± s.e.m. over finished seeds."""
+    cells = []
+    for cell in grid.expand():
+        cjobs = [j for j in jobs if j.cell == cell.name]
+        metrics, evals = [], {i: [] for i in range(len(grid.evaluate))}
+        for j in cjobs:
+            out = run_dir(root, j.key)
+            if not is_finished(out, j.config["steps"]):
+                continue
+            metrics.append(json.loads((out / "metrics.json").read_text()))
+            for i, spec in enumerate(grid.evaluate):
+                if has_evaluation(out, spec, j.config["steps"]):
+                    evals[i].append(json.loads(evaluation_path(out, spec).read_text()))
+        row = {
+            "cell": cell.name,
+            "settings": cell.settings,
+            "labels": cell.labels,
+            "seeds": list(cell.seeds),
+            "runs": [j.key for j in cjobs],
+            "finished": len(metrics),
+            "steps": cjobs[0].config["steps"],
+            "best_accuracy": _stat(m["best_accuracy"] for m in metrics),
+            "final_accuracy": _stat(m["final_accuracy"] for m in metrics),
+            "best_accumulated_accuracy": _stat(m["best_accumulated_accuracy"] for m in metrics),
+            "accuracy_per_glance": _mean_lists([m.get("accuracy_per_glance") for m in metrics]),
+            "evaluations": [
+                {
+                    **spec,
+                    "accuracy": _stat(e["accuracy"] for e in evals[i]),
+                    "accuracy_per_glance": _mean_lists(
+                        [e["accuracy_per_glance"] for e in evals[i]]
+                    ),
+                }
+                for i, spec in enumerate(grid.evaluate)
+            ],
+        }
+        per_object = [
+            p
+            for m in metrics
+            if m.get("history")
+            and (p := _per_object(m["history"][-1], m.get("objects", []))) is not None
+        ]
+        if per_object and all(p.keys() == per_object[0].keys() for p in per_object):
+            row["per_object_accuracy"] = {o: _stat(p[o] for p in per_object) for o in per_object[0]}
+        cells.append(row)
+    return cells
+
+
+# --------------------------------------------------------------------------- report
+def _entry(stat: dict) -> str:
+    return _fmt(stat["mean"], stat["sem"], stat["n"])
+
+
+def results_markdown(grid: Grid, cells: list[dict]) -> str:
+    """One row per cell: best and final accuracy (and re-evaluations), mean ± s.e.m. over seeds."""
+    head = ["cell", "settings", "runs", "steps", "best accuracy (during training)",
+            "final accuracy"]  # fmt: skip
+    head += [f"final, {s['policy']} poses ({s['batches']} batches)" for s in grid.evaluate]
+    last = grid.evaluate[-1] if grid.evaluate else None
+    head.append(
+        f"per glance (final, {last['policy']} poses)" if last else "per glance (last evaluation)"
+    )
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for c in cells:
+        per = c["evaluations"][-1]["accuracy_per_glance"] if last else c["accuracy_per_glance"]
+        row = [
+            f"`{c['cell']}`",
+            settings_text(c["settings"]) or "base",
+            f"{c['finished']}/{len(c['runs'])}",
+            str(c["steps"]),
+            _entry(c["best_accuracy"]),
+            _entry(c["final_accuracy"]),
+            *(_entry(e["accuracy"]) for e in c["evaluations"]),
+            ", ".join(f"{a:.3f}" for a in per) if per else "—",
+        ]
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
+def per_object_markdown(cells: list[dict]) -> str | None:
+    rows = [c for c in cells if "per_object_accuracy" in c]
+    if not rows:
+        return None
+    objects = list(rows[0]["per_object_accuracy"])
+    lines = ["| cell | " + " | ".join(objects) + " |", "|---|" + "---|" * len(objects)]
+    for c in rows:
+        po = c["per_object_accuracy"]
+        lines.append(
+            f"| `{c['cell']}` | " + " | ".join(_entry(po[o]) if o in po else "—" for o in objects)
+            + " |"
+        )  # fmt: skip
+    return "\n".join(lines)
+
+
+def draw_curves(root: Path, grid: Grid, jobs: list[GridJob], path: Path) -> Path | None:
+    """Accuracy during training per cell: the mean over seeds, shaded ± s.e.m."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    curves = []
+    for cell in grid.expand():
+        hs = []
+        for j in jobs:
+            p = run_dir(root, j.key) / "metrics.json"
+            if j.cell == cell.name and p.exists():
+                h = json.loads(p.read_text()).get("history", [])
+                if h:
+                    hs.append(h)
+        if hs:
+            n = min(len(h) for h in hs)
+            steps = np.array([r["step"] for r in hs[0][:n]])
+            acc = np.array([[r["accuracy"] for r in h[:n]] for h in hs])
+            sem = acc.std(0, ddof=1) / math.sqrt(len(hs)) if len(hs) > 1 else None
+            curves.append((cell.name, steps, acc.mean(0), sem))
+    if not curves:
+        return None
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    colors = plt.cm.tab10(np.arange(len(curves)) % 10)
+    for (name, steps, mean, sem), color in zip(curves, colors, strict=True):
+        ax.plot(steps, mean, color=color, label=name)
+        if sem is not None:
+            ax.fill_between(steps, mean - sem, mean + sem, color=color, alpha=0.2, lw=0)
+    ax.set(xlabel="training step", ylabel="accuracy",
+           title=f"Grid {grid.name}: accuracy during training (mean over seeds)")  # fmt: skip
+    ax.legend(fontsize=7, loc="lower right")
+    tmp = path.with_name(path.name + ".tmp")
+    fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png")
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path
+
+
+def write_report(
+    root: Path,
+    grid: Grid,
+    jobs: list[GridJob],
+    failures: list[dict],
+    *,
+    command: str | None,
+    executor: str,
+) -> dict:
+    """``results.json``, ``report.md`` and ``curves.png`` from the finished runs."""
+    cells = aggregate(root, grid, jobs)
+    summary = {"grid": grid.to_dict(), "cells": cells, "failures": failures}
+    _write_json(root / "results.json", summary)
+    curves = draw_curves(root, grid, jobs, root / "curves.png")
+    env = _environment()
+    where = f"glance table {grid.table_grid} x {grid.table_grid}" if grid.table_grid else "online"
+    lines = [
+        f"# ham reproduce grid — `{grid.name}`",
+        "",
+        *([grid.description, ""] if grid.description else []),
+        f"Command: `{command or 'ham reproduce grid ' + grid.name}`",
+        f"Executor: {executor}. Written {time.strftime('%Y-%m-%d %H:%M:%S %Z')}.",
+        "",
+        f"{len(jobs)} run(s) in {len(cells)} cell(s); glances: {where}; world objects "
+        f"`{grid.world.get('objects')}`. Every run: "
+        + (settings_text(grid.base) or "the defaults")
+        + ". Entries are mean ± standard error of the mean over the finished seeds "
+        "(`runs` finished/planned); the grid is in `grid.json`, every run's config in "
+        "`plan.json`.",
+        "",
+        "Environment: " + ", ".join(f"{k} {v}" for k, v in env.items()) + ".",
+        "",
+        "## Accuracy per cell",
+        "",
+        results_markdown(grid, cells),
+        "",
+    ]
+    po = per_object_markdown(cells)
+    if po:
+        lines += ["## Accuracy per object (last evaluation during training)", "", po, ""]
+    if curves is not None:
+        lines += ["## Learning curves", "", f"![curves]({curves.name})", ""]
+    if failures:
+        lines += ["## Failed runs", ""]
+        lines += [f"- `{f['key']}`: {f.get('error', '?')}" for f in failures]
+        lines.append("")
+    tmp = root / "report.md.tmp"
+    tmp.write_text("\n".join(lines).rstrip("\n") + "\n")
+    os.replace(tmp, root / "report.md")
+    return summary
