@@ -239,6 +239,8 @@ class Run:
             "steps": self.step,
             "accuracy_per_glance": last.get("accuracy_per_glance"),
             "accumulated_accuracy_per_glance": last.get("accumulated_accuracy_per_glance"),
+            "per_object_accuracy": last.get("per_object_accuracy"),
+            "confusion": last.get("confusion"),
             "parameters": count_parameters(self.agent),
             "objects": self.objects,
             "config": self.config.to_dict(),
@@ -362,6 +364,8 @@ def _evaluate(run: Run, train_loss: float | None, train_reward: float | None) ->
         "accuracy_per_glance": result.accuracy_per_glance,
         "accumulated_accuracy_per_glance": result.accumulated_accuracy_per_glance,
         "mu_mean": result.mu_mean,
+        "per_object_accuracy": result.per_object_accuracy,
+        "confusion": result.confusion[-1],  # after the last glance: true x predicted counts
         "train_loss": train_loss,
         "train_reward": train_reward,
         "lr": c.learning_rate(run.step),
