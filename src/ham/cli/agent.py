@@ -197,22 +197,36 @@ def _config_from_args(args: argparse.Namespace):
         "normalization": args.normalization,
     }
     table = str(Path(args.table).resolve()) if args.table else None
-    return TrainConfig(
+    config = TrainConfig(
         model=model,
         table=table,
         world=world,
         **{k: v for k, v in train_args.items() if v is not None},
     )
+    if not args.env:
+        stray = [f"--{k.replace('_', '-')}" for k in ("actions", "max_step_length", "eval_env")
+                 if getattr(args, k) is not None]  # fmt: skip
+        if stray:
+            raise HamError(f"{', '.join(stray)} apply only with --env ap_gym:ENV_ID")
+    else:  # another world (docs/gym.md): the model sized for its glimpse and classes
+        from ham.cli.envs import parse_max_step_length
+        from ham.learn.ap_adapter import ApGymConfig
+        from ham.learn.train import fit_to_ap_gym
+
+        env = ApGymConfig(
+            args.env,
+            eval_env=args.eval_env,
+            actions=args.actions or "absolute",
+            max_step_length=parse_max_step_length(args.max_step_length),
+        )
+        config = fit_to_ap_gym(config, env)
+    return config
 
 
 def cmd_train(args: argparse.Namespace) -> int:
     from ham.learn.train import resume, train
 
     _set_threads(args.threads)
-    if args.env:  # another world: the ap_gym adapter (ham.learn.ap_adapter)
-        from ham.cli.envs import train_from_args
-
-        return train_from_args(args)
     progress = not args.no_progress
     if args.resume:
         if args.out:
@@ -234,6 +248,10 @@ def cmd_train(args: argparse.Namespace) -> int:
                 "lr",
                 "lr_step",
                 "beta",
+                "env",
+                "actions",
+                "max_step_length",
+                "eval_env",
             )  # fmt: skip
             if getattr(args, k) is not None
         ]
