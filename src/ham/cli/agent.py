@@ -114,6 +114,8 @@ def add_commands(subparsers) -> None:
     p.add_argument("--eval-policy", choices=("mean", "sample"),
                    help="location policy: mean poses or sampled (default: the run's)")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument("--confusion", metavar="PNG",
+                   help="also plot the confusion matrix after the last glance")  # fmt: skip
     p.set_defaults(func=cmd_evaluate)
 
     p = subparsers.add_parser(
@@ -297,8 +299,18 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     run = load_run(args.run, device=args.device)
     policy = args.eval_policy or run.config.eval_policy
-    result = evaluate(run.agent, run.env, args.batches, seed=args.seed, policy=policy)
+    try:
+        result = evaluate(run.agent, run.env, args.batches, seed=args.seed, policy=policy)
+    finally:
+        run.close()
     d = {"run": str(args.run), "steps": run.step, "eval_policy": policy, **result.to_dict()}
+    if args.confusion:
+        from ham.experiments.figures import plot_confusion
+
+        title = f"{args.run}: step {run.step}, after glance {len(result.confusion)}"
+        d["confusion_png"] = str(
+            plot_confusion(result.confusion[-1], result.objects, args.confusion, title=title)
+        )
     if args.json:
         json.dump(d, sys.stdout)
         sys.stdout.write("\n")
@@ -313,7 +325,23 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     ):
         print(f"{s + 1:>6}  {a:>8.4f}  {b:>11.4f}")
     print(f"accuracy after the last glance: {result.accuracy:.4f}")
+    _print_confusion(result.confusion[-1], result.per_object_accuracy, result.objects)
+    if args.confusion:
+        print(f"wrote {d['confusion_png']}")
     return 0
+
+
+def _print_confusion(confusion: list, per_object: list, objects: list[str]) -> None:
+    """Per object after the last glance: episodes, accuracy, and its row of the confusion matrix."""
+    w = max(8, *(len(o) for o in objects))
+    print("after the last glance, per true object (columns: predicted):")
+    print(
+        f"{'object':<{w}}  {'episodes':>8}  {'accuracy':>8}  "
+        + "  ".join(f"{o:>{w}}" for o in objects)
+    )
+    for name, row, acc in zip(objects, confusion, per_object, strict=True):
+        a = "-" if acc is None else f"{acc:.4f}"
+        print(f"{name:<{w}}  {sum(row):>8}  {a:>8}  " + "  ".join(f"{c:>{w}}" for c in row))
 
 
 def cmd_heatmap(args: argparse.Namespace) -> int:
