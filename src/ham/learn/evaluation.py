@@ -109,8 +109,8 @@ def evaluate(
     per_glance = (correct / n).tolist()
     has_mu = bool(n_obj.sum() > 0)
     confusion = confusion.view(glances, k, k)
-    last, shown = confusion[-1].diagonal(), confusion[-1].sum(1)
-    per_object = [int(c) / int(t) if t else None for c, t in zip(last, shown, strict=True)]
+    last, shown = confusion[-1].diagonal().tolist(), confusion[-1].sum(1).tolist()
+    per_object = [c / t if t else None for c, t in zip(last, shown, strict=True)]
     return EvalResult(
         accuracy=per_glance[-1],
         accuracy_per_glance=per_glance,

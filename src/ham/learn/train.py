@@ -1,9 +1,9 @@
 """Training the HAM (section "Training"), readable top to bottom.
 
 Each step: draw a fresh batch of 64 objects uniformly (from the haptic world, a glance table or
-online, or from an ap_gym environment: ``TrainConfig.env``, :mod:`ham.learn.ap_adapter`), play ``S`` glances (the first random, the
-rest from the location policy), compute the hybrid loss (:mod:`ham.learn.hybrid_loss`), take one SGD
-step with Nesterov momentum 0.9 at the learning rate
+online; or from an ap_gym environment, ``TrainConfig.env``), play ``S`` glances (the first
+random, the rest from the location policy), compute the hybrid loss (:mod:`ham.learn.hybrid_loss`),
+take one SGD step with Nesterov momentum 0.9 at the learning rate
 ``lr_t = max(lr_min, lr * lr_decay^(t / lr_step))`` (8e-4, 0.97, T = 800; the authors' code uses
 T = 200). Every ``eval_every`` steps (200) evaluate 100 fresh balanced batches
 (:mod:`ham.learn.evaluation`), track the best accuracy, log to TensorBoard, and write a checkpoint.
@@ -36,7 +36,7 @@ import torch
 from tqdm.auto import tqdm
 
 from ham.errors import HamError
-from ham.learn.ap_adapter import ApGymConfig
+from ham.learn.ap_adapter import ApGymConfig, ApGymGlanceEnv
 from ham.learn.environment import HapticEnv
 from ham.learn.evaluation import EVAL_POLICIES, evaluate
 from ham.learn.hybrid_loss import REDUCTIONS, HybridLoss, hybrid_loss
@@ -83,8 +83,8 @@ class TrainConfig:
         table: a glance table file (the paper's pre-recorded data set); ``None``: online.
         world: the world simulated online when ``table`` and ``env`` are ``None``.
         env: an ap_gym environment to train on instead of the haptic world
-            (:class:`ham.learn.ap_adapter.ApGymConfig`; :func:`ham.learn.ap_adapter.fit_to_ap_gym`
-            sizes the model for it); ``None``: the haptic world.
+            (:class:`ham.learn.ap_adapter.ApGymConfig`; :func:`fit_to_ap_gym` sizes the model
+            for it); ``None``: the haptic world.
         device: ``cpu`` or ``cuda``.
         log_every: steps between TensorBoard training scalars.
     """
@@ -183,7 +183,7 @@ class Run:
 
     config: TrainConfig
     agent: HapticAttentionModel
-    env: HapticEnv
+    env: HapticEnv | ApGymGlanceEnv  # anything with their interface
     optimizer: torch.optim.Optimizer
     policy_generator: torch.Generator
     step: int = 0
@@ -194,7 +194,7 @@ class Run:
     objects: list = field(default_factory=list)
 
     @classmethod
-    def create(cls, config: TrainConfig, env=None) -> Run:
+    def create(cls, config: TrainConfig, env: HapticEnv | ApGymGlanceEnv | None = None) -> Run:
         """A fresh run of ``config``: its environment (``env``, or the one the config names:
         the haptic world from a glance table or online, or ``config.env`` on ap_gym), the model
         with its initial weights, the optimizer and the pose generator. The run owns ``env``
@@ -267,7 +267,7 @@ class Run:
         }
 
 
-def make_env(config: TrainConfig, device: torch.device | str = "cpu"):
+def make_env(config: TrainConfig, device: torch.device | str = "cpu") -> HapticEnv | ApGymGlanceEnv:
     """The training environment ``config`` names: ap_gym (``config.env``) or the haptic world
     (a glance table, or the online simulator of ``config.world``). Object stream: seed stream 0."""
     if config.env is not None:
