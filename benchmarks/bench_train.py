@@ -24,10 +24,10 @@ from ham.model.agent import HamConfig
 
 def bare_step(run: Run, pressures: torch.Tensor, locations: torch.Tensor, objects: torch.Tensor):
     """The network alone: forward over recorded glances, a loss touching every head, backward."""
-    logits, baselines, mu, sigma = run.agent.replay(pressures, locations)
+    logits, baselines, policy = run.agent.replay(pressures, locations)
     loss = F.cross_entropy(logits[-1], objects) + baselines.square().mean()
-    if mu.numel():
-        loss = loss + mu.square().mean() + sigma.square().mean()
+    if policy is not None and policy.trainable:
+        loss = loss - policy.log_prob(locations[1:]).mean()
     run.optimizer.zero_grad(set_to_none=True)
     loss.backward()
 

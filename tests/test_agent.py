@@ -12,6 +12,7 @@ from ham.learn.environment import HapticEnv
 from ham.model.agent import HamConfig, HapticAttentionModel, count_parameters
 from ham.model.core import LSTMCore, MLPCore
 from ham.model.location_net import LocationNetwork, truncated_normal, uniform_locations
+from ham.model.policy import UniformPolicy
 from ham.model.tactile_net import TactileNetwork
 from ham.world.config import WorldConfig, make_simulator
 from ham.world.source import OnlineSource, TableSource, make_source
@@ -43,7 +44,8 @@ def test_parameter_count_parts():
 
 def test_random_policy_has_no_location_network():
     m = HapticAttentionModel(HamConfig(policy="random"))
-    assert m.location is None
+    assert isinstance(m.location, UniformPolicy) and count_parameters(m.location) == 0
+    assert count_parameters(m) == 643_081 - 4 * 256 - 4
 
 
 def test_he_normal_init_zero_bias():
@@ -182,7 +184,8 @@ def test_episode_shapes_and_first_glance_random(env):
     assert ep.locations.shape == (4, 8, 2)
     assert ep.logits.shape == (4, 8, 4)
     assert ep.baselines.shape == (4, 8)
-    assert ep.mu.shape == ep.sigma.shape == (3, 8, 2)
+    assert ep.policy.batch_shape == (3, 8) and ep.policy.mode().shape == (3, 8, 2)
+    assert ep.policy.trainable
     assert not ep.locations.requires_grad
     # The first glance is uniform: the same draw as uniform_locations from the same seed.
     assert torch.equal(ep.locations[0], uniform_locations(8, torch.Generator().manual_seed(0)))
@@ -191,7 +194,8 @@ def test_episode_shapes_and_first_glance_random(env):
 def test_random_policy_episode(env):
     m = HapticAttentionModel(HamConfig(glances=3, policy="random"))
     ep = m(env, env.balanced_objects(0), torch.Generator().manual_seed(0))
-    assert ep.mu is None and ep.sigma is None
+    assert ep.policy.batch_shape == (2, 8) and not ep.policy.trainable
+    assert ep.policy.mode() is None  # no mode: the random policy samples when evaluated too
     assert ep.locations.shape == (3, 8, 2)
 
 

@@ -26,7 +26,10 @@ def option_strings(parser: argparse.ArgumentParser) -> set[str]:
 
 @pytest.mark.parametrize(
     ("cls", "skip"),
-    [(TrainConfig, {"model", "world", "table"}), (HamConfig, {"n_objects", "pressure_dim"})],
+    [
+        (TrainConfig, {"model", "world", "table", "env"}),
+        (HamConfig, {"n_objects", "pressure_dim"}),
+    ],
 )
 def test_every_field_is_an_option_of_ham_train(cls, skip):
     flags = option_strings(train_parser())

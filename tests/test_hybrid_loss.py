@@ -10,6 +10,7 @@ from ham.learn.environment import HapticEnv
 from ham.learn.hybrid_loss import hybrid_loss, reinforce_term, reward
 from ham.model.agent import HamConfig, HapticAttentionModel
 from ham.model.location_net import gaussian_log_prob
+from ham.model.policy import TruncatedGaussian
 from ham.world.config import WorldConfig
 from ham.world.source import make_source
 
@@ -71,11 +72,13 @@ def test_reinforce_gradient_is_minus_advantage_times_eligibility_numerically():
             if name == "mu":
                 plus[i] += eps
                 minus[i] -= eps
-                f1, f0 = reinforce_term(q, plus, sigma, adv), reinforce_term(q, minus, sigma, adv)
+                f1 = reinforce_term(q, TruncatedGaussian(plus, sigma), adv)
+                f0 = reinforce_term(q, TruncatedGaussian(minus, sigma), adv)
             else:
                 splus[i] += eps
                 sminus[i] -= eps
-                f1, f0 = reinforce_term(q, mu, splus, adv), reinforce_term(q, mu, sminus, adv)
+                f1 = reinforce_term(q, TruncatedGaussian(mu, splus), adv)
+                f0 = reinforce_term(q, TruncatedGaussian(mu, sminus), adv)
             numeric[i] = (f1 - f0) / (2 * eps)
         assert torch.allclose(numeric, expected, rtol=1e-5, atol=1e-7), name
 
@@ -84,9 +87,9 @@ def test_reinforce_gradient_is_minus_advantage_times_eligibility_numerically():
 def test_hybrid_loss_policy_gradient_matches_the_paper(env, reduction):
     """d(loss)/d(mu, sigma) = -beta * (r - b) * zeta per episode (summed, or averaged)."""
     model, ep = _episode(env)
-    mu = ep.mu.detach().requires_grad_()
-    sigma = ep.sigma.detach().requires_grad_()
-    ep.mu, ep.sigma = mu, sigma
+    mu = ep.policy.mu.detach().requires_grad_()
+    sigma = ep.policy.sigma.detach().requires_grad_()
+    ep.policy = TruncatedGaussian(mu, sigma)
     loss = hybrid_loss(ep, beta=0.4, reinforce_reduction=reduction)
     loss.total.backward()
     r = reward(ep.logits[-1], ep.objects)
@@ -140,7 +143,7 @@ def _nonzero(grads: dict[str, float], prefix: str) -> bool:
 def test_sampled_locations_carry_no_gradient(env):
     _, ep = _episode(env)
     assert not ep.locations.requires_grad
-    assert ep.mu.requires_grad and ep.sigma.requires_grad
+    assert ep.policy.mu.requires_grad and ep.policy.sigma.requires_grad
 
 
 def test_reinforce_term_trains_only_the_location_network(env):

@@ -94,7 +94,8 @@ def test_cli_train_evaluate_heatmap(tmp_path, capsys):
         assert (out / name).exists(), name
     m = json.loads((out / "metrics.json").read_text())
     for key in ("best_accuracy", "final_accuracy", "steps", "accuracy_per_glance",
-                "accumulated_accuracy_per_glance", "config", "history"):  # fmt: skip
+                "accumulated_accuracy_per_glance", "per_object_accuracy", "confusion", "config",
+                "history"):  # fmt: skip
         assert key in m, key
     assert m["steps"] == 4
     assert [h["step"] for h in m["history"]] == [0, 2, 4]
@@ -105,9 +106,13 @@ def test_cli_train_evaluate_heatmap(tmp_path, capsys):
     code, stdout, _ = ham_inprocess(capsys, "evaluate", str(out), "--json", "--batches", "2")
     d = json.loads(stdout)
     assert code == 0 and len(d["accuracy_per_glance"]) == 2 and d["episodes"] == 16
+    assert sum(map(sum, d["confusion"][-1])) == 16 and len(d["per_object_accuracy"]) == 4
     code, stdout, _ = ham_inprocess(capsys, "evaluate", str(out), "--batches", "1",
-                                    "--eval-policy", "sample")  # fmt: skip
+                                    "--eval-policy", "sample", "--confusion",
+                                    str(tmp_path / "confusion.png"))  # fmt: skip
     assert code == 0 and "sample poses" in stdout
+    assert "per true object" in stdout and "ramp_down" in stdout
+    assert (tmp_path / "confusion.png").stat().st_size > 0
 
     png = tmp_path / "heat.png"
     code, _, _ = ham_inprocess(capsys, "heatmap", str(out), "--out", str(png), "--batches", "3",

@@ -32,7 +32,7 @@ def add_commands(subparsers) -> None:
     )
     # Every hyperparameter once: the options come from TrainConfig and HamConfig themselves.
     hyper = p.add_argument_group("training (TrainConfig; paper defaults)")
-    add_config_options(hyper, TrainConfig, skip={"model", "world", "table"})
+    add_config_options(hyper, TrainConfig, skip={"model", "world", "table", "env"})
     net = p.add_argument_group("network (HamConfig; paper defaults)")
     add_config_options(net, HamConfig, skip={"n_objects", "pressure_dim"})
     src = p.add_mutually_exclusive_group()
@@ -62,6 +62,8 @@ def add_commands(subparsers) -> None:
     p.add_argument("--eval-policy", choices=choices(TrainConfig, "eval_policy"),
                    help="location policy: mean poses or sampled (default: the run's)")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument("--confusion", metavar="PNG",
+                   help="also plot the confusion matrix after the last glance")  # fmt: skip
     p.set_defaults(func=cmd_evaluate)
 
     p = subparsers.add_parser(
@@ -121,17 +123,31 @@ def _config_from_args(args: argparse.Namespace):
         n_objects = len(resolve_set(world.objects))
     model = HamConfig(n_objects=n_objects, **overrides(args, HamConfig))
     table = str(Path(args.table).resolve()) if args.table else None
-    return TrainConfig(model=model, table=table, world=world, **overrides(args, TrainConfig))
+    config = TrainConfig(model=model, table=table, world=world, **overrides(args, TrainConfig))
+    if not args.env:
+        stray = [f"--{k.replace('_', '-')}" for k in ("actions", "max_step_length", "eval_env")
+                 if getattr(args, k) is not None]  # fmt: skip
+        if stray:
+            raise HamError(f"{', '.join(stray)} apply only with --env ap_gym:ENV_ID")
+    else:  # another world (docs/gym.md): the model sized for its glimpse and classes
+        from ham.cli.envs import parse_max_step_length
+        from ham.learn.ap_adapter import ApGymConfig
+        from ham.learn.train import fit_to_ap_gym
+
+        env = ApGymConfig(
+            args.env,
+            eval_env=args.eval_env,
+            actions=args.actions or "absolute",
+            max_step_length=parse_max_step_length(args.max_step_length),
+        )
+        config = fit_to_ap_gym(config, env)
+    return config
 
 
 def cmd_train(args: argparse.Namespace) -> int:
     from ham.learn.train import resume, train
 
     _set_threads(args.threads)
-    if args.env:  # another world: the ap_gym adapter (ham.learn.ap_adapter)
-        from ham.cli.envs import train_from_args
-
-        return train_from_args(args)
     progress = not args.no_progress
     if args.resume:
         if args.out:
@@ -139,7 +155,11 @@ def cmd_train(args: argparse.Namespace) -> int:
         from ham.cli.config_args import given
 
         ignored = [flag for flag in given(args) if flag != "--steps"]
-        ignored += ["--table"] if args.table else []
+        ignored += [
+            f"--{k.replace('_', '-')}"
+            for k in ("table", "env", "actions", "max_step_length", "eval_env")
+            if getattr(args, k, None) is not None
+        ]
         if ignored:
             raise HamError(
                 f"--resume continues the run with its own config; remove {', '.join(ignored)} "
@@ -182,8 +202,18 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     run = load_run(args.run, device=args.device)
     policy = args.eval_policy or run.config.eval_policy
-    result = evaluate(run.agent, run.env, args.batches, seed=args.seed, policy=policy)
+    try:
+        result = evaluate(run.agent, run.env, args.batches, seed=args.seed, policy=policy)
+    finally:
+        run.close()
     d = {"run": str(args.run), "steps": run.step, "eval_policy": policy, **result.to_dict()}
+    if args.confusion:
+        from ham.experiments.figures import plot_confusion
+
+        title = f"{args.run}: step {run.step}, after glance {len(result.confusion)}"
+        d["confusion_png"] = str(
+            plot_confusion(result.confusion[-1], result.objects, args.confusion, title=title)
+        )
     if args.json:
         json.dump(d, sys.stdout)
         sys.stdout.write("\n")
@@ -198,7 +228,23 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     ):
         print(f"{s + 1:>6}  {a:>8.4f}  {b:>11.4f}")
     print(f"accuracy after the last glance: {result.accuracy:.4f}")
+    _print_confusion(result.confusion[-1], result.per_object_accuracy, result.objects)
+    if args.confusion:
+        print(f"wrote {d['confusion_png']}")
     return 0
+
+
+def _print_confusion(confusion: list, per_object: list, objects: list[str]) -> None:
+    """Per object after the last glance: episodes, accuracy, and its row of the confusion matrix."""
+    w = max(8, *(len(o) for o in objects))
+    print("after the last glance, per true object (columns: predicted):")
+    print(
+        f"{'object':<{w}}  {'episodes':>8}  {'accuracy':>8}  "
+        + "  ".join(f"{o:>{w}}" for o in objects)
+    )
+    for name, row, acc in zip(objects, confusion, per_object, strict=True):
+        a = "-" if acc is None else f"{acc:.4f}"
+        print(f"{name:<{w}}  {sum(row):>8}  {a:>8}  " + "  ".join(f"{c:>{w}}" for c in row))
 
 
 def cmd_heatmap(args: argparse.Namespace) -> int:

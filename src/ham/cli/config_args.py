@@ -77,6 +77,12 @@ def _base_type(annotation) -> type:
     return annotation if annotation in (int, float, bool, str) else str
 
 
+def _is_config(annotation) -> bool:
+    """A nested config (``X`` or ``X | None`` with ``X`` a dataclass): its own options, not one."""
+    args = typing.get_args(annotation) or (annotation,)
+    return any(dataclasses.is_dataclass(a) for a in args)
+
+
 def option_name(name: str) -> str:
     return "--" + name.replace("_", "-")
 
@@ -97,7 +103,7 @@ def add_config_options(
     defaults = cls()
     added = []
     for f in dataclasses.fields(cls):
-        if f.name in skip or dataclasses.is_dataclass(hints[f.name]):
+        if f.name in skip or _is_config(hints[f.name]):
             continue
         kind = _base_type(hints[f.name])
         default = getattr(defaults, f.name)

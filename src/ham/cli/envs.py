@@ -5,8 +5,10 @@
 * ``ham envs check [--table FILE] [--glances S]``: Gymnasium's environment checker on
   ``ham/HapticGlance-v0`` and ``ham/HapticGlanceAP-v0`` (dense and ``-sparse``), then one
   random-policy episode through ``ap_gym.make`` and ``ap_gym.make_vec``;
-* ``ham envs train ap_gym:ENV_ID --glances S --steps N --out DIR``: the HAM on another world
-  (:func:`ham.learn.ap_adapter.train_on_ap_gym`).
+* ``ham envs bench``: environment steps per second.
+
+The HAM trains on ap_gym environments through ``ham train --env ap_gym:ENV_ID`` (a regular run,
+:mod:`ham.learn.ap_adapter`); :func:`parse_max_step_length` reads its ``--max-step-length``.
 
 ``ham.cli.main`` adds them through :func:`add_commands`; each returns an exit code and raises
 :class:`ham.errors.HamError` for bad input.
@@ -24,14 +26,14 @@ from ham.errors import HamError
 
 
 def add_commands(subparsers) -> None:
-    """Add ``envs list``, ``envs check`` and ``envs train`` to an argparse subparsers object."""
+    """Add ``envs list``, ``envs check`` and ``envs bench`` to an argparse subparsers object."""
     p = subparsers.add_parser(
         "envs",
-        help="Gymnasium / ap_gym environments: list, check, train the HAM on ap_gym",
+        help="Gymnasium / ap_gym environments: list, check, bench",
         description="Our world for other agents (ham/HapticGlance-v0, ham/HapticGlanceAP-v0 and "
         "-sparse) and our agent for other worlds (ap_gym active classification environments).",
     )
-    sub = p.add_subparsers(dest="envs_command", metavar="{list,check,train}")
+    sub = p.add_subparsers(dest="envs_command", metavar="{list,check,bench}")
     p.set_defaults(func=cmd_list, json=False)
 
     q = sub.add_parser("list", help="the environment ids (ours and ap_gym's classification ones)")
@@ -50,36 +52,6 @@ def add_commands(subparsers) -> None:
     q.add_argument("--num-envs", type=int, nargs="+", default=[64, 1024], help="(64 1024)")
     q.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     q.set_defaults(func=cmd_bench)
-
-    q = sub.add_parser(
-        "train",
-        help="train the HAM on an ap_gym active classification environment",
-        description="Train the HAM on ap_gym:ENV_ID (an image glimpse plus its position) with its "
-        "own 0/1 reward at the end; writes a regular run directory (config.json, metrics.json, "
-        "checkpoint.pt, tb/).",
-    )
-    q.add_argument("env", metavar="ap_gym:ENV_ID", help="e.g. ap_gym:CircleSquare-s15-nograd-v0")
-    q.add_argument("--glances", type=int, default=5, help="glances per episode (default 5)")
-    q.add_argument("--steps", type=int, default=1000, help="training steps (default 1000)")
-    q.add_argument("--seed", type=int, default=0, help="seed (default 0)")
-    q.add_argument("--out", required=True, metavar="DIR", help="run directory to create")
-    q.add_argument("--actions", choices=("absolute", "relative"), default="absolute",
-                   help="HAM poses are targets (absolute, default) or the env's movements (relative)")  # fmt: skip
-    q.add_argument("--max-step-length", metavar="L",
-                   help="override the image env's step length (a number, or 'teleport' = 2*sqrt(2): "
-                   "any target in one step); default: as registered (0.2)")  # fmt: skip
-    q.add_argument("--policy", choices=("learned", "random"), default="learned",
-                   help="location policy (random: the random-location baseline)")  # fmt: skip
-    q.add_argument("--normalization", choices=("none", "l2", "l1"), default="none",
-                   help="of the flattened glimpse (default none)")  # fmt: skip
-    q.add_argument("--batch-size", type=int, default=64, help="episodes per batch (default 64)")
-    q.add_argument("--lr", type=float, help="initial learning rate (default: the paper's 8e-4)")
-    q.add_argument("--eval-every", type=int, default=200, help="steps between evaluations (200)")
-    q.add_argument("--eval-batches", type=int, default=20, help="batches per evaluation (20)")
-    q.add_argument("--eval-env", metavar="ap_gym:ENV_ID", help="evaluation env (default: the same)")
-    q.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
-    q.add_argument("--progress", action="store_true", help="show a progress bar")
-    q.set_defaults(func=cmd_train)
 
 
 # --------------------------------------------------------------------------- list
@@ -138,7 +110,7 @@ def cmd_list(args: argparse.Namespace) -> int:
     print("our world for other agents (import ham.envs; gym.make / ap_gym.make, make_vec):")
     for r in ours:
         print(f"  {r['id']:<32} {r['kind']:<9} reward: {r['reward']}")
-    print("our agent for other worlds (ham envs train ap_gym:ENV_ID):")
+    print("our agent for other worlds (ham train --env ap_gym:ENV_ID):")
     if note:
         print(f"  {note}")
     for r in theirs:
@@ -288,7 +260,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-# --------------------------------------------------------------------------- train
+# --------------------------------------------------------------------------- ham train --env
 def parse_max_step_length(text: str | None) -> float | None:
     """``None``, ``teleport`` or a number > 0 (for ``--max-step-length``)."""
     from ham.learn.ap_adapter import TELEPORT_STEP
@@ -303,79 +275,3 @@ def parse_max_step_length(text: str | None) -> float | None:
         raise HamError(
             f"--max-step-length {text!r}; accepted: a number > 0 or 'teleport'"
         ) from None
-
-
-def train_from_args(args: argparse.Namespace) -> int:
-    """Train the HAM on ``args.env`` (``ap_gym:ENV_ID``) from parsed arguments.
-
-    Shared by ``ham envs train`` and ``ham train --env ap_gym:ENV_ID``: it reads the options
-    both define (``glances``, ``steps``, ``seed``, ``out``, ``batch_size``, ``lr``,
-    ``eval_every``, ``eval_batches``, ``policy``, ``threads``) and the adapter's own
-    (``actions``, ``max_step_length``, ``normalization``, ``eval_env``), each optional.
-    """
-    from ham.learn.ap_adapter import train_on_ap_gym
-
-    def get(name: str, default):
-        value = getattr(args, name, None)
-        return default if value is None else value
-
-    threads = get("threads", None)
-    if threads is not None:
-        if threads < 1:
-            raise HamError(f"--threads {threads}; accepted: an integer >= 1")
-        import torch
-
-        torch.set_num_threads(threads)
-    if not get("out", None):
-        raise HamError("training on an ap_gym environment needs --out DIR")
-    if getattr(args, "resume", None):
-        raise HamError("--resume is not supported for ap_gym environments yet; start a new --out")
-    if getattr(args, "table", None):
-        raise HamError(f"--table {args.table} and --env {args.env} exclude each other; give one")
-    # ham train's model and optimizer options, where given
-    model = {
-        k: getattr(args, k)
-        for k in ("core", "combiner", "lstm_activation", "std_activation")
-        if getattr(args, k, None) is not None
-    }
-    if getattr(args, "truncate_bptt", False):
-        model["truncate_bptt"] = True
-    if getattr(args, "no_bias", False):
-        model["bias"] = False
-    train = {
-        k: getattr(args, k)
-        for k in ("beta", "lr_step", "reduction", "device")
-        if getattr(args, k, None) is not None
-    }
-    normalization = get("normalization", "none")
-    progress = get("progress", not get("no_progress", True))
-    metrics = train_on_ap_gym(
-        args.env,
-        get("glances", 5),
-        get("steps", 1000),
-        get("seed", 0),
-        args.out,
-        batch_size=get("batch_size", 64),
-        actions=get("actions", "absolute"),
-        max_step_length=parse_max_step_length(get("max_step_length", None)),
-        normalization=normalization,
-        eval_env_id=get("eval_env", None),
-        eval_every=get("eval_every", 200),
-        eval_batches=get("eval_batches", 20),
-        policy=get("policy", "learned"),
-        lr=get("lr", None),
-        model=model,
-        train=train,
-        progress=bool(progress),
-    )
-    per = ", ".join(f"{a:.3f}" for a in metrics["accuracy_per_glance"] or [])
-    print(
-        f"{args.out}: {metrics['steps']} steps on {args.env}; final accuracy "
-        f"{metrics['final_accuracy']:.4f}, best {metrics['best_accuracy']:.4f} "
-        f"(step {metrics['best_step']}); per glance [{per}]"
-    )
-    return 0
-
-
-def cmd_train(args: argparse.Namespace) -> int:
-    return train_from_args(args)

@@ -1,10 +1,14 @@
-"""Figures of a training run: the training curve and the pose heat map (PNG, matplotlib Agg).
+"""Figures of a training run: training curve, pose heat map, confusion matrix (PNG, matplotlib Agg).
 
 * :func:`plot_training_curve`: accuracy after the last glance, after each glance and the
   accumulated (averaged-output) accuracy over training steps, from ``metrics.json``
   (the paper's Figs "Classification Accuracy");
 * :func:`plot_heatmap`: per object, the last glance's pose binned 20 x 20 over
-  ``(x, phi)`` with the learned mean ``(mu_x, mu_phi)`` marked (the paper's heat maps).
+  ``(x, phi)`` with the learned mean ``(mu_x, mu_phi)`` marked (the paper's heat maps);
+* :func:`plot_confusion`: true object x predicted class after a glance, from an evaluation
+  (``ham evaluate``, or an evaluation in ``metrics.json``'s history).
+
+Every PNG is written atomically (a temporary file, then renamed).
 """
 
 from __future__ import annotations
@@ -26,6 +30,19 @@ def _out(out_png: str | os.PathLike) -> Path:
     out = Path(out_png)
     if out.parent and not out.parent.exists():
         out.parent.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def _save(fig, out_png: str | os.PathLike, **savefig) -> Path:
+    """Write ``fig`` as PNG through ``NAME.tmp`` and ``os.replace``: never half an image."""
+    out = _out(out_png)
+    tmp = out.with_name(out.name + ".tmp")
+    try:
+        fig.savefig(tmp, dpi=120, format="png", **savefig)
+        os.replace(tmp, out)
+    finally:
+        plt.close(fig)
+        tmp.unlink(missing_ok=True)
     return out
 
 
@@ -60,10 +77,7 @@ def plot_training_curve(metrics: dict, out_png: str | os.PathLike) -> Path:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="lower right")
     fig.tight_layout()
-    out = _out(out_png)
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+    return _save(fig, out_png)
 
 
 def plot_heatmap(heatmap_data: dict, out_png: str | os.PathLike) -> Path:
@@ -107,7 +121,45 @@ def plot_heatmap(heatmap_data: dict, out_png: str | os.PathLike) -> Path:
         fontsize=10,
     )
     fig.tight_layout()
-    out = _out(out_png)
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+    return _save(fig, out_png)
+
+
+def plot_confusion(
+    confusion,
+    objects: list[str],
+    out_png: str | os.PathLike,
+    *,
+    title: str | None = None,
+) -> Path:
+    """The confusion matrix ``confusion[true][predicted]`` (counts, ``K x K``) as an image:
+    each row normalized to the share of that object's episodes (the diagonal is the per-object
+    accuracy), with the counts written in the cells when ``K <= 12``."""
+    counts = np.asarray(confusion, dtype=float)
+    k = len(objects)
+    if counts.shape != (k, k):
+        raise HamError(
+            f"confusion matrix of shape {counts.shape}; accepted: ({k}, {k}) for {k} objects"
+        )
+    if not (np.isfinite(counts).all() and (counts >= 0).all()):
+        raise HamError("confusion matrix with negative or non-finite counts; accepted: counts >= 0")
+    shown = counts.sum(1, keepdims=True)
+    share = np.divide(counts, shown, out=np.zeros_like(counts), where=shown > 0)
+    size = min(2.0 + 0.7 * k, 12.0)
+    fig, ax = plt.subplots(figsize=(size + 1.6, size))
+    im = ax.imshow(share, cmap="Blues", vmin=0, vmax=1)
+    names = [str(o) for o in objects]
+    ax.set_xticks(range(k), names, rotation=45 if k > 4 else 0, ha="right" if k > 4 else "center")
+    ax.set_yticks(range(k), [f"{n} ({int(c)})" for n, c in zip(names, shown[:, 0], strict=True)])
+    if k <= 12:
+        for i in range(k):
+            for j in range(k):
+                ax.text(j, i, f"{int(counts[i, j])}\n{share[i, j]:.2f}", ha="center",
+                        va="center", fontsize=8,
+                        color="white" if share[i, j] > 0.6 else "black")  # fmt: skip
+    ax.set_xlabel("predicted")
+    ax.set_ylabel("true object (episodes)")
+    total = counts.sum()
+    accuracy = np.trace(counts) / total if total else float("nan")
+    ax.set_title(title or f"confusion matrix, accuracy {accuracy:.3f}", fontsize=10)
+    fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03, label="share of the row")
+    return _save(fig, out_png, bbox_inches="tight")  # the object names are long

@@ -7,7 +7,10 @@ logits (K,)}``. :class:`ApGymGlanceEnv` presents such a vector environment to th
 like :class:`ham.learn.environment.HapticEnv` presents the haptic world:
 
 * ``sample_objects()`` resets a batch of ``batch_size`` episodes and returns their class labels
-  (the "objects" the HAM classifies);
+  (the "objects" the HAM classifies); training batch ``k`` is drawn with a seed derived from
+  ``(seed, k)``, so the images and first glimpses depend on the batch's index alone and a
+  resumed run draws the same ones (ap_gym's own generators, with a prefetching data loader,
+  cannot be saved);
 * ``glance(objects, q)`` returns the next glimpse, flattened to ``pressure_dim`` values and
   normalized (``none`` by default: an image glimpse's brightness is information, unlike the
   pressure image's scale); the first glance of an episode is the environment's reset glimpse
@@ -36,24 +39,24 @@ Evaluation (``balanced_objects``) runs on a separate environment (``eval_env_id`
 same id) reseeded at every evaluation, so every evaluation sees the same images and first
 glimpses. Labels come from the environment's data and are not balanced by class.
 
-:func:`train_on_ap_gym` trains and evaluates a HAM through the regular training loop
-(:mod:`ham.learn.train`) on such an environment and writes a regular run directory.
+A training run on ap_gym is a regular run (:mod:`ham.learn.train`): ``TrainConfig(env=
+ApGymConfig(...))`` names the environment, :func:`ham.learn.train.fit_to_ap_gym` sizes the model
+for it (:func:`sized_model`), and ``train``, ``resume``, ``load_run`` and ``ham train --env
+ap_gym:ENV_ID`` / ``--resume`` / ``ham evaluate`` work as on the haptic world.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
-import os
-from pathlib import Path
+from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 import numpy as np
 import torch
 
 from ham.errors import HamError
-from ham.model.agent import HamConfig, HapticAttentionModel
+from ham.model.agent import HamConfig
 
 ACTIONS: tuple[str, ...] = ("relative", "absolute")
 NORMALIZATIONS: tuple[str, ...] = ("none", "l2", "l1")
@@ -90,17 +93,25 @@ def parse_env(env: str) -> str:
     return env_id
 
 
-def _image_config_with(env_id: str, max_step_length: float) -> dict:
-    """The ``image_perception_config`` kwarg of ``env_id`` with another ``max_step_length``."""
+def _image_config_with(env_id: str, **changes: Any) -> dict:
+    """The ``image_perception_config`` kwarg of ``env_id`` with ``changes`` (``{}`` for an
+    environment without one and no changes)."""
     import gymnasium as gym
 
     cfg = (gym.spec(env_id).kwargs or {}).get("image_perception_config")
     if cfg is None or not dataclasses.is_dataclass(cfg):
-        raise HamError(
-            f"max_step_length = {max_step_length!r} applies only to ap_gym image environments "
-            f"(with an image_perception_config); {env_id!r} has none"
+        if "max_step_length" in changes:
+            raise HamError(
+                f"max_step_length = {changes['max_step_length']!r} applies only to ap_gym image "
+                f"environments (with an image_perception_config); {env_id!r} has none"
+            )
+        return {}
+    known = {f.name for f in dataclasses.fields(cfg)}
+    return {
+        "image_perception_config": dataclasses.replace(
+            cfg, **{k: v for k, v in changes.items() if k in known}
         )
-    return {"image_perception_config": dataclasses.replace(cfg, max_step_length=max_step_length)}
+    }
 
 
 def _pick_key(space, candidates: tuple[str, ...], what: str, env_id: str) -> str:
@@ -121,6 +132,56 @@ def _as_target_array(target: Any) -> np.ndarray:
     return np.asarray(target, dtype=np.int64).reshape(-1)
 
 
+@dataclass(frozen=True)
+class ApGymConfig:
+    """Which ap_gym environment a run trains on, and how the HAM acts in it (``TrainConfig.env``).
+
+    Attributes:
+        env: the environment, ``ap_gym:ENV_ID`` (e.g. ``ap_gym:CircleSquare-s15-nograd-v0``).
+        eval_env: the evaluation environment (``None``: ``env``; e.g. a ``-test`` split).
+        actions: ``absolute`` (the HAM's pose is a target) or ``relative`` (a movement).
+        max_step_length: override of the image environment's step length (``None``: as
+            registered; :data:`TELEPORT_STEP` reaches any target in one step).
+
+    The glimpse's normalization is the run's (``TrainConfig.normalization``), its batch size and
+    seeds too. Registration is checked when the environment is made, not here.
+    """
+
+    env: str
+    eval_env: str | None = None
+    actions: str = "absolute"
+    max_step_length: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("env", "eval_env"):
+            v = getattr(self, name)
+            if not (isinstance(v, str) and v) and not (name == "eval_env" and v is None):
+                raise HamError(f"{name} = {v!r}; accepted: ap_gym:ENV_ID")
+        if self.actions not in ACTIONS:
+            raise HamError(f"actions = {self.actions!r}; accepted: {', '.join(ACTIONS)}")
+        v = self.max_step_length
+        if v is not None and not (
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+        ):
+            raise HamError(f"max_step_length = {v!r}; accepted: a finite number > 0")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ApGymConfig:
+        known = {f.name for f in fields(cls)}
+        unknown = set(d) - known
+        if unknown:
+            raise HamError(f"ap_gym env config has unknown fields {sorted(unknown)}")
+        return cls(**d)
+
+
+def batch_seed(seed: int, batch: int) -> int:
+    """The reset seed of training batch ``batch``: independent streams per ``(seed, batch)``."""
+    return int(np.random.SeedSequence([int(seed), int(batch)]).generate_state(1)[0])
+
+
 class ApGymGlanceEnv:
     """An ap_gym active classification vector environment with the interface of
     :class:`ham.learn.environment.HapticEnv` (``sample_objects``, ``balanced_objects``, ``glance``,
@@ -134,7 +195,8 @@ class ApGymGlanceEnv:
         max_step_length: override of the image environments' step length (``None``: as
             registered, 0.2); :data:`TELEPORT_STEP` reaches any target in one step.
         normalization: of the flattened glimpse: ``none`` (default), ``l2`` or ``l1``.
-        seed: seeds the training environment's images and first glimpses.
+        seed: seeds the training environment's images and first glimpses (batch ``k`` is reset
+            with :func:`batch_seed` ``(seed, k)``).
         eval_env_id: environment of the evaluation (default ``env_id``; e.g. a ``-test`` split).
         eval_seed: seeds the evaluation environment at every evaluation.
         device: where the glimpses go (the HAM's device).
@@ -216,14 +278,19 @@ class ApGymGlanceEnv:
         self._position: np.ndarray | None = None
         self._labels: np.ndarray | None = None
         self._glances = 0
-        self._train_reset_done = False
+        self._batches = 0  # training batches drawn: the only state a checkpoint needs
 
     # ------------------------------------------------------------------ construction
     def _make(self, env_id: str):
         ap_gym = import_ap_gym()
         kwargs = dict(self.env_kwargs)
+        # No prefetching data loader: every training batch reseeds the environment (the
+        # batch's images follow from its index), which would restart the loader's thread and
+        # discard its 128 prefetched batches each time. The images drawn are the same.
+        changes: dict[str, Any] = {"prefetch": False}
         if self.max_step_length is not None:
-            kwargs.update(_image_config_with(env_id, float(self.max_step_length)))
+            changes["max_step_length"] = float(self.max_step_length)
+        kwargs.update(_image_config_with(env_id, **changes))
         try:
             return ap_gym.make_vec(env_id, num_envs=self.batch_size, **kwargs)
         except HamError:
@@ -280,8 +347,8 @@ class ApGymGlanceEnv:
 
     def sample_objects(self) -> torch.Tensor:
         """A fresh training batch: reset ``batch_size`` episodes; their labels ``(B,)`` long."""
-        seed = None if self._train_reset_done else self.seed
-        self._train_reset_done = True
+        seed = batch_seed(self.seed, self._batches)
+        self._batches += 1
         return self._reset(self.train_env, seed)
 
     def balanced_objects(self, batch_index: int = 0) -> torch.Tensor:
@@ -343,7 +410,7 @@ class ApGymGlanceEnv:
         return torch.from_numpy(self._position).to(self.device)
 
     def settings(self) -> dict:
-        """The adapter's settings (saved in a run's config.json under ``env``)."""
+        """The adapter's settings, with what it found out about the environment (in checkpoints)."""
         return {
             "env": ENV_PREFIX + self.env_id,
             "eval_env": ENV_PREFIX + self.eval_env_id,
@@ -359,147 +426,54 @@ class ApGymGlanceEnv:
 
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict:
-        """ap_gym's generators cannot be saved: a resumed run draws other images."""
-        return {"settings": self.settings()}
+        """The training batches drawn so far: batch ``k``'s images follow from ``(seed, k)``."""
+        return {"batches": self._batches, "settings": self.settings()}
 
     def load_state_dict(self, state: dict) -> None:
-        self._train_reset_done = False
+        if "batches" not in state:
+            raise HamError(
+                "the checkpoint's ap_gym state has no batch count (written before resume was "
+                "supported); start a new run"
+            )
+        self._batches = int(state["batches"])
 
     def close(self) -> None:
         self.train_env.close()
         self.eval_env.close()
 
 
-class LocatedAttentionModel(HapticAttentionModel):
-    """The HAM whose where-input is the location the environment reports
-    (``env.observed_location``) when it reports one, else the pose it asked for.
-
-    For environments that move a sensor themselves (a capped or relative step) the two differ.
-    Weights, checkpoints and everything else are those of :class:`HapticAttentionModel`; this
-    subclass becomes unnecessary once ``HapticAttentionModel.forward`` reads
-    ``observed_location`` itself (see docs/gym.md).
-    """
-
-    _located_env = None
-
-    def forward(self, env, objects: torch.Tensor, *args: Any, **kwargs: Any):
-        self._located_env = env
-        try:
-            return super().forward(env, objects, *args, **kwargs)
-        finally:
-            self._located_env = None
-
-    def step(self, pressure: torch.Tensor, q: torch.Tensor, state):
-        where = getattr(self._located_env, "observed_location", None)
-        return super().step(pressure, q if where is None else where, state)
-
-
-def make_env(
-    settings: dict, batch_size: int, seed: int, device: str | torch.device = "cpu"
-) -> ApGymGlanceEnv:
-    """The adapter a run's ``config.json`` describes (``settings``: :meth:`ApGymGlanceEnv.settings`),
-    with the seeds of :mod:`ham.learn.train` (stream 0 trains, stream 2 evaluates)."""
-    from ham.learn.train import stream_seed
-
-    return ApGymGlanceEnv(
-        settings["env"],
-        batch_size,
-        actions=settings.get("actions", "absolute"),
-        max_step_length=settings.get("max_step_length"),
-        normalization=settings.get("normalization", "none"),
-        seed=stream_seed(seed, 0),
-        eval_env_id=settings.get("eval_env"),
-        eval_seed=stream_seed(seed, 2),
-        device=device,
-    )
-
-
-def make_ham_config(env: ApGymGlanceEnv, glances: int, **model: Any) -> HamConfig:
-    """A :class:`HamConfig` sized for ``env``: its glimpse, its classes; positions unscaled."""
-    env.check_glances(glances)
-    return HamConfig(
-        glances=glances,
-        n_objects=env.n_objects,
-        pressure_dim=env.pressure_dim,
-        **{"phi_scale": 1.0, **model},
-    )
-
-
-def train_on_ap_gym(
-    env_id: str,
-    glances: int,
-    steps: int,
-    seed: int,
-    out: str | os.PathLike,
-    *,
-    batch_size: int = 64,
-    actions: str = "absolute",
-    max_step_length: float | None = None,
+def make_ap_env(
+    config: ApGymConfig,
+    batch_size: int,
+    seed: int = 0,
+    eval_seed: int = 12345,
     normalization: str = "none",
-    eval_env_id: str | None = None,
-    eval_every: int = 200,
-    eval_batches: int = 20,
-    policy: str = "learned",
-    lr: float | None = None,
-    model: dict | None = None,
-    train: dict | None = None,
-    progress: bool = False,
-) -> dict:
-    """Train a HAM on the ap_gym environment ``env_id`` into run directory ``out``.
-
-    The HAM's own loop (:mod:`ham.learn.train`): hybrid loss, 0/1 reward at the end, SGD with Nesterov
-    momentum, evaluations every ``eval_every`` steps on ``eval_batches`` batches, TensorBoard,
-    checkpoint, metrics.json. ``policy='random'`` trains the random-location baseline (the
-    paper's ``pi_rloc``). ``model`` and ``train`` override fields of :class:`HamConfig` and
-    :class:`ham.learn.train.TrainConfig`. Returns the metrics (also in ``out/metrics.json``).
-    """
-    from ham.learn import train as ham_train
-
-    out = Path(out)
-    if (out / ham_train.CHECKPOINT_FILE).exists():
-        raise HamError(f"{str(out)!r} already holds a run; choose another --out")
-    train_fields = dict(train or {})
-    if lr is not None:
-        train_fields["lr"] = lr
-    device = train_fields.get("device", "cpu")
-    env = ApGymGlanceEnv(
-        env_id,
+    device: str | torch.device = "cpu",
+) -> ApGymGlanceEnv:
+    """The adapter ``config`` describes (training images from ``seed``, evaluation images from
+    ``eval_seed``)."""
+    return ApGymGlanceEnv(
+        config.env,
         batch_size,
-        actions=actions,
-        max_step_length=max_step_length,
+        actions=config.actions,
+        max_step_length=config.max_step_length,
         normalization=normalization,
-        seed=ham_train.stream_seed(seed, 0),
-        eval_env_id=eval_env_id,
-        eval_seed=ham_train.stream_seed(seed, 2),
+        seed=seed,
+        eval_env_id=config.eval_env,
+        eval_seed=eval_seed,
         device=device,
     )
+
+
+def sized_model(config: ApGymConfig, model: HamConfig, phi_scale: float = 1.0) -> HamConfig:
+    """``model`` sized for the environment: its glimpse (``pressure_dim``) and classes
+    (``n_objects``), with ``phi_scale`` (1: both coordinates are positions, unscaled); a
+    :class:`HamError` when its episodes are too short for the glances."""
+    probe = make_ap_env(config, 1)
     try:
-        ham_config = make_ham_config(env, glances, policy=policy, **(model or {}))
-        config = ham_train.TrainConfig(
-            model=ham_config,
-            steps=steps,
-            batch_size=batch_size,
-            eval_every=eval_every,
-            eval_batches=eval_batches,
-            seed=seed,
-            **train_fields,
+        probe.check_glances(model.glances)
+        return dataclasses.replace(
+            model, n_objects=probe.n_objects, pressure_dim=probe.pressure_dim, phi_scale=phi_scale
         )
-        torch.manual_seed(config.seed)  # the initial weights, as ham.learn.train does
-        agent = LocatedAttentionModel(config.model).to(config.device)
-        optimizer = torch.optim.SGD(
-            agent.parameters(), lr=config.lr, momentum=config.momentum, nesterov=config.nesterov
-        )
-        policy_generator = torch.Generator(device=config.device)
-        policy_generator.manual_seed(ham_train.stream_seed(config.seed, 1))
-        run = ham_train.Run(
-            config, agent, env, optimizer, policy_generator, objects=list(env.objects)
-        )
-        out.mkdir(parents=True, exist_ok=True)
-        record = {**config.to_dict(), "env": env.settings()}
-        (out / ham_train.CONFIG_FILE).write_text(json.dumps(record, indent=1) + "\n")
-        metrics = ham_train.train_loop(run, out, progress)
-        metrics["env"] = env.settings()
-        (out / ham_train.METRICS_FILE).write_text(json.dumps(metrics, indent=1) + "\n")
     finally:
-        env.close()
-    return metrics
+        probe.close()

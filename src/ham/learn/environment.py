@@ -51,6 +51,11 @@ class HapticEnv:
         self.generator = torch.Generator(device=self.device)
         self.generator.manual_seed(int(seed))
 
+    @property
+    def objects(self) -> list:
+        """The objects' names, in class order."""
+        return list(self.source.objects)
+
     def sample_objects(self) -> torch.Tensor:
         """A fresh training batch: object ids drawn uniformly, ``(B,)`` long."""
         return torch.randint(

@@ -7,16 +7,21 @@ batches, using the currently available policy." We report, over ``batches`` bala
 * ``accuracy``: the arg-max class after the last glance (Eq classify);
 * ``accuracy_per_glance``: the same after each glance ``s = 1..S`` of the same episodes;
 * ``accumulated_accuracy_per_glance``: the arg-max of the softmax outputs averaged over glances
-  ``1..s`` (the paper's averaged output, column ``<pi_MLP>`` of Table 1).
+  ``1..s`` (the paper's averaged output, column ``<pi_MLP>`` of Table 1);
+* ``confusion``: after each glance, the counts of true object (row) x arg-max class (column);
+* ``per_object_accuracy``: per true object, the accuracy after the last glance (``None`` for an
+  object no episode showed: ap_gym's labels follow its data and need not be balanced).
 
-``policy`` says how the learned location policy acts during evaluation: ``mean`` (default) takes
-the mean pose ``mu`` of each Gaussian, the policy with training "stopped" (the authors' RAM code
+``policy`` says how the location policy acts during evaluation: ``mean`` (default) takes the
+mode of its distribution (:meth:`ham.model.policy.LocationDistribution.mode`: the mean pose
+``mu`` of the paper's Gaussian), the policy with training "stopped" (the authors' RAM code
 evaluates this way); ``sample`` draws poses as in training. The first glance is random either way;
-the random-location policy is uniform either way. Evaluation draws from its own generator, so it
+a policy without a mode (the random-location policy) samples either way. Evaluation draws from its own generator, so it
 never disturbs the training's random streams.
 
 :func:`heatmap_data` bins the last glance's pose per object into 20 x 20 cells over many batches
-and collects the learned means ``mu_x, mu_phi`` that chose it (the paper's heat maps).
+and collects the policy's modes (the learned means ``mu_x, mu_phi``) that chose it (the paper's
+heat maps).
 """
 
 from __future__ import annotations
@@ -37,8 +42,15 @@ class EvalResult:
     accumulated_accuracy_per_glance: list[float]
     batches: int
     episodes: int
-    #: per object, the mean ``(mu_x, mu_phi)`` that chose the last glance (``None``: no policy)
+    #: per object, the mean ``(mu_x, mu_phi)`` (the policy's mode) that chose the last glance
+    #: (``None``: a policy without a mode, or one glance)
     mu_mean: list[list[float]] | None = None
+    #: ``confusion[s][o][p]``: episodes of true object ``o`` classified ``p`` after glance ``s+1``
+    confusion: list[list[list[int]]] | None = None
+    #: per true object, the accuracy after the last glance (``None``: no episode of it)
+    per_object_accuracy: list[float | None] | None = None
+    #: the objects' (classes') names, in class order
+    objects: list[str] | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -66,29 +78,39 @@ def evaluate(
     _check(batches, policy)
     generator = torch.Generator(device=env.device)
     generator.manual_seed(int(seed))
-    glances = agent.config.glances
+    glances, k = agent.config.glances, env.n_objects
     correct = torch.zeros(glances, device=env.device)
     accumulated = torch.zeros(glances, device=env.device)
     counts = torch.arange(1, glances + 1, device=env.device).view(-1, 1, 1)
-    mu_sum = torch.zeros(env.n_objects, 2, device=env.device, dtype=torch.float64)
-    n_obj = torch.zeros(env.n_objects, device=env.device, dtype=torch.float64)
+    confusion = torch.zeros(glances * k * k, dtype=torch.long, device=env.device)
+    offsets = torch.arange(glances, device=env.device).view(-1, 1) * (k * k)
+    mu_sum = torch.zeros(k, 2, device=env.device, dtype=torch.float64)
+    n_obj = torch.zeros(k, device=env.device, dtype=torch.float64)
     was_training = agent.training
     agent.eval()
     try:
-        for k in range(batches):
-            objects = env.balanced_objects(k)
+        for b in range(batches):
+            objects = env.balanced_objects(b)
             episode = agent(env, objects, generator, greedy=policy == "mean")
-            correct += (episode.logits.argmax(-1) == objects).sum(1)
+            predicted = episode.logits.argmax(-1)  # (S, B)
+            correct += (predicted == objects).sum(1)
+            confusion += torch.bincount(
+                (offsets + objects * k + predicted).flatten(), minlength=glances * k * k
+            )
             averaged = episode.logits.softmax(-1).cumsum(0) / counts
             accumulated += (averaged.argmax(-1) == objects).sum(1)
-            if episode.mu is not None and len(episode.mu):
-                mu_sum.index_add_(0, objects, episode.mu[-1].double())
-                n_obj += torch.bincount(objects, minlength=env.n_objects)
+            mode = episode.policy.mode() if episode.policy is not None else None
+            if mode is not None:
+                mu_sum.index_add_(0, objects, mode[-1].double())
+                n_obj += torch.bincount(objects, minlength=k)
     finally:
         agent.train(was_training)
     n = batches * env.batch_size
     per_glance = (correct / n).tolist()
     has_mu = bool(n_obj.sum() > 0)
+    confusion = confusion.view(glances, k, k)
+    last, shown = confusion[-1].diagonal().tolist(), confusion[-1].sum(1).tolist()
+    per_object = [c / t if t else None for c, t in zip(last, shown, strict=True)]
     return EvalResult(
         accuracy=per_glance[-1],
         accuracy_per_glance=per_glance,
@@ -96,6 +118,9 @@ def evaluate(
         batches=batches,
         episodes=n,
         mu_mean=(mu_sum / n_obj.clamp_min(1)[:, None]).tolist() if has_mu else None,
+        confusion=confusion.tolist(),
+        per_object_accuracy=per_object,
+        objects=[str(o) for o in env.objects],
     )
 
 
@@ -109,8 +134,9 @@ def heatmap_data(
     policy: str = "mean",
 ) -> dict:
     """The last glance's pose ``(q_x, q_phi)`` per object, binned ``bins x bins`` over
-    ``[-1, 1]^2``, over ``batches`` balanced batches; with the mean and spread of the learned
-    ``mu_x, mu_phi`` (and ``sigma``) that chose it (``None`` for the random policy or one glance).
+    ``[-1, 1]^2``, over ``batches`` balanced batches; with the mean and spread of the policy's
+    mode (the learned ``mu_x, mu_phi``) and of its scale (``sigma``) that chose it (``None`` for a
+    policy without them, the random one, or for one glance).
 
     Returns a JSON-ready dict; ``counts[o][i][j]`` counts object ``o`` with ``q_x`` in bin ``i``
     and ``q_phi`` in bin ``j``.
@@ -127,6 +153,7 @@ def heatmap_data(
     sigma_sum = torch.zeros_like(mu_sum)
     n_obj = torch.zeros(k, device=env.device, dtype=torch.float64)
     correct = 0.0
+    has_mu = has_sigma = False
     was_training = agent.training
     agent.eval()
     try:
@@ -140,19 +167,23 @@ def heatmap_data(
             )
             n_obj += torch.bincount(objects, minlength=k)
             correct += float((episode.logits[-1].argmax(-1) == objects).sum())
-            if episode.mu is not None:
-                mu = episode.mu[-1].double()
+            mode = episode.policy.mode() if episode.policy is not None else None
+            if mode is not None:
+                mu = mode[-1].double()
                 mu_sum.index_add_(0, objects, mu)
                 mu_sq.index_add_(0, objects, mu * mu)
-                sigma_sum.index_add_(0, objects, episode.sigma[-1].double())
+                has_mu = True
+                scale = episode.policy.scale()
+                if scale is not None:
+                    sigma_sum.index_add_(0, objects, scale[-1].double())
+                    has_sigma = True
     finally:
         agent.train(was_training)
-    has_mu = agent.location is not None and agent.config.glances > 1
     denom = n_obj.clamp_min(1)[:, None]
     mu_mean = mu_sum / denom
     mu_std = (mu_sq / denom - mu_mean**2).clamp_min(0).sqrt()
     return {
-        "objects": list(getattr(env.source, "objects", range(k))),
+        "objects": [str(o) for o in env.objects],
         "glances": agent.config.glances,
         "policy": agent.config.policy,
         "eval_policy": policy,
@@ -163,6 +194,6 @@ def heatmap_data(
         "counts": counts.view(k, bins, bins).long().tolist(),
         "mu_mean": mu_mean.tolist() if has_mu else None,
         "mu_std": mu_std.tolist() if has_mu else None,
-        "sigma_mean": (sigma_sum / denom).tolist() if has_mu else None,
+        "sigma_mean": (sigma_sum / denom).tolist() if has_sigma else None,
         "accuracy": correct / (batches * env.batch_size),
     }

@@ -6,9 +6,11 @@ right, else 0 (section "Methods"):
 ``L = -log pi(o | tau_{1:S})                                     (classification, cross-entropy)
       - beta * sum_{s=2..S} (r - b_{s-1}) * sum_{x, phi} log N(q_s; mu_s, sigma_s)   (REINFORCE)``
 
-combined over the batch as :func:`hybrid_loss` describes. Its gradient with respect to the policy's outputs is the paper's
-update: ``-beta * (r - b) * (zeta_mu_x + zeta_mu_phi + zeta_sigma_x + zeta_sigma_phi)`` with
-the characteristic eligibilities ``zeta_mu = (q - mu) / sigma^2`` (Eq reinforce_mean) and
+combined over the batch as :func:`hybrid_loss` describes. ``log N`` is the location policy's
+``log_prob`` (:mod:`ham.model.policy`): the loss reads no parameter of the policy itself, so any
+registered policy trains through it. For the paper's Gaussian its gradient with respect to the
+policy's outputs is the paper's update:
+``-beta * (r - b) * (zeta_mu_x + zeta_mu_phi + zeta_sigma_x + zeta_sigma_phi)`` with the characteristic eligibilities ``zeta_mu = (q - mu) / sigma^2`` (Eq reinforce_mean) and
 ``zeta_sigma = ((q - mu)^2 - sigma^2) / sigma^3`` (Eq reinforce_std): autograd of the Gaussian's
 log density gives exactly these (``tests/test_hybrid_loss.py`` checks it). ``b_{s-1} =
 b(tau_{1:s-1})`` is the baseline read from the same core output that chose the pose ``q_s``.
@@ -22,7 +24,8 @@ What is detached from what, all explicit below or in the modules:
 * the sampled poses ``q`` carry no gradient (``.detach()`` here; they are drawn detached);
 * the advantage ``r - b`` is detached: REINFORCE does not train the baseline;
 * the baseline reads the core output detached (:class:`ham.model.baseline.Baseline`): ``L_b`` does not
-  train the core; the location network reads it detached too (:class:`ham.model.location_net.LocationNetwork`).
+  train the core; the location network reads it detached too (:class:`ham.model.location_net.LocationNetwork`);
+* a policy without trainable parameters (``random``) has no REINFORCE term at all.
 """
 
 from __future__ import annotations
@@ -34,7 +37,7 @@ from torch.nn import functional as F
 
 from ham.errors import HamError
 from ham.model.agent import Episode
-from ham.model.location_net import gaussian_log_prob
+from ham.model.policy import LocationDistribution
 
 REDUCTIONS: tuple[str, ...] = ("sum", "mean")
 
@@ -56,13 +59,14 @@ def reward(logits: torch.Tensor, objects: torch.Tensor) -> torch.Tensor:
 
 
 def reinforce_term(
-    q: torch.Tensor, mu: torch.Tensor, sigma: torch.Tensor, advantage: torch.Tensor
+    q: torch.Tensor, policy: LocationDistribution, advantage: torch.Tensor
 ) -> torch.Tensor:
-    """``-mean_b sum_s advantage * sum_{x, phi} log N(q; mu, sigma)``: its gradient in ``mu`` and
-    ``sigma`` is ``-advantage * zeta_mu`` and ``-advantage * zeta_sigma`` per element / B."""
+    """``-mean_b sum_s advantage * log pi(q)`` with ``log pi(q) = sum_{x, phi} log N(q; mu,
+    sigma)`` for the Gaussian policy: its gradient in ``mu`` and ``sigma`` is ``-advantage *
+    zeta_mu`` and ``-advantage * zeta_sigma`` per element / B."""
     q = q.detach()  # no gradient flows into the sampled poses
     advantage = advantage.detach()  # the baseline is not trained by REINFORCE
-    log_n = gaussian_log_prob(q, mu, sigma).sum(-1)  # the x and phi streams: (S-1, B)
+    log_n = policy.log_prob(q)  # summed over the x and phi streams: (S-1, B)
     return -(advantage * log_n).sum(0).mean()
 
 
@@ -99,11 +103,12 @@ def hybrid_loss(
     r = reward(last.detach(), objects)
     # Eq baseline over every sub-sequence 1..S, target the episode's reward.
     baseline = ((r[None] - episode.baselines) ** 2).sum(0).mean()
-    if episode.mu is None or beta == 0:
+    policy = episode.policy
+    if policy is None or not policy.trainable or beta == 0:
         reinforce = last.new_zeros(())
     else:
         advantage = r[None] - episode.baselines[:-1]  # b(tau_{1:s-1}) for the pose q_s
-        reinforce = reinforce_term(episode.locations[1:], episode.mu, episode.sigma, advantage)
+        reinforce = reinforce_term(episode.locations[1:], policy, advantage)
         if reinforce_reduction == "sum":
             reinforce = reinforce * objects.shape[0]
     total = classification + beta * reinforce + baseline

@@ -1,8 +1,9 @@
 """Training the HAM (section "Training"), readable top to bottom.
 
-Each step: draw a fresh batch of 64 objects uniformly, play ``S`` glances (the first random, the
-rest from the location policy), compute the hybrid loss (:mod:`ham.learn.hybrid_loss`), take one SGD
-step with Nesterov momentum 0.9 at the learning rate
+Each step: draw a fresh batch of 64 objects uniformly (from the haptic world, a glance table or
+online; or from an ap_gym environment, ``TrainConfig.env``), play ``S`` glances (the first
+random, the rest from the location policy), compute the hybrid loss (:mod:`ham.learn.hybrid_loss`),
+take one SGD step with Nesterov momentum 0.9 at the learning rate
 ``lr_t = max(lr_min, lr * lr_decay^(t / lr_step))`` (8e-4, 0.97, T = 800; the authors' code uses
 T = 200). Every ``eval_every`` steps (200) evaluate 100 fresh balanced batches
 (:mod:`ham.learn.evaluation`), track the best accuracy, log to TensorBoard, and write a checkpoint.
@@ -16,8 +17,10 @@ A run directory holds::
     tb/              TensorBoard scalars
 
 ``resume(DIR)`` continues from the checkpoint and gives bit-identical numbers to an uninterrupted
-run: all randomness comes from three seeded generators (objects, poses, evaluation) whose
-states are saved, and the model's initial weights from ``torch.manual_seed(seed)``.
+run: all randomness comes from three seeded streams (objects, poses, evaluation) whose states
+are saved, and the model's initial weights from ``torch.manual_seed(seed)``. One loop, one
+checkpoint and one metrics path serve every world: :meth:`Run.create` makes the environment
+the config names (or takes one given).
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ import torch
 from tqdm.auto import tqdm
 
 from ham.errors import HamError, check_choices
+from ham.learn.ap_adapter import ApGymConfig, ApGymGlanceEnv
 from ham.learn.environment import HapticEnv
 from ham.learn.evaluation import EVAL_POLICIES, evaluate
 from ham.learn.hybrid_loss import REDUCTIONS, HybridLoss, hybrid_loss
@@ -74,9 +78,13 @@ class TrainConfig:
         eval_policy: the location policy during evaluation: ``mean`` poses (training stopped)
             or ``sample`` (as in training); see :mod:`ham.learn.evaluation`.
         seed: seeds the initial weights and the generators of objects, poses and evaluation.
-        normalization: pressure normalization, l2 (paper), l1 (authors' code) or none.
+        normalization: of the glances: pressure (l2 the paper, l1 the authors' code, none) or an
+            ap_gym glimpse.
         table: a glance table file (the paper's pre-recorded data set); ``None``: online.
-        world: the world simulated online when ``table`` is ``None``.
+        world: the world simulated online when ``table`` and ``env`` are ``None``.
+        env: an ap_gym environment to train on instead of the haptic world
+            (:class:`ham.learn.ap_adapter.ApGymConfig`; :func:`fit_to_ap_gym` sizes the model
+            for it); ``None``: the haptic world.
         device: ``cpu`` or ``cuda``.
         log_every: steps between TensorBoard training scalars.
     """
@@ -102,6 +110,7 @@ class TrainConfig:
     world: WorldConfig = field(default_factory=WorldConfig)
     device: str = "cpu"
     log_every: int = 10
+    env: ApGymConfig | None = None
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch_size", "lr_step", "eval_every", "eval_batches", "log_every"):
@@ -124,6 +133,10 @@ class TrainConfig:
         check_choices(self)
         if self.device.split(":")[0] not in DEVICES:
             raise HamError(f"device {self.device!r}; accepted: {', '.join(DEVICES)}")
+        if self.env is not None and self.table is not None:
+            raise HamError(
+                f"table {self.table!r} and env {self.env.env!r} exclude each other; give one"
+            )
 
     def learning_rate(self, step: int) -> float:
         """``alpha_t = max(alpha_min, alpha_0 * delta_alpha^(t / T))`` (section "Training")."""
@@ -143,6 +156,8 @@ class TrainConfig:
             raise HamError(f"train config has unknown fields {sorted(unknown)}")
         d["model"] = HamConfig.from_dict(d.get("model", {}))
         d["world"] = WorldConfig.from_dict(d.get("world", {}))
+        if d.get("env") is not None:
+            d["env"] = ApGymConfig.from_dict(d["env"])
         return cls(**d)
 
 
@@ -158,7 +173,7 @@ class Run:
 
     config: TrainConfig
     agent: HapticAttentionModel
-    env: HapticEnv
+    env: HapticEnv | ApGymGlanceEnv  # anything with their interface
     optimizer: torch.optim.Optimizer
     policy_generator: torch.Generator
     step: int = 0
@@ -169,19 +184,17 @@ class Run:
     objects: list = field(default_factory=list)
 
     @classmethod
-    def create(cls, config: TrainConfig) -> Run:
+    def create(cls, config: TrainConfig, env: HapticEnv | ApGymGlanceEnv | None = None) -> Run:
+        """A fresh run of ``config``: its environment (``env``, or the one the config names:
+        the haptic world from a glance table or online, or ``config.env`` on ap_gym), the model
+        with its initial weights, the optimizer and the pose generator. The run owns ``env``
+        (:meth:`close`)."""
         device = torch.device(config.device)
         if device.type == "cuda" and not torch.cuda.is_available():
             raise HamError("device 'cuda' requested but CUDA is not available; use --device cpu")
-        source, world = make_source(config.table, config.world, device)
-        if source.n_objects != config.model.n_objects:
-            raise HamError(
-                f"the model classifies {config.model.n_objects} objects but the glance source "
-                f"has {source.n_objects} ({', '.join(source.objects)})"
-            )
-        env = HapticEnv(
-            source, config.batch_size, config.normalization, stream_seed(config.seed, 0), device
-        )
+        if env is None:
+            env = make_env(config, device)
+        _check_env(config.model, env)
         torch.manual_seed(config.seed)  # the initial weights
         agent = HapticAttentionModel(config.model).to(device)
         optimizer = torch.optim.SGD(
@@ -193,7 +206,13 @@ class Run:
         )
         policy_generator = torch.Generator(device=device)
         policy_generator.manual_seed(stream_seed(config.seed, 1))
-        return cls(config, agent, env, optimizer, policy_generator, objects=list(source.objects))
+        return cls(config, agent, env, optimizer, policy_generator, objects=list(env.objects))
+
+    def close(self) -> None:
+        """Release the environment (ap_gym's data loaders)."""
+        close = getattr(self.env, "close", None)
+        if close is not None:
+            close()
 
     def state_dict(self) -> dict:
         return {
@@ -229,11 +248,57 @@ class Run:
             "steps": self.step,
             "accuracy_per_glance": last.get("accuracy_per_glance"),
             "accumulated_accuracy_per_glance": last.get("accumulated_accuracy_per_glance"),
+            "per_object_accuracy": last.get("per_object_accuracy"),
+            "confusion": last.get("confusion"),
             "parameters": count_parameters(self.agent),
             "objects": self.objects,
             "config": self.config.to_dict(),
             "history": self.history,
         }
+
+
+def make_env(config: TrainConfig, device: torch.device | str = "cpu") -> HapticEnv | ApGymGlanceEnv:
+    """The training environment ``config`` names: ap_gym (``config.env``) or the haptic world
+    (a glance table, or the online simulator of ``config.world``). Object stream: seed stream 0."""
+    if config.env is not None:
+        from ham.learn.ap_adapter import make_ap_env
+
+        seed, eval_seed = stream_seed(config.seed, 0), stream_seed(config.seed, 2)
+        return make_ap_env(
+            config.env, config.batch_size, seed, eval_seed, config.normalization, device
+        )
+    source, _ = make_source(config.table, config.world, device)
+    return HapticEnv(
+        source, config.batch_size, config.normalization, stream_seed(config.seed, 0), device
+    )
+
+
+def fit_to_ap_gym(config: TrainConfig, env: ApGymConfig, phi_scale: float = 1.0) -> TrainConfig:
+    """``config`` training on the ap_gym environment ``env`` instead of the haptic world, the
+    model sized for it (:func:`ham.learn.ap_adapter.sized_model`: glimpse size, classes,
+    ``phi_scale``)."""
+    from ham.learn.ap_adapter import sized_model
+
+    model = sized_model(env, config.model, phi_scale)
+    return replace(config, model=model, env=env, table=None)
+
+
+def _check_env(model: HamConfig, env) -> None:
+    """The model fits the environment: its classes, its glance size, its episode length."""
+    if env.n_objects != model.n_objects:
+        raise HamError(
+            f"the model classifies {model.n_objects} objects but the environment "
+            f"has {env.n_objects} ({', '.join(map(str, env.objects))})"
+        )
+    pressure_dim = getattr(env, "pressure_dim", None)
+    if pressure_dim is not None and pressure_dim != model.pressure_dim:
+        raise HamError(
+            f"the model reads glances of {model.pressure_dim} values but the environment "
+            f"gives {pressure_dim}"
+        )
+    check_glances = getattr(env, "check_glances", None)
+    if check_glances is not None:
+        check_glances(model.glances)
 
 
 # --------------------------------------------------------------------------- files
@@ -284,9 +349,13 @@ def train(config: TrainConfig, out: str | os.PathLike, *, progress: bool = True)
     out = Path(out)
     if (out / CHECKPOINT_FILE).exists():
         raise HamError(f"{str(out)!r} already holds a run; continue it with --resume {out}")
-    out.mkdir(parents=True, exist_ok=True)
-    _write_json(out / CONFIG_FILE, config.to_dict())
-    return train_loop(Run.create(config), out, progress)
+    run = Run.create(config)  # before any file: a bad config leaves no run directory behind
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        _write_json(out / CONFIG_FILE, config.to_dict())
+        return train_loop(run, out, progress)
+    finally:
+        run.close()
 
 
 def resume(out: str | os.PathLike, *, steps: int | None = None, progress: bool = True) -> dict:
@@ -296,11 +365,15 @@ def resume(out: str | os.PathLike, *, steps: int | None = None, progress: bool =
     if steps is not None:
         config = replace(config, steps=steps)
         _write_json(out / CONFIG_FILE, config.to_dict())
+    checkpoint = load_checkpoint(out)
     run = Run.create(config)
-    run.load_state_dict(load_checkpoint(out))
-    if run.step > config.steps:
-        raise HamError(f"the run is at step {run.step}, beyond --steps {config.steps}")
-    return train_loop(run, out, progress)
+    try:
+        run.load_state_dict(checkpoint)
+        if run.step > config.steps:
+            raise HamError(f"the run is at step {run.step}, beyond --steps {config.steps}")
+        return train_loop(run, out, progress)
+    finally:
+        run.close()
 
 
 def _check_loss(run: Run, loss: torch.Tensor) -> None:
@@ -352,6 +425,8 @@ def _evaluate(run: Run, train_loss: float | None, train_reward: float | None) ->
         "accuracy_per_glance": result.accuracy_per_glance,
         "accumulated_accuracy_per_glance": result.accumulated_accuracy_per_glance,
         "mu_mean": result.mu_mean,
+        "per_object_accuracy": result.per_object_accuracy,
+        "confusion": result.confusion[-1],  # after the last glance: true x predicted counts
         "train_loss": train_loss,
         "train_reward": train_reward,
         "lr": c.learning_rate(run.step),

@@ -9,9 +9,9 @@ Section "The Haptic Attention Model" and Fig "Illustration of the Used Model". O
    the pose ``l_s = (q_x, q_phi * pi/2)`` into the glance feature ``g_s``;
 3. the core integrates ``g_1 .. g_s`` into ``tau_{1:s}``; the classifier reads
    ``pi(o | tau_{1:s})``, the baseline ``b(tau_{1:s})``;
-4. the location network maps ``tau_{1:s}`` to ``(mu, sigma)`` for ``x`` and ``phi`` and samples
-   the next pose ``q_{s+1}`` from the truncated Gaussian (``learned`` policy), or the pose is
-   drawn uniformly (``random`` policy, the paper's ``pi_rloc``: no location network at all).
+4. the location policy (:mod:`ham.model.policy`) maps ``tau_{1:s}`` to a distribution over
+   poses and the next pose ``q_{s+1}`` is drawn from it: the location network's truncated
+   Gaussian (``learned``), or uniform poses (``random``, the paper's ``pi_rloc``: no weights).
 
 Every hyperparameter of the network is a field of :class:`HamConfig` with the paper's value as its
 default; where the authors' code differs, the field offers the code's choice as an option.
@@ -29,15 +29,9 @@ from ham.errors import HamError, check_choices
 from ham.model.baseline import Baseline
 from ham.model.classifier import Classifier
 from ham.model.core import ACTIVATIONS, CORES, State, make_core
-from ham.model.location_net import (
-    STD_ACTIVATIONS,
-    LocationNetwork,
-    truncated_normal,
-    uniform_locations,
-)
+from ham.model.location_net import STD_ACTIVATIONS, uniform_locations
+from ham.model.policy import POLICIES, LocationDistribution, make_policy
 from ham.model.tactile_net import COMBINERS, TactileNetwork
-
-POLICIES: tuple[str, ...] = ("learned", "random")
 
 
 @dataclass(frozen=True)
@@ -58,7 +52,8 @@ class HamConfig:
         lstm_activation: ``tanh`` (paper, standard LSTM) or ``relu`` (authors' code).
         truncate_bptt: detach the core state between glances (authors' code) instead of full
             backpropagation through the glance sequence (paper).
-        policy: ``learned`` (location network) or ``random`` (uniform poses, ``pi_rloc``).
+        policy: a registered location policy (:mod:`ham.model.policy`): ``learned`` (the
+            location network) or ``random`` (uniform poses, ``pi_rloc``).
         std_activation: ``softplus`` (paper) or ``sigmoid`` (authors' code) for ``sigma``.
         sigma_min: floor added to ``sigma`` for numerical safety (not in the paper).
         phi_scale: the pose fed to the tactile network is ``(q_x, q_phi * phi_scale)`` (pi/2).
@@ -115,15 +110,15 @@ class Episode:
         locations: ``(S, B, 2)`` the poses ``q`` of the glances (detached samples).
         logits: ``(S, B, K)`` classifier outputs after each glance.
         baselines: ``(S, B)`` ``b(tau_{1:s})`` after each glance.
-        mu, sigma: ``(S-1, B, 2)`` the policy that drew glances 2..S; ``None`` for the random policy.
+        policy: the location distributions that drew glances 2..S, batch shape ``(S-1, B)``
+            (:class:`ham.model.policy.LocationDistribution`); ``None`` for a single glance.
     """
 
     objects: torch.Tensor
     locations: torch.Tensor
     logits: torch.Tensor
     baselines: torch.Tensor
-    mu: torch.Tensor | None
-    sigma: torch.Tensor | None
+    policy: LocationDistribution | None
 
 
 def he_normal_init(module: nn.Module) -> None:
@@ -160,11 +155,8 @@ class HapticAttentionModel(nn.Module):
         )
         self.classifier = Classifier(c.hidden_units, c.n_objects, c.bias)
         self.baseline = Baseline(c.hidden_units, c.bias)
-        self.location = (
-            LocationNetwork(c.hidden_units, c.std_activation, c.sigma_min, c.bias)
-            if c.policy == "learned"
-            else None
-        )
+        # the location policy (ham.model.policy); created last, as its weights always were
+        self.location = make_policy(c)
         he_normal_init(self)
 
     def step(
@@ -174,19 +166,6 @@ class HapticAttentionModel(nn.Module):
         location = torch.stack([q[:, 0], q[:, 1] * self.config.phi_scale], dim=-1)
         return self.core(self.tactile(pressure, location), state)
 
-    def next_location(
-        self, tau: torch.Tensor, generator: torch.Generator | None, greedy: bool = False
-    ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
-        """The pose of the next glance: ``(q, mu, sigma)``; ``mu = sigma = None`` when random.
-
-        ``greedy``: the policy's mean pose instead of a sample (evaluation only)."""
-        if self.location is None:
-            return uniform_locations(tau.shape[0], generator, tau.device), None, None
-        mu, sigma = self.location(tau)
-        if greedy:
-            return torch.nan_to_num(mu.detach()).clamp(-1, 1), mu, sigma
-        return truncated_normal(mu, sigma, generator), mu, sigma
-
     def forward(
         self,
         env,
@@ -195,51 +174,55 @@ class HapticAttentionModel(nn.Module):
         greedy: bool = False,
     ) -> Episode:
         """Play ``S`` glances of ``env`` on ``objects`` (B,), sampling poses from ``generator``
-        (or taking the policy's mean poses when ``greedy``; the first glance is random always)."""
+        (or taking the policy's mode when ``greedy``; the first glance is random always).
+
+        The where-input of a glance is ``env.observed_location`` when the environment reports
+        one (a sensor that moved itself, e.g. a capped step of an ap_gym environment), else the
+        pose ``q`` asked for; ``Episode.locations`` holds the poses asked for (the policy's
+        actions)."""
         batch = objects.shape[0]
         q = uniform_locations(batch, generator, objects.device)  # the first glance is random
         state = self.core.initial_state(batch, q)
-        locations, logits, baselines, mus, sigmas = [], [], [], [], []
+        locations, logits, baselines, dists = [], [], [], []
         for s in range(self.config.glances):
-            tau, state = self.step(env.glance(objects, q), q, state)
+            pressure = env.glance(objects, q)
+            where = getattr(env, "observed_location", None)
+            tau, state = self.step(pressure, q if where is None else where, state)
             locations.append(q)
             logits.append(self.classifier(tau))
             baselines.append(self.baseline(tau))
             if s == self.config.glances - 1:
                 break
-            q, mu, sigma = self.next_location(tau, generator, greedy)
-            mus.append(mu)
-            sigmas.append(sigma)
-        learned = self.location is not None and mus
+            dist = self.location.distribution(tau)
+            q = dist.act(generator, greedy)
+            dists.append(dist)
         return Episode(
             objects=objects,
             locations=torch.stack(locations),
             logits=torch.stack(logits),
             baselines=torch.stack(baselines),
-            mu=torch.stack(mus) if learned else None,
-            sigma=torch.stack(sigmas) if learned else None,
+            policy=type(dists[0]).stack(dists) if dists else None,
         )
 
-    def replay(self, pressures: torch.Tensor, locations: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    def replay(
+        self, pressures: torch.Tensor, locations: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, LocationDistribution | None]:
         """The bare network on recorded glances ``(S, B, 256)`` at ``(S, B, 2)``: no environment,
-        no sampling. Returns ``(logits, baselines, mu, sigma)`` stacked over the glances (``mu``
-        and ``sigma`` empty for the random policy). Used by the benchmark as the reference cost."""
+        no sampling. Returns ``(logits, baselines, policy)``: logits and baselines stacked over
+        the glances, the location distributions after glances 1..S-1 (``None`` for one glance).
+        Used by the benchmark as the reference cost."""
         state = self.core.initial_state(pressures.shape[1], pressures)
-        logits, baselines, mus, sigmas = [], [], [], []
+        logits, baselines, dists = [], [], []
         for s in range(pressures.shape[0]):
             tau, state = self.step(pressures[s], locations[s], state)
             logits.append(self.classifier(tau))
             baselines.append(self.baseline(tau))
-            if self.location is not None and s < pressures.shape[0] - 1:
-                mu, sigma = self.location(tau)
-                mus.append(mu)
-                sigmas.append(sigma)
-        empty = pressures.new_zeros(0)
+            if s < pressures.shape[0] - 1:
+                dists.append(self.location.distribution(tau))
         return (
             torch.stack(logits),
             torch.stack(baselines),
-            torch.stack(mus) if mus else empty,
-            torch.stack(sigmas) if sigmas else empty,
+            type(dists[0]).stack(dists) if dists else None,
         )
 
     def describe(self) -> str:

@@ -1,0 +1,225 @@
+"""Location policies behind one interface: where the next glance goes.
+
+A policy is a module ``distribution(tau) -> LocationDistribution``; the distribution answers
+``sample(generator)``, ``log_prob(q)``, ``mode()``, ``entropy()`` and ``scale()`` over poses
+``q in [-1, 1]^2``. The model samples from it, the hybrid loss (:mod:`ham.learn.hybrid_loss`)
+takes ``log_prob`` for the REINFORCE term and the evaluation (:mod:`ham.learn.evaluation`) takes
+``mode`` for its mean poses, so neither knows what parametrizes a policy. A new policy is one
+new :class:`LocationPolicy` subclass registered under a name with :func:`register_policy`;
+``HamConfig(policy=NAME)`` (``ham train --policy NAME``) picks it.
+
+Registered:
+
+* ``learned`` (:class:`GaussianPolicy`): the paper's location network, ``pi(q | tau) =
+  N(q; mu(tau), sigma(tau))`` per stream ``x`` and ``phi``, sampled truncated to ``[-1, 1]``
+  (section "The Location Network"); its parameters are trained by REINFORCE;
+* ``random`` (:class:`UniformPolicy`): poses uniform in ``[-1, 1]^2``, the paper's
+  random-location model ``pi_rloc``; no weights, no REINFORCE term.
+
+The distributions are batched: the model stacks one per glance (:meth:`LocationDistribution.stack`),
+so ``log_prob`` of the episode's poses ``(S-1, B, 2)`` is ``(S-1, B)``: summed over the two streams.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar
+
+import torch
+from torch import nn
+
+from ham.errors import HamError
+from ham.model.location_net import (
+    LocationNetwork,
+    gaussian_log_prob,
+    truncated_normal,
+)
+
+#: ``0.5 * log(2 pi e)``: the entropy of a unit Gaussian
+_HALF_LOG_2PI_E = 0.5 * math.log(2 * math.pi * math.e)
+
+
+class LocationDistribution:
+    """A batch of distributions over poses ``q in [-1, 1]^2``; the last axis is ``(x, phi)``.
+
+    ``trainable``: its parameters carry a gradient, and the hybrid loss adds a REINFORCE term
+    for it (``False``: no term, whatever ``log_prob`` says).
+    """
+
+    trainable: ClassVar[bool] = False
+
+    @property
+    def batch_shape(self) -> torch.Size:
+        raise NotImplementedError
+
+    def sample(self, generator: torch.Generator | None) -> torch.Tensor:
+        """Poses ``(*batch_shape, 2)`` drawn from ``generator``, detached, inside ``[-1, 1]``."""
+        raise NotImplementedError
+
+    def log_prob(self, q: torch.Tensor) -> torch.Tensor:
+        """``log pi(q)`` ``(*batch_shape)``: summed over ``x`` and ``phi``; differentiable in the
+        policy's parameters (not in ``q``)."""
+        raise NotImplementedError
+
+    def mode(self) -> torch.Tensor | None:
+        """The most likely poses ``(*batch_shape, 2)``, detached; ``None`` when there is no
+        single one (a uniform distribution)."""
+        raise NotImplementedError
+
+    def entropy(self) -> torch.Tensor:
+        """``H(pi)`` ``(*batch_shape)``, summed over ``x`` and ``phi``."""
+        raise NotImplementedError
+
+    def scale(self) -> torch.Tensor | None:
+        """The spread parameter per stream ``(*batch_shape, 2)`` (``None``: it has none)."""
+        return None
+
+    def act(self, generator: torch.Generator | None, greedy: bool = False) -> torch.Tensor:
+        """The pose to glance at: the mode when ``greedy`` and there is one, else a sample."""
+        q = self.mode() if greedy else None
+        return self.sample(generator) if q is None else q
+
+    @classmethod
+    def stack(cls, dists: list[LocationDistribution]) -> LocationDistribution:
+        """One distribution of batch shape ``(len(dists), *batch_shape)`` (one per glance)."""
+        raise NotImplementedError
+
+
+class TruncatedGaussian(LocationDistribution):
+    """``N(mu, sigma)`` per stream, sampled truncated to ``[-1, 1]``.
+
+    ``log_prob`` and ``entropy`` are those of the untruncated Gaussian, as in the paper: the
+    derivatives of ``log_prob`` are its eligibilities ``zeta_mu`` and ``zeta_sigma`` (Eqs
+    reinforce_mean, reinforce_std; :func:`ham.model.location_net.gaussian_log_prob`).
+    """
+
+    trainable = True
+
+    def __init__(self, mu: torch.Tensor, sigma: torch.Tensor) -> None:
+        self.mu = mu
+        self.sigma = sigma
+
+    @property
+    def batch_shape(self) -> torch.Size:
+        return self.mu.shape[:-1]
+
+    def sample(self, generator: torch.Generator | None) -> torch.Tensor:
+        return truncated_normal(self.mu, self.sigma, generator)
+
+    def log_prob(self, q: torch.Tensor) -> torch.Tensor:
+        return gaussian_log_prob(q, self.mu, self.sigma).sum(-1)
+
+    def mode(self) -> torch.Tensor:
+        # tanh keeps mu inside [-1, 1]; a diverged network's NaN becomes pose 0, as in sampling.
+        return torch.nan_to_num(self.mu.detach()).clamp(-1, 1)
+
+    def entropy(self) -> torch.Tensor:
+        return (_HALF_LOG_2PI_E + torch.log(self.sigma)).sum(-1)
+
+    def scale(self) -> torch.Tensor:
+        return self.sigma.detach()
+
+    @classmethod
+    def stack(cls, dists: list[LocationDistribution]) -> TruncatedGaussian:
+        return cls(torch.stack([d.mu for d in dists]), torch.stack([d.sigma for d in dists]))
+
+
+class Uniform(LocationDistribution):
+    """Poses uniform in ``[-1, 1]^2``: density ``1/4``, no parameters, no mode."""
+
+    def __init__(self, batch_shape: tuple[int, ...], device: torch.device | str = "cpu") -> None:
+        self._shape = torch.Size(batch_shape)
+        self.device = torch.device(device)
+
+    @property
+    def batch_shape(self) -> torch.Size:
+        return self._shape
+
+    def sample(self, generator: torch.Generator | None) -> torch.Tensor:
+        # for batch shape (B,) the same draw as uniform_locations (the first glance)
+        return torch.rand(*self._shape, 2, generator=generator, device=self.device) * 2 - 1
+
+    def log_prob(self, q: torch.Tensor) -> torch.Tensor:
+        return torch.full(q.shape[:-1], -2 * math.log(2.0), dtype=q.dtype, device=q.device)
+
+    def mode(self) -> None:
+        return None
+
+    def entropy(self) -> torch.Tensor:
+        return torch.full(self._shape, 2 * math.log(2.0), device=self.device)
+
+    @classmethod
+    def stack(cls, dists: list[LocationDistribution]) -> Uniform:
+        return cls((len(dists), *dists[0].batch_shape), dists[0].device)
+
+
+class LocationPolicy(nn.Module):
+    """Base of the location policies: ``distribution(tau)`` from the core output ``tau``.
+
+    Subclasses set ``name`` (through :func:`register_policy`) and build themselves from a
+    :class:`ham.model.agent.HamConfig` in :meth:`from_config`.
+    """
+
+    name: ClassVar[str] = ""
+
+    @classmethod
+    def from_config(cls, config: Any) -> LocationPolicy:
+        raise NotImplementedError
+
+    def distribution(self, tau: torch.Tensor) -> LocationDistribution:
+        raise NotImplementedError
+
+
+#: name -> policy class; ``HamConfig.policy`` is one of its keys
+POLICIES: dict[str, type[LocationPolicy]] = {}
+
+
+def register_policy(name: str):
+    """Class decorator: make a :class:`LocationPolicy` available as ``HamConfig(policy=name)``."""
+
+    def add(cls: type[LocationPolicy]) -> type[LocationPolicy]:
+        if name in POLICIES:
+            raise HamError(f"location policy {name!r} is registered already")
+        cls.name = name
+        POLICIES[name] = cls
+        return cls
+
+    return add
+
+
+def make_policy(config: Any) -> LocationPolicy:
+    """The policy ``config.policy`` names, built from ``config`` (a HamConfig)."""
+    try:
+        cls = POLICIES[config.policy]
+    except KeyError:
+        raise HamError(f"policy = {config.policy!r}; accepted: {', '.join(POLICIES)}") from None
+    return cls.from_config(config)
+
+
+@register_policy("learned")
+class GaussianPolicy(LocationNetwork, LocationPolicy):
+    """The paper's location network: ``tau -> (mu, sigma)``, a truncated Gaussian per stream.
+
+    The weights are those of :class:`ham.model.location_net.LocationNetwork` (heads ``mu`` and
+    ``sigma``), so checkpoints are unchanged.
+    """
+
+    @classmethod
+    def from_config(cls, config: Any) -> GaussianPolicy:
+        return cls(config.hidden_units, config.std_activation, config.sigma_min, config.bias)
+
+    def distribution(self, tau: torch.Tensor) -> TruncatedGaussian:
+        mu, sigma = self(tau)
+        return TruncatedGaussian(mu, sigma)
+
+
+@register_policy("random")
+class UniformPolicy(LocationPolicy):
+    """Random locations (the paper's ``pi_rloc``): uniform poses, whatever the core says."""
+
+    @classmethod
+    def from_config(cls, config: Any) -> UniformPolicy:
+        return cls()
+
+    def distribution(self, tau: torch.Tensor) -> Uniform:
+        return Uniform((tau.shape[0],), tau.device)

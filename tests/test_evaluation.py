@@ -1,0 +1,95 @@
+"""Evaluation: the confusion matrix and per-object accuracy, in ham evaluate and metrics.json."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+from ham.errors import HamError
+from ham.experiments.figures import plot_confusion
+from ham.learn.environment import HapticEnv
+from ham.learn.evaluation import evaluate
+from ham.learn.train import TrainConfig, train
+from ham.model.agent import HamConfig, HapticAttentionModel
+from ham.world.config import WorldConfig
+from ham.world.source import make_source
+
+
+@pytest.fixture(scope="module")
+def env() -> HapticEnv:
+    source, _ = make_source(None, WorldConfig())
+    return HapticEnv(source, batch_size=8, seed=0)
+
+
+@pytest.mark.parametrize("policy", ["learned", "random"])
+def test_confusion_matrix_counts_every_episode_by_true_and_predicted_object(env, policy):
+    torch.manual_seed(3)
+    agent = HapticAttentionModel(HamConfig(glances=3, policy=policy))
+    result = evaluate(agent, env, batches=3, seed=5)
+    # The same episodes again, counted by hand: evaluation draws only from its seeded generator.
+    g = torch.Generator().manual_seed(5)
+    expected = torch.zeros(3, 4, 4, dtype=torch.long)
+    agent.eval()
+    with torch.no_grad():
+        for b in range(3):
+            objects = env.balanced_objects(b)
+            predicted = agent(env, objects, g, greedy=True).logits.argmax(-1)
+            for s in range(3):
+                for o, p in zip(objects.tolist(), predicted[s].tolist(), strict=True):
+                    expected[s, o, p] += 1
+    assert result.confusion == expected.tolist()
+    assert result.objects == ["box", "ramp_up", "convex", "ramp_down"]
+    for s in range(3):
+        assert expected[s].sum(1).tolist() == [6, 6, 6, 6]  # balanced: 24 episodes
+        assert expected[s].trace().item() / 24 == pytest.approx(result.accuracy_per_glance[s])
+    last = expected[-1]
+    assert result.per_object_accuracy == [last[o, o].item() / 6 for o in range(4)]
+
+
+def test_metrics_carry_the_confusion_matrix(tmp_path):
+    config = TrainConfig(model=HamConfig(glances=2), steps=4, batch_size=8, eval_every=2,
+                         eval_batches=2, seed=3)  # fmt: skip
+    m = train(config, tmp_path / "r", progress=False)
+    for record in m["history"]:
+        confusion = record["confusion"]
+        assert len(confusion) == 4 and sum(map(sum, confusion)) == 16
+        assert record["per_object_accuracy"] == [confusion[o][o] / 4 for o in range(4)]
+    assert m["confusion"] == m["history"][-1]["confusion"]
+    assert m["per_object_accuracy"] == m["history"][-1]["per_object_accuracy"]
+    on_disk = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert on_disk["history"][-1]["confusion"] == m["confusion"]
+
+
+def test_per_object_accuracy_of_an_object_never_shown_is_none(env):
+    """ap_gym's labels follow its data: an object may not appear in an evaluation."""
+
+    class OneObject:
+        def __init__(self, inner):
+            self.inner, self.n_objects, self.batch_size = inner, 4, inner.batch_size
+            self.objects, self.device = inner.objects, inner.device
+
+        def balanced_objects(self, batch_index=0):
+            return torch.zeros(self.batch_size, dtype=torch.long)
+
+        def glance(self, objects, q):
+            return self.inner.glance(objects, q)
+
+    agent = HapticAttentionModel(HamConfig(glances=2))
+    result = evaluate(agent, OneObject(env), batches=1)
+    assert result.per_object_accuracy[1:] == [None, None, None]
+    assert result.per_object_accuracy[0] == result.accuracy
+
+
+def test_plot_confusion(tmp_path):
+    out = plot_confusion([[5, 1], [0, 6]], ["a", "b"], tmp_path / "sub" / "c.png")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert [p.name for p in out.parent.iterdir()] == ["c.png"]  # no temporary file left
+    big = torch.randint(0, 9, (20, 20)).tolist()  # many classes: no numbers in the cells
+    assert plot_confusion(big, [str(k) for k in range(20)], tmp_path / "big.png").exists()
+    with pytest.raises(HamError, match=r"shape \(2, 3\); accepted: \(2, 2\)"):
+        plot_confusion([[1, 2, 3], [4, 5, 6]], ["a", "b"], tmp_path / "x.png")
+    with pytest.raises(HamError, match="negative"):
+        plot_confusion([[1, -2], [0, 1]], ["a", "b"], tmp_path / "x.png")
+    assert not (tmp_path / "x.png").exists()
