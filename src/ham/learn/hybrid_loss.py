@@ -103,12 +103,14 @@ def hybrid_loss(
     r = reward(last.detach(), objects)
     # Eq baseline over every sub-sequence 1..S, target the episode's reward.
     baseline = ((r[None] - episode.baselines) ** 2).sum(0).mean()
+    if episode.first_baseline is not None:  # a learned first glance: b(tau_0) too
+        baseline = baseline + ((r - episode.first_baseline) ** 2).mean()
     policy = episode.policy
     if policy is None or not policy.trainable or beta == 0:
         reinforce = last.new_zeros(())
     else:
-        advantage = r[None] - episode.baselines[:-1]  # b(tau_{1:s-1}) for the pose q_s
-        reinforce = reinforce_term(episode.locations[1:], policy, advantage)
+        advantage = r[None] - episode.values()  # b(tau_{1:s-1}) for the pose q_s
+        reinforce = reinforce_term(episode.locations[episode.chosen], policy, advantage)
         if reinforce_reduction == "sum":
             reinforce = reinforce * objects.shape[0]
     total = classification + beta * reinforce + baseline

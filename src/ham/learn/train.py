@@ -40,6 +40,7 @@ from ham.learn.ap_adapter import ApGymConfig, ApGymGlanceEnv
 from ham.learn.environment import HapticEnv
 from ham.learn.evaluation import EVAL_POLICIES, evaluate
 from ham.learn.hybrid_loss import REDUCTIONS, HybridLoss, hybrid_loss
+from ham.learn.info_loss import InfoLoss, info_loss
 from ham.model.agent import HamConfig, HapticAttentionModel, count_parameters
 from ham.world.config import WorldConfig
 from ham.world.sensor import NORMALIZATIONS
@@ -50,6 +51,8 @@ METRICS_FILE = "metrics.json"
 CHECKPOINT_FILE = "checkpoint.pt"
 TIMING_FILE = "timing.json"
 DEVICES: tuple[str, ...] = ("cpu", "cuda")
+LEARNERS: tuple[str, ...] = ("hybrid", "info")
+OPTIMIZERS: tuple[str, ...] = ("sgd", "adam")
 
 
 @dataclass(frozen=True)
@@ -87,6 +90,14 @@ class TrainConfig:
             for it); ``None``: the haptic world.
         device: ``cpu`` or ``cuda``.
         log_every: steps between TensorBoard training scalars.
+        learner: ``hybrid`` (the paper's hybrid REINFORCE loss, :mod:`ham.learn.hybrid_loss`)
+            or ``info`` (beyond the paper: cross-entropy after every glance and an actor-critic
+            on the information each glance gains, :mod:`ham.learn.info_loss`).
+        optimizer: ``sgd`` (the paper: SGD, Nesterov momentum) or ``adam`` (at the same
+            learning-rate schedule; beta_1 = momentum).
+        gamma: discount of the information reward over the glances (info learner; 1).
+        gae_lambda: GAE lambda of the info learner's advantages (1: Monte-Carlo returns).
+        entropy_coef: weight of the policy's entropy bonus (info learner; 0).
     """
 
     model: HamConfig = field(default_factory=HamConfig)
@@ -111,6 +122,11 @@ class TrainConfig:
     device: str = "cpu"
     log_every: int = 10
     env: ApGymConfig | None = None
+    learner: str = field(default="hybrid", metadata={"choices": LEARNERS})
+    optimizer: str = field(default="sgd", metadata={"choices": OPTIMIZERS})
+    gamma: float = 1.0
+    gae_lambda: float = 1.0
+    entropy_coef: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch_size", "lr_step", "eval_every", "eval_batches", "log_every"):
@@ -131,6 +147,13 @@ class TrainConfig:
         if not isinstance(self.seed, int) or self.seed < 0:
             raise HamError(f"seed = {self.seed!r}; accepted: an integer >= 0")
         check_choices(self)
+        for name in ("gamma", "gae_lambda"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and 0 <= v <= 1):
+                raise HamError(f"{name} = {v!r}; accepted: a number in [0, 1]")
+        if not (isinstance(self.entropy_coef, (int, float)) and math.isfinite(self.entropy_coef)
+                and self.entropy_coef >= 0):  # fmt: skip
+            raise HamError(f"entropy_coef = {self.entropy_coef!r}; accepted: a finite number >= 0")
         if self.device.split(":")[0] not in DEVICES:
             raise HamError(f"device {self.device!r}; accepted: {', '.join(DEVICES)}")
         if self.env is not None and self.table is not None:
@@ -197,13 +220,18 @@ class Run:
         _check_env(config.model, env)
         torch.manual_seed(config.seed)  # the initial weights
         agent = HapticAttentionModel(config.model).to(device)
-        optimizer = torch.optim.SGD(
-            agent.parameters(),
-            lr=config.lr,
-            momentum=config.momentum,
-            nesterov=config.nesterov,
-            foreach=True,
-        )
+        if config.optimizer == "adam":
+            optimizer = torch.optim.Adam(
+                agent.parameters(), lr=config.lr, betas=(config.momentum, 0.999), foreach=True
+            )
+        else:
+            optimizer = torch.optim.SGD(
+                agent.parameters(),
+                lr=config.lr,
+                momentum=config.momentum,
+                nesterov=config.nesterov,
+                foreach=True,
+            )
         policy_generator = torch.Generator(device=device)
         policy_generator.manual_seed(stream_seed(config.seed, 1))
         return cls(config, agent, env, optimizer, policy_generator, objects=list(env.objects))
@@ -238,9 +266,28 @@ class Run:
         self.best_accumulated_accuracy = float(state["best_accumulated_accuracy"])
         self.history = list(state["history"])
 
+    @property
+    def env_steps(self) -> int:
+        """Environment steps so far, counted as the field counts them: glances."""
+        return self.step * self.config.batch_size * self.config.model.glances
+
+    def reached(self, accuracy: float) -> int | None:
+        """Environment steps at the first evaluation whose final accuracy was >= ``accuracy``."""
+        for row in self.history:
+            if row["accuracy"] >= accuracy:
+                return row["step"] * self.config.batch_size * self.config.model.glances
+        return None
+
     def metrics(self) -> dict:
         last = self.history[-1] if self.history else {}
+        per_glance = last.get("accuracy_per_glance") or []
         return {
+            "env_steps": self.env_steps,
+            "average_accuracy": sum(per_glance) / len(per_glance) if per_glance else None,
+            "env_steps_to_0.95": self.reached(0.95),
+            "env_steps_to_0.99": self.reached(0.99),
+            "glances_to_0.95": next((i + 1 for i, a in enumerate(per_glance) if a >= 0.95), None),
+            "glances_to_0.99": next((i + 1 for i, a in enumerate(per_glance) if a >= 0.99), None),
             "best_accuracy": self.best_accuracy,
             "best_step": self.best_step,
             "best_accumulated_accuracy": self.best_accumulated_accuracy,
@@ -392,14 +439,17 @@ def _check_weights(run: Run) -> None:
         raise HamError(f"training diverged at step {run.step}: NaN/inf in the weights {bad[0]}")
 
 
-def train_step(run: Run) -> HybridLoss:
-    """One training step: a fresh batch, one episode, the hybrid loss, one SGD step."""
+def train_step(run: Run) -> HybridLoss | InfoLoss:
+    """One training step: a fresh batch, one episode, the learner's loss, one optimizer step."""
     c = run.config
     for group in run.optimizer.param_groups:
         group["lr"] = c.learning_rate(run.step)
     objects = run.env.sample_objects()  # a fresh batch, drawn uniformly
     episode = run.agent(run.env, objects, run.policy_generator)
-    loss = hybrid_loss(episode, c.beta, c.classification_reduction, c.reinforce_reduction)
+    if c.learner == "info":
+        loss = info_loss(episode, c.gamma, c.gae_lambda, entropy_coef=c.entropy_coef)
+    else:
+        loss = hybrid_loss(episode, c.beta, c.classification_reduction, c.reinforce_reduction)
     _check_loss(run, loss.total)
     run.optimizer.zero_grad(set_to_none=True)
     loss.total.backward()
@@ -427,6 +477,8 @@ def _evaluate(run: Run, train_loss: float | None, train_reward: float | None) ->
         "mu_mean": result.mu_mean,
         "per_object_accuracy": result.per_object_accuracy,
         "confusion": result.confusion[-1],  # after the last glance: true x predicted counts
+        "env_steps": run.env_steps,
+        "average_accuracy": sum(result.accuracy_per_glance) / len(result.accuracy_per_glance),
         "train_loss": train_loss,
         "train_reward": train_reward,
         "lr": c.learning_rate(run.step),

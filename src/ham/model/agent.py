@@ -33,6 +33,8 @@ from ham.model.location_net import STD_ACTIVATIONS, uniform_locations
 from ham.model.policy import POLICIES, LocationDistribution, make_policy
 from ham.model.tactile_net import COMBINERS, TactileNetwork
 
+FIRST_GLANCES: tuple[str, ...] = ("random", "learned")
+
 
 @dataclass(frozen=True)
 class HamConfig:
@@ -59,6 +61,9 @@ class HamConfig:
         phi_scale: the pose fed to the tactile network is ``(q_x, q_phi * phi_scale)`` (pi/2).
         bias: biases on the dense layers; ``False`` reproduces the authors' layout (biases only in
             the LSTM), with exactly their 642,432 weights.
+        first_glance: ``random`` (paper: uniform, the location network acts from glance 2 on)
+            or ``learned`` (beyond the paper: the policy also chooses the first pose, from the
+            core output before any glance, zeros; its learned biases make it a learned pose).
     """
 
     glances: int = 3
@@ -78,6 +83,7 @@ class HamConfig:
     sigma_min: float = 1e-3
     phi_scale: float = math.pi / 2
     bias: bool = True
+    first_glance: str = field(default="random", metadata={"choices": FIRST_GLANCES})
 
     def __post_init__(self) -> None:
         for name in ("glances", "n_objects", "pressure_dim", "what_units", "where_units",
@@ -110,8 +116,12 @@ class Episode:
         locations: ``(S, B, 2)`` the poses ``q`` of the glances (detached samples).
         logits: ``(S, B, K)`` classifier outputs after each glance.
         baselines: ``(S, B)`` ``b(tau_{1:s})`` after each glance.
-        policy: the location distributions that drew glances 2..S, batch shape ``(S-1, B)``
-            (:class:`ham.model.policy.LocationDistribution`); ``None`` for a single glance.
+        policy: the location distributions that drew glances ``first_chosen + 1..S``
+            (:class:`ham.model.policy.LocationDistribution`), batch shape ``(S - 1, B)`` when
+            the first glance is random, ``(S, B)`` when it is learned; ``None`` when no glance
+            was chosen by the policy.
+        first_baseline: ``b(tau_0)`` ``(B,)``, the baseline of the state that chose a learned
+            first glance (``None`` when the first glance is random).
     """
 
     objects: torch.Tensor
@@ -119,6 +129,18 @@ class Episode:
     logits: torch.Tensor
     baselines: torch.Tensor
     policy: LocationDistribution | None
+    first_baseline: torch.Tensor | None = None
+
+    @property
+    def chosen(self) -> slice:
+        """The glances the policy chose: all (learned first glance) or 2..S."""
+        return slice(0 if self.first_baseline is not None else 1, None)
+
+    def values(self) -> torch.Tensor:
+        """The baselines of the states that chose the policy's glances, ``(S', B)``."""
+        if self.first_baseline is None:
+            return self.baselines[:-1]
+        return torch.cat([self.first_baseline[None], self.baselines[:-1]])
 
 
 def he_normal_init(module: nn.Module) -> None:
@@ -181,9 +203,17 @@ class HapticAttentionModel(nn.Module):
         pose ``q`` asked for; ``Episode.locations`` holds the poses asked for (the policy's
         actions)."""
         batch = objects.shape[0]
-        q = uniform_locations(batch, generator, objects.device)  # the first glance is random
-        state = self.core.initial_state(batch, q)
         locations, logits, baselines, dists = [], [], [], []
+        first_baseline = None
+        if self.config.first_glance == "learned" and self.config.policy != "random":
+            tau0 = objects.new_zeros((batch, self.config.hidden_units), dtype=torch.float32)
+            dist = self.location.distribution(tau0)
+            q = dist.act(generator, greedy)
+            dists.append(dist)
+            first_baseline = self.baseline(tau0)
+        else:
+            q = uniform_locations(batch, generator, objects.device)  # the paper: random
+        state = self.core.initial_state(batch, q)
         for s in range(self.config.glances):
             pressure = env.glance(objects, q)
             where = getattr(env, "observed_location", None)
@@ -202,6 +232,7 @@ class HapticAttentionModel(nn.Module):
             logits=torch.stack(logits),
             baselines=torch.stack(baselines),
             policy=type(dists[0]).stack(dists) if dists else None,
+            first_baseline=first_baseline,
         )
 
     def replay(

@@ -1,0 +1,120 @@
+"""The information learner: classification and control trained apart, sharing one reward.
+
+The paper's Discussion names the way out of its hybrid loss's weak spot (a 0/1 reward at the end
+of the episode, one REINFORCE term for all glances): "separately train the classification and
+control part of the HAM with different loss functions that share the achieved reward". Here:
+
+* the classifier (tactile network, core, classifier head) is trained by cross-entropy after
+  *every* glance, ``L_c = sum_{s=1..S} CE_s`` with ``CE_s = -log pi(o | tau_{1:s})``, so the agent
+  can answer at any time;
+* the location policy is trained by an advantage actor-critic on a dense reward, the
+  information each glance gains: ``r_s = CE_{s-1} - CE_s`` (``CE_0 = log K``, the uniform
+  guess), the drop of the classifier's cross-entropy on the true object, as ap_gym's reward;
+  the return of glance ``s`` is ``R_s = sum_{t>=s} gamma^{t-s} r_t`` (with ``gamma = 1`` it
+  telescopes to ``CE_{s-1} - CE_S``); the policy's glances are 2..S, or 1..S when it also
+  chooses the first (``HamConfig.first_glance = "learned"``);
+* the critic is the baseline head: ``V(tau_{1:s-1})`` estimates the return of the glance that
+  the core output ``tau_{1:s-1}`` chooses, trained by mean squared error; advantages by GAE
+  (``lambda``; ``lambda = 1`` is the Monte-Carlo return minus the critic);
+* an entropy bonus keeps the policy from collapsing early (``entropy_coef``).
+
+As in the hybrid loss the parts train disjoint weights: the policy's term only the location
+network (it reads the core detached), the critic's only the baseline layer, the classification
+the rest.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch.nn import functional as F
+
+from ham.errors import HamError
+from ham.model.agent import Episode
+
+
+@dataclass
+class InfoLoss:
+    """The loss to minimize (``total``) and its parts (scalars); ``gain`` is ``(S, B)``."""
+
+    total: torch.Tensor
+    classification: torch.Tensor
+    policy: torch.Tensor
+    critic: torch.Tensor
+    entropy: torch.Tensor
+    gain: torch.Tensor
+
+    # the names the training loop logs for every learner
+    @property
+    def reinforce(self) -> torch.Tensor:
+        return self.policy
+
+    @property
+    def baseline(self) -> torch.Tensor:
+        return self.critic
+
+    @property
+    def reward(self) -> torch.Tensor:
+        """The information an episode gained, ``log K - CE_S`` ``(B,)``."""
+        return self.gain.sum(0)
+
+
+def information_gain(logits: torch.Tensor, objects: torch.Tensor) -> torch.Tensor:
+    """``r_s = CE_{s-1} - CE_s`` per glance ``(S, B)`` with ``CE_0 = log K`` (detached)."""
+    s, b, k = logits.shape
+    ce = F.cross_entropy(
+        logits.detach().reshape(s * b, k), objects.repeat(s), reduction="none"
+    ).reshape(s, b)
+    before = torch.cat([ce.new_full((1, b), math.log(k)), ce[:-1]])
+    return before - ce
+
+
+def advantages(rewards: torch.Tensor, values: torch.Tensor, gamma: float, lam: float) -> tuple:
+    """GAE over the policy's glances: ``rewards`` ``(S', B)`` their information gains,
+    ``values`` ``(S', B)`` ``V`` of the states that chose them. Returns ``(advantage, return)``."""
+    n = rewards.shape[0]
+    adv = torch.zeros_like(rewards)
+    running = torch.zeros_like(rewards[0])
+    for t in range(n - 1, -1, -1):
+        next_value = values[t + 1] if t + 1 < n else torch.zeros_like(values[t])
+        delta = rewards[t] + gamma * next_value - values[t]
+        running = delta + gamma * lam * running
+        adv[t] = running
+    return adv, adv + values
+
+
+def info_loss(
+    episode: Episode,
+    gamma: float = 1.0,
+    gae_lambda: float = 1.0,
+    policy_coef: float = 1.0,
+    entropy_coef: float = 0.0,
+    normalize_advantage: bool = True,
+) -> InfoLoss:
+    """The information learner's loss of ``episode`` (see the module's docstring)."""
+    for name, v, low, high in (("gamma", gamma, 0, 1), ("gae_lambda", gae_lambda, 0, 1)):
+        if not (math.isfinite(v) and low <= v <= high):
+            raise HamError(f"{name} = {v!r}; accepted: {low} <= {name} <= {high}")
+    objects = episode.objects
+    s, b, k = episode.logits.shape
+    classification = (
+        F.cross_entropy(episode.logits.reshape(s * b, k), objects.repeat(s), reduction="mean") * s
+    )  # a sum over glances, a mean over the batch
+    gain = information_gain(episode.logits, objects)
+    zero = episode.logits.new_zeros(())
+    policy = episode.policy
+    if policy is None or not policy.trainable:
+        return InfoLoss(classification, classification, zero, zero, zero, gain)
+    values = episode.values()  # V(tau_{1:s-1}) of the state that chose the glance q_s
+    adv, ret = advantages(gain[episode.chosen], values.detach(), gamma, gae_lambda)
+    critic = ((ret.detach() - values) ** 2).sum(0).mean()
+    a = adv.detach()
+    if normalize_advantage and a.numel() > 1:
+        a = (a - a.mean()) / (a.std() + 1e-8)
+    log_p = policy.log_prob(episode.locations[episode.chosen].detach())  # (S', B)
+    policy_term = -(a * log_p).sum(0).mean()
+    entropy = policy.entropy().sum(0).mean()
+    total = classification + policy_coef * policy_term + critic - entropy_coef * entropy
+    return InfoLoss(total, classification, policy_term, critic, entropy, gain)
