@@ -156,20 +156,16 @@ def _set_threads(threads: int | None) -> None:
 
 
 def _config_from_args(args: argparse.Namespace):
-    from ham.learn.train import TrainConfig
+    from ham.learn.train import TrainConfig, model_for_source
     from ham.model.agent import HamConfig
-    from ham.world.objects import resolve_set
 
     world = _world_from_args(args)
-    n_objects = None
     if args.table:
         from ham.world.table import table_info
 
         if not Path(args.table).exists():
             raise HamError(f"glance table {args.table!r} does not exist")
-        n_objects = len(table_info(args.table).objects)
-    else:
-        n_objects = len(resolve_set(world.objects))
+        _check_table_sensor(args, table_info(args.table))
     model_args = {
         "glances": args.glances,
         "combiner": args.combiner,
@@ -180,7 +176,9 @@ def _config_from_args(args: argparse.Namespace):
         "truncate_bptt": True if args.truncate_bptt else None,
         "bias": False if args.no_bias else None,
     }
-    model = HamConfig(n_objects=n_objects, **{k: v for k, v in model_args.items() if v is not None})
+    model = HamConfig(**{k: v for k, v in model_args.items() if v is not None})
+    # The input size (taxels^2) and the classes come from the table or the online world.
+    model = model_for_source(model, args.table, world)
     train_args = {
         "steps": args.steps,
         "seed": args.seed,
@@ -203,6 +201,18 @@ def _config_from_args(args: argparse.Namespace):
         world=world,
         **{k: v for k, v in train_args.items() if v is not None},
     )
+
+
+def _check_table_sensor(args: argparse.Namespace, info) -> None:
+    """With --table the table's recorded sensor rules: refuse a --taxels/--pitch that differs."""
+    from ham.cli.options import sensor_changes_from_args
+
+    for key, value in sensor_changes_from_args(args).items():
+        if info.sensor.get(key) != value:
+            raise HamError(
+                f"--{key} {value} but glance table {args.table!r} was recorded with {key} = "
+                f"{info.sensor.get(key)}; accepted: the table's sensor (or leave --{key} out)"
+            )
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -234,8 +244,10 @@ def cmd_train(args: argparse.Namespace) -> int:
                 "lr",
                 "lr_step",
                 "beta",
+                "taxels",
+                "pitch",
             )  # fmt: skip
-            if getattr(args, k) is not None
+            if getattr(args, k, None) is not None
         ]
         if ignored:
             raise HamError(

@@ -39,7 +39,7 @@ from ham.learn.hybrid_loss import REDUCTIONS, HybridLoss, hybrid_loss
 from ham.model.agent import HamConfig, HapticAttentionModel, count_parameters
 from ham.world.config import WorldConfig
 from ham.world.sensor import NORMALIZATIONS
-from ham.world.source import make_source
+from ham.world.source import check_model_fits, make_source
 
 CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.json"
@@ -157,6 +157,21 @@ class TrainConfig:
 
 
 # --------------------------------------------------------------------------- the parts of a run
+def model_for_source(
+    model: HamConfig, table: str | os.PathLike | None, world: WorldConfig
+) -> HamConfig:
+    """``model`` sized for its glances: ``pressure_dim`` (``taxels^2``) and ``n_objects`` from the
+    glance table when given (its recorded sensor and objects), else from the online ``world``."""
+    if table is not None:
+        from ham.world.table import table_info
+
+        info = table_info(table)
+        dim, n = info.pressure_dim, len(info.objects)
+    else:
+        dim, n = world.sensor.pressure_dim, len(world.resolve_objects())
+    return replace(model, pressure_dim=dim, n_objects=n)
+
+
 def stream_seed(seed: int, stream: int) -> int:
     """Independent seeds for the generators of one run: 0 objects, 1 poses, 2 evaluation."""
     return seed * 1000 + stream
@@ -184,11 +199,9 @@ class Run:
         if device.type == "cuda" and not torch.cuda.is_available():
             raise HamError("device 'cuda' requested but CUDA is not available; use --device cpu")
         source, world = make_source(config.table, config.world, device)
-        if source.n_objects != config.model.n_objects:
-            raise HamError(
-                f"the model classifies {config.model.n_objects} objects but the glance source "
-                f"has {source.n_objects} ({', '.join(source.objects)})"
-            )
+        # The model's input and classes come from the source (taxels^2, its objects): refuse a
+        # mismatch here, not as a shape error deep in the first step.
+        check_model_fits(config.model.pressure_dim, config.model.n_objects, source)
         env = HapticEnv(
             source, config.batch_size, config.normalization, stream_seed(config.seed, 0), device
         )

@@ -1,7 +1,8 @@
 """The low-level haptic glance: ``g: (x, phi) -> p`` (section "Haptic Control of the Simulated Myrmex").
 
 At a pose ``(x, phi)`` the pad is lowered along z, orientation and x held fixed, until the summed
-force on its 16 x 16 cells reaches 2 N (312.5 Pa over 64 cm^2); then it reads its image.
+force on its 16 x 16 cells (N x N: :class:`ham.world.sensor.SensorConfig`) reaches 2 N (312.5 Pa
+over 64 cm^2); then it reads its image.
 
 Poses come from the agent's normalized action ``q = (q_x, q_phi) in [-1, 1]^2``:
 
@@ -106,7 +107,7 @@ class GlanceResult:
     """What one batch of glances returns; arrays share the batch dimension B.
 
     Attributes:
-        pressure: ``(B, 16, 16)`` raw pressure image (Pa), not normalized.
+        pressure: ``(B, N, N)`` raw pressure image (Pa), not normalized (N = ``taxels``, 16).
         force: ``(B,)`` summed force on the cells at the end of the glance (N).
         z: ``(B,)`` height of the face centre at the end of the glance (m, table at 0).
         contact: ``(B,)`` whether the sensitive face touched anything.
@@ -131,7 +132,7 @@ class GlanceResult:
         }
 
     def to_json(self, i: int = 0) -> dict:
-        """Glance ``i`` as a JSON-ready dict (raw pressure as 16 nested lists)."""
+        """Glance ``i`` as a JSON-ready dict (raw pressure as N nested lists of N)."""
         return {
             "pressure": self.pressure[i].double().cpu().tolist(),
             "force": float(self.force[i]),
@@ -176,6 +177,32 @@ def as_object_ids(ids, n_objects: int, device: torch.device | str = "cpu") -> to
     return t
 
 
+def check_pad(sensor: SensorConfig, glance: GlanceConfig, objects: list[HapticObject]) -> None:
+    """Refuse a pad that does not fit the world, with one line naming the limit.
+
+    * the pad must be no wider than the objects are deep (9 cm): every model here takes all N
+      rows of the face as lying on the object (objects are extruded along y), so a wider pad
+      would read rows over empty space as pressed;
+    * its foam must carry the stop force on a flat top without being compressed through:
+      ``force_threshold / (foam_stiffness * size^2) < foam_thickness`` (a pad of at least 4.1 mm
+      at the defaults), else every glance would end on the rigid pad, blocked.
+    """
+    depth = min(o.depth for o in objects)
+    if sensor.size > depth * (1 + 1e-9):
+        narrow = min(objects, key=lambda o: o.depth)
+        raise HamError(
+            f"the pad ({sensor.describe()}) is wider than object {narrow.name!r} is deep "
+            f"({depth * 100:g} cm); accepted: taxels * pitch <= {depth:g} m"
+        )
+    flat = glance.force_threshold / (sensor.foam_stiffness * sensor.size**2)
+    if flat >= sensor.foam_thickness:
+        least = math.sqrt(glance.force_threshold / (sensor.foam_stiffness * sensor.foam_thickness))
+        raise HamError(
+            f"the pad ({sensor.describe()}) is too small to carry {glance.force_threshold:g} N on "
+            f"its {sensor.foam_thickness * 1000:g} mm foam; accepted: taxels * pitch > {least:.4g} m"
+        )
+
+
 # --------------------------------------------------------------------------- fast simulator
 class FastSimulator:
     """The vectorized foam-contact model, exact in the stop height; CPU or CUDA via torch.
@@ -212,6 +239,7 @@ class FastSimulator:
         self.sensor = self.myrmex.config
         self.pose = pose or PoseConfig()
         self.glance_config = glance or GlanceConfig()
+        check_pad(self.sensor, self.glance_config, self.objects)
         self.device = torch.device(device)
         self.chunk = chunk
         self.resolution = resolution
