@@ -307,9 +307,10 @@ def train(config: TrainConfig, out: str | os.PathLike, *, progress: bool = True)
     out = Path(out)
     if (out / CHECKPOINT_FILE).exists():
         raise HamError(f"{str(out)!r} already holds a run; continue it with --resume {out}")
+    run = Run.create(config)  # bad input (a pad that does not fit, ...) fails before any file
     out.mkdir(parents=True, exist_ok=True)
     _write_json(out / CONFIG_FILE, config.to_dict())
-    return train_loop(Run.create(config), out, progress)
+    return train_loop(run, out, progress)
 
 
 def resume(out: str | os.PathLike, *, steps: int | None = None, progress: bool = True) -> dict:

@@ -204,6 +204,11 @@ def check_pad(sensor: SensorConfig, glance: GlanceConfig, objects: list[HapticOb
 
 
 # --------------------------------------------------------------------------- fast simulator
+#: A peak counts as narrow (:meth:`FastSimulator._set_features`) when the surface falls faster than
+#: this slope on both sides within one read-out spacing (1: steeper than 45 degrees on average).
+FEATURE_SLOPE = 1.0
+
+
 class FastSimulator:
     """The vectorized foam-contact model, exact in the stop height; CPU or CUDA via torch.
 
@@ -256,6 +261,7 @@ class FastSimulator:
         for o in self.objects:
             xs = np.linspace(-0.5 * o.width, 0.5 * o.width, resolution + 1)
             maps.append(np.asarray(o.profile(xs), dtype=np.float64))
+        self._set_features(np.stack(maps))
         maps = torch.tensor(np.stack(maps), **f64)
         # Cell i of an object (t in [i, i + 1)) holds (h_i, h_i+1 - h_i): h = h_i + w * dh.
         # Padding makes the table beside the block a lookup too, with no mask: a zero cell for
@@ -382,6 +388,8 @@ class FastSimulator:
         shape = (len(ids), u.shape[1])
         e = self._heights_(ids, torch.mul(u, cos, out=work.get("t", shape)).add_(x), work, "e")
         e.add_(torch.mul(u, sin, out=work.get("f", shape)))
+        if self._feat_x is not None:
+            self._add_features(e, ids, x, cos, sin)
         top = e.amax(1)
         e.sub_(top[:, None])  # relative to the first touch: small numbers, float32-exact enough
         z_force = _solve_stop_height(e, g.force_threshold / self._c0, work)
@@ -414,6 +422,67 @@ class FastSimulator:
             out.pressure[sl] = cols.mul_(s.foam_stiffness)[:, None, :]
         else:
             out.pressure[sl] = self.myrmex.image(compression)
+
+    # ------------------------------------------------------------------ narrow features
+    def _set_features(self, maps: np.ndarray) -> None:
+        """Find each object's narrow peaks, which the read-out points could step over.
+
+        The read-out points sample the surface every ``W = pitch / supersample`` (1.25 mm): a peak
+        narrower than that (a 0.6 mm spike) can fall between two of them and go unfelt, and the
+        pad then sinks through it. A map sample is *narrow* when the surface falls by more than
+        ``FEATURE_SLOPE * W`` within ``W`` on both sides (table beside the block at 0): everywhere
+        else some point within ``W`` stands at most ``W`` lower, so sampling misses at most as
+        much height as on a 45-degree slope. Of the narrow samples we keep those where a linear
+        function can peak (run ends and concave kinks): the *feature points*. The paper's four
+        objects have none (their corners fall on one side only, the ramps' by 0.5 W), so their
+        glances take the plain path, bit for bit.
+        """
+        s = self.sensor
+        spacing = s.pitch / s.supersample
+        n = maps.shape[1] - 1
+        feats = []
+        for o, hs in zip(self.objects, maps, strict=True):
+            dx = o.width / n
+            m = max(1, int(round(spacing / dx)))
+            padded = np.concatenate([np.zeros(m), hs, np.zeros(m)])  # the table beside the block
+            win = np.lib.stride_tricks.sliding_window_view(padded, m)
+            left = win[: len(hs)].min(1)  # samples i - m .. i - 1
+            right = win[m + 1 : m + 1 + len(hs)].min(1)  # samples i + 1 .. i + m
+            drop = FEATURE_SLOPE * spacing
+            narrow = (hs - left > drop) & (hs - right > drop)
+            nb = np.concatenate([[False], narrow, [False]])
+            hp = np.concatenate([[0.0], hs, [0.0]])
+            end = ~nb[:-2] | ~nb[2:]
+            kink = hs - 0.5 * (hp[:-2] + hp[2:]) > 1e-12
+            keep = np.flatnonzero(narrow & (end | kink))
+            xs = np.linspace(-0.5 * o.width, 0.5 * o.width, n + 1)
+            feats.append((xs[keep], hs[keep]))
+        f = max(len(x) for x, _ in feats)
+        self.features = [len(x) for x, _ in feats]
+        if f == 0:
+            self._feat_x = self._feat_h = None
+            return
+        fx = np.zeros((len(feats), f))
+        fh = np.full((len(feats), f), -np.inf)  # padding: never the highest point of a cell
+        for i, (x, h) in enumerate(feats):
+            fx[i, : len(x)], fh[i, : len(h)] = x, h
+        f32 = dict(dtype=torch.float32, device=self.device)
+        self._feat_x, self._feat_h = torch.tensor(fx, **f32), torch.tensor(fh, **f32)
+
+    def _add_features(self, e: torch.Tensor, ids, x, cos, sin) -> None:
+        """Raise each read-out point's touch height ``e`` (B, K) to the highest feature point in
+        its cell: the cell's foam meets a narrow peak there before its own sample touches."""
+        s = self.sensor
+        spacing = s.pitch / s.supersample
+        # Feature point (x_f, h_f) lies on the face at u_f = (x_f - x) / cos phi and touches it
+        # when the face centre is at h_f + u_f sin phi, like a read-out point.
+        u = (self._feat_x[ids] - x) / cos
+        ef = self._feat_h[ids] + u * sin
+        cell = torch.floor((u + 0.5 * s.size) / spacing)
+        inside = (cell >= 0) & (cell < e.shape[1])  # NaN/inf (a vertical pad) fall outside
+        ef = torch.where(inside, ef, -torch.inf)
+        cell = torch.where(inside, cell, 0).long()
+        e.scatter_reduce_(1, cell, ef, "amax")
 
     def describe(self) -> dict:
         return {
