@@ -74,7 +74,7 @@ def test_wide_features_and_the_paper_objects_take_the_plain_path():
 
 
 def test_objects_without_features_are_unchanged_beside_one_with():
-    box = resolve_set("paper")
+    box = resolve_set("paper")  # the four paper objects (ids 0..3); the spike is id 4
     n = 4096
     g = torch.Generator().manual_seed(0)
     ids = torch.randint(0, 4, (n,), generator=g)
@@ -83,6 +83,16 @@ def test_objects_without_features_are_unchanged_beside_one_with():
     mixed = FastSimulator([*box, spike()]).glance(ids, qx, qp)
     for key in ("pressure", "force", "z", "contact", "blocked"):
         assert torch.equal(getattr(plain, key), getattr(mixed, key)), key
+    # ...and the spike's rows in a mixed batch are its rows alone.
+    ids[::3] = 4
+    mixed = FastSimulator([*box, spike()]).glance(ids, qx, qp)
+    sel = ids == 4
+    alone = FastSimulator([spike()]).glance(
+        torch.zeros(int(sel.sum()), dtype=torch.long), qx[sel], qp[sel]
+    )
+    for key in ("pressure", "force", "z", "contact", "blocked"):
+        assert torch.equal(getattr(mixed, key)[sel], getattr(alone, key)), key
+    assert bool((mixed.z[sel] > TOP - 0.001).any())  # some rows stand on the spike
 
 
 def test_spike_matches_mujoco():

@@ -50,7 +50,7 @@ def add_world_options(p: argparse.ArgumentParser, *, objects: bool = True) -> No
     add_sensor_options(p)
 
 
-# --- sensor geometry (--taxels, --pitch): kept in one block, applied by sensor_from_args --------
+# --- sensor geometry (--taxels, --pitch): one block, applied through sensor_changes_from_args ---
 def add_sensor_options(p: argparse.ArgumentParser) -> None:
     """``--taxels N --pitch M``: the pad's cells per side and their pitch (paper: 16, 0.005 m)."""
     p.add_argument(

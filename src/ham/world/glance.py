@@ -472,12 +472,20 @@ class FastSimulator:
             fx[i, : len(x)], fh[i, : len(h)] = x, h
         f32 = dict(dtype=torch.float32, device=self.device)
         self._feat_x, self._feat_h = torch.tensor(fx, **f32), torch.tensor(fh, **f32)
+        self._has_features = torch.tensor([len(x) > 0 for x, _ in feats], device=self.device)
 
     def _add_features(self, e: torch.Tensor, ids, x, cos, sin) -> None:
         """Raise each read-out point's touch height ``e`` (B, K) to the highest feature point in
         its cell: the cell's foam meets a narrow peak there before its own sample touches."""
         s = self.sensor
         spacing = s.pitch / s.supersample
+        # Only the rows on objects with feature points (often a minority of a mixed batch).
+        rows = self._has_features[ids].nonzero().squeeze(1)
+        if len(rows) == 0:
+            return
+        all_rows = len(rows) == len(ids)
+        if not all_rows:
+            ids, x, cos, sin = ids[rows], x[rows], cos[rows], sin[rows]
         # Feature point (x_f, h_f) lies on the face at u_f = (x_f - x) / cos phi and touches it
         # when the face centre is at h_f + u_f sin phi, like a read-out point.
         u = (self._feat_x[ids] - x) / cos
@@ -486,7 +494,10 @@ class FastSimulator:
         inside = (cell >= 0) & (cell < e.shape[1])  # NaN/inf (a vertical pad) fall outside
         ef = torch.where(inside, ef, -torch.inf)
         cell = torch.where(inside, cell, 0).long()
-        e.scatter_reduce_(1, cell, ef, "amax")
+        if all_rows:
+            e.scatter_reduce_(1, cell, ef, "amax")
+        else:
+            e.index_copy_(0, rows, e.index_select(0, rows).scatter_reduce_(1, cell, ef, "amax"))
 
     def describe(self) -> dict:
         return {
