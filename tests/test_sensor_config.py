@@ -238,3 +238,19 @@ def test_tables_without_a_sensor_attribute_read_the_worlds(tmp_path):
         del f.attrs["sensor"]
     assert table_info(path).sensor == SensorConfig().to_dict()
     assert GlanceTable.load(path).lookup([0], [0.0], [0.0]).shape == (1, 16, 16)
+
+
+def test_pad_options_beside_another_glance_source_are_refused(tmp_path, capsys):
+    # An ap_gym environment brings its own glimpse: --taxels would be silently ignored.
+    argv = [
+        "train",
+        "--env",
+        "ap_gym:CircleSquare-v0",
+        "--taxels",
+        "8",
+        "--out",
+        str(tmp_path / "r"),
+    ]
+    assert cli_main(argv) == 2
+    assert "--env ap_gym:CircleSquare-v0 brings its own glimpse" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()

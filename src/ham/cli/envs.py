@@ -348,6 +348,13 @@ def train_from_args(args: argparse.Namespace) -> int:
         raise HamError("--resume is not supported for ap_gym environments yet; start a new --out")
     if getattr(args, "table", None):
         raise HamError(f"--table {args.table} and --env {args.env} exclude each other; give one")
+    from ham.cli.options import sensor_changes_from_args
+
+    if sensor_changes_from_args(args):
+        raise HamError(
+            f"--taxels/--pitch set the haptic world's pad; --env {args.env} brings its own "
+            "glimpse: leave them out"
+        )
     # ham train's model and optimizer options, where given
     model = {
         k: getattr(args, k)
