@@ -107,21 +107,26 @@ def _set_threads(threads: int | None) -> None:
 
 def _config_from_args(args: argparse.Namespace):
     from ham.cli.config_args import overrides
-    from ham.learn.train import TrainConfig
+    from ham.learn.train import TrainConfig, model_for_source
     from ham.model.agent import HamConfig
-    from ham.world.objects import resolve_set
 
     world = _world_from_args(args)
-    n_objects = None
     if args.table:
         from ham.world.table import table_info
 
         if not Path(args.table).exists():
             raise HamError(f"glance table {args.table!r} does not exist")
-        n_objects = len(table_info(args.table).objects)
-    else:
-        n_objects = len(resolve_set(world.objects))
-    model = HamConfig(n_objects=n_objects, **overrides(args, HamConfig))
+        _check_table_sensor(args, table_info(args.table))
+    if args.env:
+        from ham.cli.options import sensor_changes_from_args
+
+        if sensor_changes_from_args(args):
+            raise HamError(
+                f"--taxels/--pitch set the haptic world's pad; --env {args.env} brings its own "
+                "glimpse: leave them out"
+            )
+    # The input size (taxels^2) and the classes come from the table or the online world.
+    model = model_for_source(HamConfig(**overrides(args, HamConfig)), args.table, world)
     table = str(Path(args.table).resolve()) if args.table else None
     config = TrainConfig(model=model, table=table, world=world, **overrides(args, TrainConfig))
     if not args.env:
@@ -144,6 +149,18 @@ def _config_from_args(args: argparse.Namespace):
     return config
 
 
+def _check_table_sensor(args: argparse.Namespace, info) -> None:
+    """With --table the table's recorded sensor rules: refuse a --taxels/--pitch that differs."""
+    from ham.cli.options import sensor_changes_from_args
+
+    for key, value in sensor_changes_from_args(args).items():
+        if info.sensor.get(key) != value:
+            raise HamError(
+                f"--{key} {value} but glance table {args.table!r} was recorded with {key} = "
+                f"{info.sensor.get(key)}; accepted: the table's sensor (or leave --{key} out)"
+            )
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     from ham.learn.train import resume, train
 
@@ -157,7 +174,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         ignored = [flag for flag in given(args) if flag != "--steps"]
         ignored += [
             f"--{k.replace('_', '-')}"
-            for k in ("table", "env", "actions", "max_step_length", "eval_env")
+            for k in ("table", "env", "actions", "max_step_length", "eval_env", "taxels", "pitch")
             if getattr(args, k, None) is not None
         ]
         if ignored:

@@ -46,6 +46,9 @@ def add_commands(subparsers) -> None:
     q.add_argument(
         "--num-envs", type=int, default=8, help="sub-environments of make_vec (default 8)"
     )
+    from ham.cli.options import add_sensor_options
+
+    add_sensor_options(q)  # the online world's pad (a table carries its own)
     q.set_defaults(func=cmd_check)
 
     q = sub.add_parser("bench", help="environment steps per second (ours, and one ap_gym env)")
@@ -121,7 +124,9 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 
 # --------------------------------------------------------------------------- check
-def check_all(table: str | None = None, glances: int = 3, num_envs: int = 8) -> list[str]:
+def check_all(
+    table: str | None = None, glances: int = 3, num_envs: int = 8, world=None
+) -> list[str]:
     """Run the checks of ``ham envs check``; returns one line per passed check, raises on failure."""
     import gymnasium as gym
     import numpy as np
@@ -133,7 +138,7 @@ def check_all(table: str | None = None, glances: int = 3, num_envs: int = 8) -> 
     ap_gym = import_ap_gym()
     from ham.envs import ap
 
-    kw = {"glances": glances, "table": table}
+    kw = {"glances": glances, "table": table, "world": world}
     lines = []
     for name, env in (
         (ham.envs.ENV_ID, ham.envs.HapticGlanceEnv(**kw)),
@@ -187,7 +192,18 @@ def cmd_check(args: argparse.Namespace) -> int:
         raise HamError(f"glance table {args.table!r} does not exist")
     if args.num_envs < 1:
         raise HamError(f"--num-envs {args.num_envs}; accepted: an integer >= 1")
-    for line in check_all(args.table, args.glances, args.num_envs):
+    from ham.cli.options import sensor_changes_from_args
+
+    world = None
+    changes = sensor_changes_from_args(args)
+    if changes:
+        if args.table is not None:
+            raise HamError("--taxels/--pitch set the online world's pad; a --table has its own")
+        from ham.world.config import WorldConfig
+        from ham.world.sensor import SensorConfig
+
+        world = WorldConfig(sensor=SensorConfig(**changes))
+    for line in check_all(args.table, args.glances, args.num_envs, world):
         print(line)
     return 0
 

@@ -108,6 +108,9 @@ def cmd_table_info(args: argparse.Namespace) -> int:
     print(f"{info.path}: {len(info.objects)} objects x {info.grid} x {info.grid} glances")
     print(f"  objects:   {', '.join(info.objects)}")
     print(f"  simulator: {info.simulator.get('simulator', '?')}  source: {info.source}")
+    from ham.world.sensor import SensorConfig
+
+    print(f"  sensor:    {SensorConfig(**info.sensor).describe()}")
     print(f"  pose:      {info.world.get('pose')}")
     print(f"  ham {info.ham_version}, created {info.created}")
     print(f"  command:   {info.command}")
@@ -184,7 +187,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--phi", type=finite_float, required=True, help="normalized angle q_phi in [-1, 1]"
     )
     p.add_argument("--json", action="store_true", help="print the result as JSON (raw pressure)")
-    p.add_argument("--out", help="PNG: the pad over the profile and the 16 x 16 image")
+    p.add_argument("--out", help="PNG: the pad over the profile and its N x N image")
     add_world_options(p, objects=False)
     p.set_defaults(func=cmd_glance)
 

@@ -47,6 +47,40 @@ def add_world_options(p: argparse.ArgumentParser, *, objects: bool = True) -> No
         help="Gaussian spread (m) like the paper's Gazebo plugin, e.g. 0.005",
     )
     p.add_argument("--quantize-bits", type=int, default=None, help="e.g. 12, like the real sensor")
+    add_sensor_options(p)
+
+
+# --- sensor geometry (--taxels, --pitch): one block, applied through sensor_changes_from_args ---
+def add_sensor_options(p: argparse.ArgumentParser) -> None:
+    """``--taxels N --pitch M``: the pad's cells per side and their pitch (paper: 16, 0.005 m)."""
+    p.add_argument(
+        "--taxels",
+        type=int,
+        default=None,
+        metavar="N",
+        help="taxels per side of the pad, 2..128 (default 16: a 16 x 16 image)",
+    )
+    p.add_argument(
+        "--pitch",
+        type=finite_float,
+        default=None,
+        metavar="M",
+        help="taxel pitch in m (default 0.005); the pad is N * M wide, at most the objects' "
+        "depth (9 cm)",
+    )
+
+
+def sensor_changes_from_args(args: argparse.Namespace) -> dict:
+    """The :class:`ham.world.sensor.SensorConfig` fields ``--taxels``/``--pitch`` set."""
+    changes = {}
+    if getattr(args, "taxels", None) is not None:
+        changes["taxels"] = args.taxels
+    if getattr(args, "pitch", None) is not None:
+        changes["pitch"] = args.pitch
+    return changes
+
+
+# ------------------------------------------------------------------------------------------------
 
 
 def world_from_args(args: argparse.Namespace, objects: str | None = None):
@@ -64,6 +98,7 @@ def world_from_args(args: argparse.Namespace, objects: str | None = None):
         changes["spread_sigma"] = args.spread_sigma
     if args.quantize_bits is not None:
         changes["quantize_bits"] = args.quantize_bits
+    changes.update(sensor_changes_from_args(args))
     sensor = replace(sensor, **changes)
     mujoco = {}
     if args.sensor == "gazebo":

@@ -6,7 +6,7 @@ environment's base reward minus the normalized cross-entropy of that step's pred
 a perfect prediction, -1 for a blind guess); the ``-sparse`` variant scores only the prediction
 of the episode's last step. Here:
 
-* observation ``{"pressure": (16, 16), "pose": (2,)}`` as in ``ham/HapticGlance-v0``;
+* observation ``{"pressure": (N, N), "pose": (2,)}`` as in ``ham/HapticGlance-v0`` (N = taxels, 16);
 * ``action["action"]``: the normalized pose ``(q_x, q_phi)`` of the next glance (absolute, in
   ``[-1, 1]``; outside values are clipped); ``action["prediction"]``: ``K`` logits;
 * base reward 0; ``reset`` makes the first, random glance; step ``s`` scores the prediction made

@@ -13,8 +13,8 @@ fixed number of glances ``S`` (``glances``, default 3):
 
 Spaces:
 
-* observation ``{"pressure": Box(16, 16) float32, "pose": Box(2,) in [-1, 1]}``: the pressure
-  image of the last glance, L2-normalized (the paper; ``normalization='l1'``: the authors' code;
+* observation ``{"pressure": Box(N, N) float32, "pose": Box(2,) in [-1, 1]}``: the pressure
+  image of the last glance (``N`` = the world's or the table's ``taxels``, 16 by default), L2-normalized (the paper; ``normalization='l1'``: the authors' code;
   ``'none'``: raw pressure in Pa) and the normalized pose it was made at;
 * action ``{"pose": Box(2,) in [-1, 1], "prediction": Discrete(K)}``: where to glance next
   (``q_x, q_phi``; ``x = q_x * zone``, ``phi = q_phi * pi/2``; values outside ``[-1, 1]`` are
@@ -41,7 +41,8 @@ from ham.world.config import WorldConfig
 
 ENV_NORMALIZATIONS: tuple[str, ...] = ("l2", "l1", "none")
 RENDER_MODES: tuple[str, ...] = ("rgb_array",)
-RENDER_SCALE = 8
+#: Rendered images are about this many pixels wide: each taxel is ``RENDER_SIZE // N`` pixels.
+RENDER_SIZE = 128
 
 
 def check_glances(glances: Any) -> int:
@@ -95,12 +96,14 @@ class GlanceBackend:
         self.normalization = normalization
         self.objects: list[str] = list(self.source.objects)
         self.n_objects = len(self.objects)
+        # The image shape follows the sensor: the table's recorded one, or the online world's.
+        self.taxels = int(self.source.taxels)
         self.pressure_space = gym.spaces.Box(
-            0.0, np.inf if normalization == "none" else 1.0, (16, 16), np.float32
+            0.0, np.inf if normalization == "none" else 1.0, (self.taxels,) * 2, np.float32
         )
 
     def glance(self, objects: np.ndarray, poses: np.ndarray) -> np.ndarray:
-        """Pressure images ``(N, 16, 16)`` float32 of ``objects`` ``(N,)`` at ``poses`` ``(N, 2)``."""
+        """Pressure images ``(B, N, N)`` float32 of ``objects`` ``(B,)`` at ``poses`` ``(B, 2)``."""
         from ham.world.sensor import normalize
 
         ids = torch.as_tensor(np.asarray(objects, dtype=np.int64), device=self.device)
@@ -108,7 +111,8 @@ class GlanceBackend:
         with torch.no_grad():
             raw = self.source.lookup(ids, q[:, 0], q[:, 1]).to(torch.float32)
             flat = normalize(raw, self.normalization)
-        image = flat.reshape(-1, 16, 16).cpu().numpy().astype(np.float32, copy=False)
+        image = flat.reshape(-1, self.taxels, self.taxels).cpu().numpy()
+        image = image.astype(np.float32, copy=False)
         if self.normalization != "none":  # unit-norm images lie in [0, 1]; guard rounding
             np.clip(image, 0.0, 1.0, out=image)
         return image
@@ -151,7 +155,7 @@ class GlanceEpisodes:
         self.glances = check_glances(glances)
         self.objects = np.zeros(n, dtype=np.int64)
         self.pose = np.zeros((n, 2), dtype=np.float32)
-        self.pressure = np.zeros((n, 16, 16), dtype=np.float32)
+        self.pressure = np.zeros((n, backend.taxels, backend.taxels), dtype=np.float32)
         self.steps = 0  # steps taken in the current episodes (glances made = min(steps + 1, S))
         self.started = False
 
@@ -191,11 +195,13 @@ class GlanceEpisodes:
         }
 
     def render(self) -> np.ndarray:
-        """The last pressure images as RGB ``(n, 128, 128, 3)`` uint8 (each scaled to its max)."""
+        """The last pressure images as RGB ``(n, P, P, 3)`` uint8 (each scaled to its max), each
+        taxel a ``k x k`` square, ``k = max(1, 128 // N)``: ``P = 128`` for 8, 16, 32 or 64 taxels."""
         p = self.pressure
+        scale = max(1, RENDER_SIZE // p.shape[-1])
         top = p.reshape(self.n, -1).max(1).reshape(-1, 1, 1)
         gray = np.where(top > 0, p / np.where(top > 0, top, 1), 0)
-        img = (255 * gray).astype(np.uint8).repeat(RENDER_SCALE, 1).repeat(RENDER_SCALE, 2)
+        img = (255 * gray).astype(np.uint8).repeat(scale, 1).repeat(scale, 2)
         return np.repeat(img[..., None], 3, axis=-1)
 
 

@@ -29,8 +29,8 @@ from ham.world.table import GlanceTable, build_table, grid_values, nearest_index
 
 def agreement(table: GlanceTable, tolerance: float) -> np.ndarray:
     """``(grid, grid, n, n)`` bool: do objects i and j give the same image at this pose?"""
-    p = normalize(table.pressure.double(), "l2")  # (n, g, g, 256)
-    p = p.permute(1, 2, 0, 3).reshape(-1, table.n_objects, 256)
+    p = normalize(table.pressure.double(), "l2")  # (n, g, g, N^2)
+    p = p.permute(1, 2, 0, 3).reshape(-1, table.n_objects, table.pressure_dim)
     d = torch.cdist(p, p)
     return (
         (d <= tolerance).reshape(table.grid, table.grid, table.n_objects, table.n_objects).numpy()

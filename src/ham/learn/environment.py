@@ -45,6 +45,7 @@ class HapticEnv:
             )
         self.source = source
         self.n_objects = source.n_objects
+        self.pressure_dim = source.pressure_dim
         self.batch_size = batch_size
         self.normalization = normalization
         self.device = torch.device(device)
@@ -69,7 +70,7 @@ class HapticEnv:
         return torch.arange(start, start + self.batch_size, device=self.device) % self.n_objects
 
     def glance(self, object_ids: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
-        """Normalized pressure vectors ``(B, 256)`` for the poses ``q`` ``(B, 2)`` in ``[-1, 1]``."""
+        """Normalized pressure vectors ``(B, N^2)`` (256) for the poses ``q`` ``(B, 2)`` in ``[-1, 1]``."""
         pressure = self.source.lookup(object_ids, q[:, 0], q[:, 1])
         return normalize(pressure.to(self.device, torch.float32), self.normalization)
 

@@ -44,7 +44,7 @@ from ham.learn.info_loss import InfoLoss, info_loss
 from ham.model.agent import HamConfig, HapticAttentionModel, count_parameters
 from ham.world.config import WorldConfig
 from ham.world.sensor import NORMALIZATIONS
-from ham.world.source import make_source
+from ham.world.source import check_model_fits, make_source
 
 CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.json"
@@ -185,6 +185,21 @@ class TrainConfig:
 
 
 # --------------------------------------------------------------------------- the parts of a run
+def model_for_source(
+    model: HamConfig, table: str | os.PathLike | None, world: WorldConfig
+) -> HamConfig:
+    """``model`` sized for its glances: ``pressure_dim`` (``taxels^2``) and ``n_objects`` from the
+    glance table when given (its recorded sensor and objects), else from the online ``world``."""
+    if table is not None:
+        from ham.world.table import table_info
+
+        info = table_info(table)
+        dim, n = info.pressure_dim, len(info.objects)
+    else:
+        dim, n = world.sensor.pressure_dim, len(world.resolve_objects())
+    return replace(model, pressure_dim=dim, n_objects=n)
+
+
 def stream_seed(seed: int, stream: int) -> int:
     """Independent seeds for the generators of one run: 0 objects, 1 poses, 2 evaluation."""
     return seed * 1000 + stream
@@ -315,6 +330,9 @@ def make_env(config: TrainConfig, device: torch.device | str = "cpu") -> HapticE
             config.env, config.batch_size, seed, eval_seed, config.normalization, device
         )
     source, _ = make_source(config.table, config.world, device)
+    # The model's input and classes come from the source (taxels^2, its objects): refuse a
+    # mismatch here, not as a shape error deep in the first step.
+    check_model_fits(config.model.pressure_dim, config.model.n_objects, source)
     return HapticEnv(
         source, config.batch_size, config.normalization, stream_seed(config.seed, 0), device
     )

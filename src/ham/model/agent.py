@@ -43,7 +43,8 @@ class HamConfig:
     Attributes:
         glances: glances per episode, ``S``.
         n_objects: classes of the classifier (4 objects in the paper).
-        pressure_dim: flattened pressure image (16 x 16 = 256).
+        pressure_dim: flattened pressure image (16 x 16 = 256); ``taxels^2`` of the glances'
+            sensor, set from the table or world by :func:`ham.learn.train.model_for_source`.
         what_units: pressure layer of the tactile network (64).
         where_units: location layer of the tactile network (64, the code's width).
         combiner: what & where combiner: concat2 (paper), concat1, add, mul.
@@ -238,7 +239,7 @@ class HapticAttentionModel(nn.Module):
     def replay(
         self, pressures: torch.Tensor, locations: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor, LocationDistribution | None]:
-        """The bare network on recorded glances ``(S, B, 256)`` at ``(S, B, 2)``: no environment,
+        """The bare network on recorded glances ``(S, B, pressure_dim)`` at ``(S, B, 2)``: no environment,
         no sampling. Returns ``(logits, baselines, policy)``: logits and baselines stacked over
         the glances, the location distributions after glances 1..S-1 (``None`` for one glance).
         Used by the benchmark as the reference cost."""

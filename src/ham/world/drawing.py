@@ -66,7 +66,7 @@ def draw_objects(objs: list[HapticObject], out: str | os.PathLike) -> Path:
 def draw_glance(
     obj: HapticObject, result: dict, sensor_size: float, out: str | os.PathLike
 ) -> Path:
-    """The pad at the end of a glance over the object's profile, beside its 16 x 16 image.
+    """The pad at the end of a glance over the object's profile, beside its N x N image (any N).
 
     ``result`` is :meth:`ham.world.glance.GlanceResult.to_json` of one glance.
     """
@@ -107,7 +107,7 @@ def draw_glance(
 def draw_table_grid(
     pressure: np.ndarray, q: np.ndarray, title: str, out: str | os.PathLike
 ) -> Path:
-    """A picture grid of tactile images: ``pressure`` (n_x, n_phi, 16, 16) at poses ``q``."""
+    """A picture grid of tactile images: ``pressure`` (n_x, n_phi, N, N) at poses ``q`` (any N)."""
     nx, nphi = pressure.shape[:2]
     fig, axes = plt.subplots(nphi, nx, figsize=(1.3 * nx, 1.3 * nphi), squeeze=False)
     vmax = float(pressure.max()) or 1.0

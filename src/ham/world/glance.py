@@ -1,7 +1,8 @@
 """The low-level haptic glance: ``g: (x, phi) -> p`` (section "Haptic Control of the Simulated Myrmex").
 
 At a pose ``(x, phi)`` the pad is lowered along z, orientation and x held fixed, until the summed
-force on its 16 x 16 cells reaches 2 N (312.5 Pa over 64 cm^2); then it reads its image.
+force on its 16 x 16 cells (N x N: :class:`ham.world.sensor.SensorConfig`) reaches 2 N (312.5 Pa
+over 64 cm^2); then it reads its image.
 
 Poses come from the agent's normalized action ``q = (q_x, q_phi) in [-1, 1]^2``:
 
@@ -106,7 +107,7 @@ class GlanceResult:
     """What one batch of glances returns; arrays share the batch dimension B.
 
     Attributes:
-        pressure: ``(B, 16, 16)`` raw pressure image (Pa), not normalized.
+        pressure: ``(B, N, N)`` raw pressure image (Pa), not normalized (N = ``taxels``, 16).
         force: ``(B,)`` summed force on the cells at the end of the glance (N).
         z: ``(B,)`` height of the face centre at the end of the glance (m, table at 0).
         contact: ``(B,)`` whether the sensitive face touched anything.
@@ -131,7 +132,7 @@ class GlanceResult:
         }
 
     def to_json(self, i: int = 0) -> dict:
-        """Glance ``i`` as a JSON-ready dict (raw pressure as 16 nested lists)."""
+        """Glance ``i`` as a JSON-ready dict (raw pressure as N nested lists of N)."""
         return {
             "pressure": self.pressure[i].double().cpu().tolist(),
             "force": float(self.force[i]),
@@ -176,13 +177,48 @@ def as_object_ids(ids, n_objects: int, device: torch.device | str = "cpu") -> to
     return t
 
 
+def check_pad(sensor: SensorConfig, glance: GlanceConfig, objects: list[HapticObject]) -> None:
+    """Refuse a pad that does not fit the world, with one line naming the limit.
+
+    * the pad must be no wider than the objects are deep (9 cm): every model here takes all N
+      rows of the face as lying on the object (objects are extruded along y), so a wider pad
+      would read rows over empty space as pressed;
+    * its foam must carry the stop force on a flat top without being compressed through:
+      ``force_threshold / (foam_stiffness * size^2) < foam_thickness`` (a pad of at least 4.1 mm
+      at the defaults), else every glance would end on the rigid pad, blocked.
+    """
+    depth = min(o.depth for o in objects)
+    if sensor.size > depth * (1 + 1e-9):
+        narrow = min(objects, key=lambda o: o.depth)
+        raise HamError(
+            f"the pad ({sensor.describe()}) is wider than object {narrow.name!r} is deep "
+            f"({depth * 100:g} cm); accepted: taxels * pitch <= {depth:g} m"
+        )
+    flat = glance.force_threshold / (sensor.foam_stiffness * sensor.size**2)
+    if flat >= sensor.foam_thickness:
+        least = math.sqrt(glance.force_threshold / (sensor.foam_stiffness * sensor.foam_thickness))
+        raise HamError(
+            f"the pad ({sensor.describe()}) is too small to carry {glance.force_threshold:g} N on "
+            f"its {sensor.foam_thickness * 1000:g} mm foam; accepted: taxels * pitch > {least:.4g} m"
+        )
+
+
 # --------------------------------------------------------------------------- fast simulator
+#: A peak counts as narrow (:meth:`FastSimulator._set_features`) when the surface falls faster than
+#: this slope on both sides within one read-out spacing (1: steeper than 45 degrees on average).
+FEATURE_SLOPE = 1.0
+
+
 class FastSimulator:
     """The vectorized foam-contact model, exact in the stop height; CPU or CUDA via torch.
 
     Object surfaces are evaluated on a fine uniform height map (``resolution`` intervals across
     each block, linear between samples): exact for polylines whose vertices fall on the map
     (all built-in ones), sub-micrometre for curved profiles.
+
+    Peaks narrower than the read-out spacing (a 0.6 mm spike) are not left between two read-out
+    points: their *feature points* raise the touch height of the cell they fall in
+    (:meth:`_set_features`; ``features`` counts them per object). The paper's objects have none.
 
     Speed (one CPU core, large batches: ~0.6-0.9 M glances/s on a loaded 2-core VM): every
     ``(B, K)`` step is one vectorized pass without boolean temporaries (comparisons write float
@@ -212,6 +248,7 @@ class FastSimulator:
         self.sensor = self.myrmex.config
         self.pose = pose or PoseConfig()
         self.glance_config = glance or GlanceConfig()
+        check_pad(self.sensor, self.glance_config, self.objects)
         self.device = torch.device(device)
         self.chunk = chunk
         self.resolution = resolution
@@ -228,6 +265,7 @@ class FastSimulator:
         for o in self.objects:
             xs = np.linspace(-0.5 * o.width, 0.5 * o.width, resolution + 1)
             maps.append(np.asarray(o.profile(xs), dtype=np.float64))
+        self._set_features(np.stack(maps))
         maps = torch.tensor(np.stack(maps), **f64)
         # Cell i of an object (t in [i, i + 1)) holds (h_i, h_i+1 - h_i): h = h_i + w * dh.
         # Padding makes the table beside the block a lookup too, with no mask: a zero cell for
@@ -354,6 +392,8 @@ class FastSimulator:
         shape = (len(ids), u.shape[1])
         e = self._heights_(ids, torch.mul(u, cos, out=work.get("t", shape)).add_(x), work, "e")
         e.add_(torch.mul(u, sin, out=work.get("f", shape)))
+        if self._feat_x is not None:
+            self._add_features(e, ids, x, cos, sin)
         top = e.amax(1)
         e.sub_(top[:, None])  # relative to the first touch: small numbers, float32-exact enough
         z_force = _solve_stop_height(e, g.force_threshold / self._c0, work)
@@ -386,6 +426,78 @@ class FastSimulator:
             out.pressure[sl] = cols.mul_(s.foam_stiffness)[:, None, :]
         else:
             out.pressure[sl] = self.myrmex.image(compression)
+
+    # ------------------------------------------------------------------ narrow features
+    def _set_features(self, maps: np.ndarray) -> None:
+        """Find each object's narrow peaks, which the read-out points could step over.
+
+        The read-out points sample the surface every ``W = pitch / supersample`` (1.25 mm): a peak
+        narrower than that (a 0.6 mm spike) can fall between two of them and go unfelt, and the
+        pad then sinks through it. A map sample is *narrow* when the surface falls by more than
+        ``FEATURE_SLOPE * W`` within ``W`` on both sides (table beside the block at 0): everywhere
+        else some point within ``W`` stands at most ``W`` lower, so sampling misses at most as
+        much height as on a 45-degree slope. Of the narrow samples we keep those where a linear
+        function can peak (run ends and concave kinks): the *feature points*. The paper's four
+        objects have none (their corners fall on one side only, the ramps' by 0.5 W), so their
+        glances take the plain path, bit for bit.
+        """
+        s = self.sensor
+        spacing = s.pitch / s.supersample
+        n = maps.shape[1] - 1
+        feats = []
+        for o, hs in zip(self.objects, maps, strict=True):
+            dx = o.width / n
+            m = max(1, int(round(spacing / dx)))
+            padded = np.concatenate([np.zeros(m), hs, np.zeros(m)])  # the table beside the block
+            win = np.lib.stride_tricks.sliding_window_view(padded, m)
+            left = win[: len(hs)].min(1)  # samples i - m .. i - 1
+            right = win[m + 1 : m + 1 + len(hs)].min(1)  # samples i + 1 .. i + m
+            drop = FEATURE_SLOPE * spacing
+            narrow = (hs - left > drop) & (hs - right > drop)
+            nb = np.concatenate([[False], narrow, [False]])
+            hp = np.concatenate([[0.0], hs, [0.0]])
+            end = ~nb[:-2] | ~nb[2:]
+            kink = hs - 0.5 * (hp[:-2] + hp[2:]) > 1e-12
+            keep = np.flatnonzero(narrow & (end | kink))
+            xs = np.linspace(-0.5 * o.width, 0.5 * o.width, n + 1)
+            feats.append((xs[keep], hs[keep]))
+        f = max(len(x) for x, _ in feats)
+        self.features = [len(x) for x, _ in feats]
+        if f == 0:
+            self._feat_x = self._feat_h = None
+            return
+        fx = np.zeros((len(feats), f))
+        fh = np.full((len(feats), f), -np.inf)  # padding: never the highest point of a cell
+        for i, (x, h) in enumerate(feats):
+            fx[i, : len(x)], fh[i, : len(h)] = x, h
+        f32 = dict(dtype=torch.float32, device=self.device)
+        self._feat_x, self._feat_h = torch.tensor(fx, **f32), torch.tensor(fh, **f32)
+        self._has_features = torch.tensor([len(x) > 0 for x, _ in feats], device=self.device)
+
+    def _add_features(self, e: torch.Tensor, ids, x, cos, sin) -> None:
+        """Raise each read-out point's touch height ``e`` (B, K) to the highest feature point in
+        its cell: the cell's foam meets a narrow peak there before its own sample touches."""
+        s = self.sensor
+        spacing = s.pitch / s.supersample
+        # Only the rows on objects with feature points (often a minority of a mixed batch).
+        rows = self._has_features[ids].nonzero().squeeze(1)
+        if len(rows) == 0:
+            return
+        all_rows = len(rows) == len(ids)
+        if not all_rows:
+            ids, x, cos, sin = ids[rows], x[rows], cos[rows], sin[rows]
+        # Feature point (x_f, h_f) lies on the face at u_f = (x_f - x) / cos phi and touches it
+        # when the face centre is at h_f + u_f sin phi, like a read-out point.
+        u = (self._feat_x[ids] - x) / cos
+        ef = self._feat_h[ids] + u * sin
+        cell = torch.floor((u + 0.5 * s.size) / spacing)
+        inside = (cell >= 0) & (cell < e.shape[1])  # NaN/inf (a vertical pad) fall outside
+        ef = torch.where(inside, ef, -torch.inf)
+        cell = torch.where(inside, cell, 0).long()
+        if all_rows:
+            e.scatter_reduce_(1, cell, ef, "amax")
+        else:
+            e.index_copy_(0, rows, e.index_select(0, rows).scatter_reduce_(1, cell, ef, "amax"))
 
     def describe(self) -> dict:
         return {

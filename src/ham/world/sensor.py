@@ -1,13 +1,16 @@
 """The Myrmex tactile sensor array: geometry, foam read-out, and the paper's normalization.
 
 Geometry (section "The Tactile Sensor Array - Myrmex"): 16 x 16 taxels at 5 mm pitch cover an
-8 x 8 cm (64 cm^2) sensitive face. The pad pose is its face centre ``(x, z)`` and a rotation
-``phi`` about the y axis (right-hand rule: positive ``phi`` lowers the pad's +u end).
+8 x 8 cm (64 cm^2) sensitive face. Other pads come from :class:`SensorConfig` (``taxels`` N per
+side, ``pitch``): an image is then ``N x N``, flattened to ``N^2`` values. The pad pose is its
+face centre ``(x, z)`` and a rotation ``phi`` about the y axis (right-hand rule: positive ``phi``
+lowers the pad's +u end).
 
 Image orientation: ``pressure[..., i, j]`` has row ``i`` along the pad's y axis and column ``j``
 along the pad's own x axis ``u`` (the world x axis when ``phi = 0``); column 0 is at
-``u = -37.5 mm``, column 15 at ``u = +37.5 mm``. Because every object is extruded along y and is
-wider (9 cm) than the pad (8 cm), all 16 rows of a raw image are equal.
+``u = -(N - 1) pitch / 2`` (-37.5 mm), column N - 1 at ``+(N - 1) pitch / 2``. Because every
+object is extruded along y and at least as deep (9 cm) as the pad is wide (8 cm; checked by
+:func:`ham.world.glance.check_pad`), all N rows of a raw image are equal.
 
 Read-out: the sensitive face is covered by a compliant foam of thickness ``foam_thickness``.
 Each point of the face is a spring (a Winkler foundation): its pressure is
@@ -30,6 +33,10 @@ import torch
 
 from ham.errors import HamError
 
+#: Most cells per side: a 128 x 128 image is 16,384 values per glance (64 KB), and a 201 x 201
+#: table of one object 2.6 GB; beyond that tables and networks stop being practical.
+MAX_TAXELS = 128
+
 Normalization = Literal["l2", "l1", "none"]
 NORMALIZATIONS: tuple[str, ...] = ("l2", "l1", "none")
 
@@ -39,8 +46,8 @@ class SensorConfig:
     """The Myrmex pad and its foam (paper defaults; the foam is our model, see module doc).
 
     Attributes:
-        taxels: cells per side (16).
-        pitch: cell pitch (m), 5 mm.
+        taxels: cells per side (16); an integer 2..``MAX_TAXELS``.
+        pitch: cell pitch (m), 5 mm; finite and > 0. The pad's edge is ``taxels * pitch``.
         foam_stiffness: pressure per metre of compression (Pa/m). 4e7 Pa/m presses a flat face
             7.8 um deep at 2 N and lets a 27-degree ramp edge carry 2 N within about 0.8 mm;
             calibrated so that the MuJoCo backend sinks as deep on the flat box
@@ -67,7 +74,15 @@ class SensorConfig:
     full_scale: float = 20_000.0
 
     def __post_init__(self) -> None:
-        _positive("taxels", self.taxels, integer=True)
+        if not (
+            isinstance(self.taxels, (int, np.integer))
+            and not isinstance(self.taxels, bool)
+            and 2 <= self.taxels <= MAX_TAXELS
+        ):
+            raise HamError(
+                f"taxels = {self.taxels!r}; accepted: an integer 2..{MAX_TAXELS} (cells per side)"
+            )
+        object.__setattr__(self, "taxels", int(self.taxels))  # NumPy ints: JSON-ready
         _positive("pitch", self.pitch)
         _positive("foam_stiffness", self.foam_stiffness)
         _positive("foam_thickness", self.foam_thickness)
@@ -86,6 +101,23 @@ class SensorConfig:
     def size(self) -> float:
         """Edge length of the sensitive face (m): 16 x 5 mm = 8 cm."""
         return self.taxels * self.pitch
+
+    @property
+    def pressure_dim(self) -> int:
+        """Values in a flattened image: ``taxels^2`` (256)."""
+        return int(self.taxels) ** 2
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Shape of one image: ``(taxels, taxels)``."""
+        return (int(self.taxels), int(self.taxels))
+
+    def describe(self) -> str:
+        """``16 x 16 taxels at 5 mm (8 cm pad)``: for messages."""
+        return (
+            f"{self.taxels} x {self.taxels} taxels at {self.pitch * 1000:g} mm "
+            f"({self.size * 100:g} cm pad)"
+        )
 
     @property
     def taxel_area(self) -> float:
@@ -127,14 +159,14 @@ class Myrmex:
         return (k + 0.5) * (c.pitch / c.supersample) - 0.5 * c.size
 
     def image(self, compression: torch.Tensor) -> torch.Tensor:
-        """Pressure image (Pa), ``(B, 16, 16)``, from the compression ``(B, 16 * S)`` at sample_u."""
+        """Pressure image (Pa), ``(B, N, N)``, from the compression ``(B, N * S)`` at sample_u."""
         c = self.config
         cols = compression.reshape(compression.shape[0], c.taxels, c.supersample).mean(-1)
         img = (c.foam_stiffness * cols).unsqueeze(1).expand(-1, c.taxels, -1).contiguous()
         return self.postprocess(img)
 
     def postprocess(self, pressure: torch.Tensor) -> torch.Tensor:
-        """The optional Gaussian spread and quantization, applied to any raw image (B, 16, 16)."""
+        """The optional Gaussian spread and quantization, applied to any raw image (B, N, N)."""
         c = self.config
         if c.spread_sigma is not None:
             pressure = gaussian_spread(pressure, c.spread_sigma / c.pitch)
@@ -167,10 +199,10 @@ def quantize(pressure: torch.Tensor, bits: int, full_scale: float) -> torch.Tens
 
 
 def normalize(pressure: torch.Tensor | np.ndarray, kind: str = "l2") -> torch.Tensor | np.ndarray:
-    """Flatten each image to 256 values and scale it to unit norm (the paper: L2; authors' code: L1).
+    """Flatten each image to N^2 values and scale it to unit norm (the paper: L2; authors' code: L1).
 
     An all-zero image (no contact) stays all zero: never NaN.
-    Works on torch tensors and NumPy arrays of shape (..., 16, 16); returns (..., 256).
+    Works on torch tensors and NumPy arrays of shape (..., N, N); returns (..., N^2) (256).
     """
     if kind not in NORMALIZATIONS:
         raise HamError(f"normalization {kind!r}; accepted: {', '.join(NORMALIZATIONS)}")

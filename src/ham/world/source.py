@@ -8,12 +8,15 @@ Both answer ``lookup(object_ids, q_x, q_phi)`` with raw pressure images on CPU o
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 import torch
 
+from ham.errors import HamError
 from ham.world.config import WorldConfig, make_simulator
+from ham.world.sensor import SensorConfig
 
 
 @runtime_checkable
@@ -22,11 +25,13 @@ class GlanceSource(Protocol):
 
     n_objects: int
     objects: list
+    taxels: int
+    pressure_dim: int
 
     def lookup(
         self, object_ids: torch.Tensor, q_x: torch.Tensor, q_phi: torch.Tensor
     ) -> torch.Tensor:
-        """Raw pressure ``(B, 16, 16)`` for objects ``(B,)`` at normalized poses ``(B,)``."""
+        """Raw pressure ``(B, N, N)`` for objects ``(B,)`` at normalized poses ``(B,)``."""
         ...
 
 
@@ -37,6 +42,10 @@ class OnlineSource:
         self.simulator = simulator
         self.objects = [o.name for o in simulator.objects]
         self.n_objects = len(self.objects)
+        sensor = getattr(simulator, "sensor", None) or SensorConfig()
+        self.taxels = sensor.taxels
+        self.pressure_dim = sensor.pressure_dim
+        self.description = f"the online {simulator.name} simulator"
 
     def lookup(
         self, object_ids: torch.Tensor, q_x: torch.Tensor, q_phi: torch.Tensor
@@ -51,12 +60,33 @@ class TableSource:
         self.table = table
         self.objects = list(table.objects)
         self.n_objects = len(self.objects)
+        self.taxels = table.taxels
+        self.pressure_dim = table.pressure_dim
+        self.description = f"glance table {table.info.path!r}"
 
     def lookup(
         self, object_ids: torch.Tensor, q_x: torch.Tensor, q_phi: torch.Tensor
     ) -> torch.Tensor:
         # The environment's own actions are always in range: skip the per-call validation.
         return self.table.lookup(object_ids, q_x, q_phi, check=False)
+
+
+def check_model_fits(pressure_dim: int, n_objects: int, source: GlanceSource) -> None:
+    """Refuse a model (``pressure_dim`` inputs, ``n_objects`` classes) that does not fit ``source``:
+    its images (``taxels^2`` values) and its objects, with one line naming both."""
+    source_dim, objects = source.pressure_dim, list(source.objects)
+    what = getattr(source, "description", "the glance source")
+    if pressure_dim != source_dim:
+        side = math.isqrt(source_dim)
+        raise HamError(
+            f"the model reads {pressure_dim} pressure values but {what} gives {side} x {side} "
+            f"images ({source_dim} values); accepted: a model with pressure_dim = {source_dim}"
+        )
+    if n_objects != len(objects):
+        raise HamError(
+            f"the model classifies {n_objects} objects but {what} has {len(objects)} "
+            f"({', '.join(objects)}); accepted: a model with n_objects = {len(objects)}"
+        )
 
 
 def make_source(

@@ -7,9 +7,11 @@ For every object, glances on a ``grid x grid`` lattice of normalized poses
 File layout (HDF5, self-describing)::
 
     /                       attrs: format, format_version, grid, q_range, objects (JSON),
-                                   world (JSON WorldConfig), geometry (JSON outlines), simulator
-                                   description (JSON), ham_version, command, created, checksum
-    /objects/<name>/pressure  (grid, grid, 16, 16) float32, raw Pa; axis 0 = q_x index, 1 = q_phi
+                                   world (JSON WorldConfig), sensor (JSON SensorConfig, also in
+                                   world), geometry (JSON outlines), simulator description (JSON),
+                                   ham_version, command, created, checksum
+    /objects/<name>/pressure  (grid, grid, N, N) float32, raw Pa; axis 0 = q_x index, 1 = q_phi;
+                              N = the sensor's taxels (16)
     /objects/<name>/force     (grid, grid) float32, N (NaN where unknown, e.g. imported data)
     /objects/<name>/z         (grid, grid) float32, m
     /objects/<name>/contact   (grid, grid) bool
@@ -25,7 +27,7 @@ import json
 import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import h5py
@@ -36,10 +38,13 @@ from tqdm.auto import tqdm
 import ham
 from ham.errors import HamError
 from ham.world.config import WorldConfig, make_simulator
+from ham.world.sensor import SensorConfig
 
 FORMAT = "ham-glance-table"
 FORMAT_VERSION = 1
 AUTHORS_OBJECTS = ("box", "ramp_up", "convex", "ramp_down")
+#: The authors' data set is the paper's pad: 16 x 16 taxels, flattened to 256 values.
+AUTHORS_TAXELS = 16
 
 
 def grid_values(grid: int) -> np.ndarray:
@@ -88,6 +93,7 @@ def build_table(
     names = [o.name for o in objs]
     world_json = json.dumps(world.to_dict(), sort_keys=True)
     sim = make_simulator(world, **sim_kwargs)
+    n_tax = world.sensor.taxels
     q = grid_values(grid)
     # Rows of q_x per simulator call: the fast model takes whole objects, slow engines less.
     batch = batch or (grid * grid if sim.name == "fast" else 16 * grid)
@@ -113,6 +119,7 @@ def build_table(
                 q_range=json.dumps([-1.0, 1.0]),
                 objects=json.dumps(names),
                 world=world_json,
+                sensor=json.dumps(world.sensor.to_dict(), sort_keys=True),
                 geometry=json.dumps({o.name: o.outline().tolist() for o in objs}),
                 simulator=json.dumps(sim.describe(), sort_keys=True, default=str),
                 ham_version=ham.__version__,
@@ -120,7 +127,7 @@ def build_table(
             f.create_dataset("progress", data=np.zeros((len(objs), grid), bool))
             for name in names:
                 g = f.create_group(f"objects/{name}")
-                g.create_dataset("pressure", (grid, grid, 16, 16), np.float32)
+                g.create_dataset("pressure", (grid, grid, n_tax, n_tax), np.float32)
                 g.create_dataset("force", (grid, grid), np.float32)
                 g.create_dataset("z", (grid, grid), np.float32)
                 g.create_dataset("contact", (grid, grid), bool)
@@ -142,7 +149,7 @@ def build_table(
                         continue
                     n = sl.stop - sl.start
                     r = sim.glance(np.full(n * grid, oi), np.repeat(q[sl], grid), np.tile(q, n))
-                    g["pressure"][sl] = r.pressure.cpu().numpy().reshape(n, grid, 16, 16)
+                    g["pressure"][sl] = r.pressure.cpu().numpy().reshape(n, grid, n_tax, n_tax)
                     g["force"][sl] = r.force.cpu().numpy().reshape(n, grid)
                     g["z"][sl] = r.z.cpu().numpy().reshape(n, grid)
                     g["contact"][sl] = r.contact.cpu().numpy().reshape(n, grid)
@@ -170,6 +177,17 @@ class TableInfo:
     created: str
     checksum: str
     source: str
+    sensor: dict = field(default_factory=dict)
+
+    @property
+    def taxels(self) -> int:
+        """Cells per side of the table's images (16)."""
+        return int(self.sensor.get("taxels", 16))
+
+    @property
+    def pressure_dim(self) -> int:
+        """Values in one flattened image, the input size of a model that reads this table."""
+        return self.taxels**2
 
     def to_dict(self) -> dict:
         return dict(self.__dict__)
@@ -201,10 +219,18 @@ def _read_info(f: h5py.File, path: str) -> TableInfo:
         world = json.loads(a["world"])
         simulator = json.loads(a.get("simulator", "{}"))
         checksum = str(a["checksum"])
-    except (KeyError, ValueError) as exc:
+        # The sensor: its own attribute, else the world's (tables from before it), else the paper's.
+        sensor = world.get("sensor", {})
+        if "sensor" in a:
+            sensor = json.loads(a["sensor"])
+            if "sensor" in world and world["sensor"] != sensor:
+                raise HamError(f"{path!r}: its sensor attribute and its world's sensor differ")
+        sensor = SensorConfig(**sensor).to_dict()
+    except (KeyError, ValueError, TypeError) as exc:
         raise HamError(f"{path!r}: glance table attributes are incomplete ({exc})") from None
+    n = sensor["taxels"]
     for name in names:
-        for key, shape in (("pressure", (grid, grid, 16, 16)), ("contact", (grid, grid))):
+        for key, shape in (("pressure", (grid, grid, n, n)), ("contact", (grid, grid))):
             ds = f.get(f"objects/{name}/{key}")
             if ds is None or ds.shape != shape:
                 got = None if ds is None else ds.shape
@@ -220,6 +246,7 @@ def _read_info(f: h5py.File, path: str) -> TableInfo:
         created=str(a.get("created", "")),
         checksum=checksum,
         source=str(a.get("source", "ham")),
+        sensor=sensor,
     )
 
 
@@ -232,7 +259,8 @@ def table_info(path: str | os.PathLike) -> TableInfo:
 class GlanceTable:
     """A loaded glance table with vectorized nearest-grid-point lookup (CPU or CUDA).
 
-    ``pressure`` is a ``(n_objects, grid, grid, 16, 16)`` float32 tensor of raw pressure.
+    ``pressure`` is a ``(n_objects, grid, grid, N, N)`` float32 tensor of raw pressure, ``N`` the
+    recorded sensor's ``taxels`` (16).
     """
 
     def __init__(self, info: TableInfo, pressure: torch.Tensor, extras: dict[str, np.ndarray]):
@@ -240,6 +268,8 @@ class GlanceTable:
         self.grid = info.grid
         self.objects = list(info.objects)
         self.n_objects = len(self.objects)
+        self.taxels = info.taxels
+        self.pressure_dim = info.pressure_dim
         self.pressure = pressure
         self.extras = extras
 
@@ -288,7 +318,7 @@ class GlanceTable:
         return nearest_index(qx, self.grid), nearest_index(qp, self.grid)
 
     def lookup(self, object_ids, q_x, q_phi, *, check: bool = True) -> torch.Tensor:
-        """Raw pressure ``(B, 16, 16)`` at the grid points closest to ``(q_x, q_phi)``.
+        """Raw pressure ``(B, N, N)`` at the grid points closest to ``(q_x, q_phi)``.
 
         ``check=False`` skips input validation (the training loop's own samples are in range).
         """
@@ -300,9 +330,9 @@ class GlanceTable:
         else:
             ids = object_ids
             ix, ip = nearest_index(q_x, self.grid), nearest_index(q_phi, self.grid)
-        g = self.grid
-        flat = self.pressure.view(-1, 16 * 16)  # one gather of whole images: no per-axis indexing
-        return flat.index_select(0, (ids * g + ix) * g + ip).view(-1, 16, 16)
+        g, n = self.grid, self.taxels
+        flat = self.pressure.view(-1, n * n)  # one gather of whole images: no per-axis indexing
+        return flat.index_select(0, (ids * g + ix) * g + ip).view(-1, n, n)
 
 
 # --------------------------------------------------------------------------- authors' data
@@ -314,6 +344,9 @@ def import_authors(
     command: str | None = None,
 ) -> Path:
     """Convert the authors' layout (``object_0``..``object_3``, each [201][201][256]) to a table.
+
+    Their pad is the paper's (16 x 16 taxels, ``AUTHORS_TAXELS``): the table records the default
+    :class:`ham.world.sensor.SensorConfig`.
 
     ``axes`` names the order of the first two axes in their file (``x,phi`` or ``phi,x``).
     Their images are stored as they are (the authors normalized them); force and z are unknown (NaN).
@@ -328,20 +361,20 @@ def import_authors(
                 raise HamError(
                     f"{str(src)!r} has no dataset object_{i}; expected object_0..object_3"
                 )
-            if ds.ndim != 3 or ds.shape[0] != ds.shape[1] or ds.shape[2] != 256:
+            if ds.ndim != 3 or ds.shape[0] != ds.shape[1] or ds.shape[2] != AUTHORS_TAXELS**2:
                 raise HamError(
                     f"{str(src)!r}: object_{i} has shape {ds.shape}; expected (grid, grid, 256)"
                 )
             a = np.asarray(ds[...], dtype=np.float32)
             if axes == "phi,x":
                 a = a.transpose(1, 0, 2)
-            arrays.append(a.reshape(a.shape[0], a.shape[1], 16, 16))
+            arrays.append(a.reshape(a.shape[0], a.shape[1], AUTHORS_TAXELS, AUTHORS_TAXELS))
     grid = arrays[0].shape[0]
     if any(a.shape[0] != grid for a in arrays):
         raise HamError(f"{str(src)!r}: the objects have different grid sizes")
     out = Path(out)
     tmp = out.with_name(out.name + ".partial")
-    world = WorldConfig()
+    world = WorldConfig(sensor=SensorConfig(taxels=AUTHORS_TAXELS))
     with h5py.File(tmp, "w") as g:
         g.attrs.update(
             format=FORMAT,
@@ -350,6 +383,7 @@ def import_authors(
             q_range=json.dumps([-1.0, 1.0]),
             objects=json.dumps(list(AUTHORS_OBJECTS)),
             world=json.dumps(world.to_dict(), sort_keys=True),
+            sensor=json.dumps(world.sensor.to_dict(), sort_keys=True),
             geometry=json.dumps({}),
             simulator=json.dumps({"simulator": "gazebo (authors' data set)", "axes": axes}),
             ham_version=ham.__version__,
