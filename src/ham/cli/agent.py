@@ -158,6 +158,7 @@ def _set_threads(threads: int | None) -> None:
 def _config_from_args(args: argparse.Namespace):
     from ham.learn.train import TrainConfig
     from ham.model.agent import HamConfig
+    from ham.world.config import WorldConfig
     from ham.world.objects import resolve_set
 
     world = _world_from_args(args)
@@ -167,7 +168,10 @@ def _config_from_args(args: argparse.Namespace):
 
         if not Path(args.table).exists():
             raise HamError(f"glance table {args.table!r} does not exist")
-        n_objects = len(table_info(args.table).objects)
+        info = table_info(args.table)
+        n_objects = len(info.objects)
+        # Register the table's recorded objects file now: a conflict fails before DIR is made.
+        WorldConfig.from_dict(info.world)
     else:
         n_objects = len(resolve_set(world.objects))
     model_args = {
@@ -234,6 +238,8 @@ def cmd_train(args: argparse.Namespace) -> int:
                 "lr",
                 "lr_step",
                 "beta",
+                "objects",
+                "objects_file",  # the run re-registers its recorded objects file itself
             )  # fmt: skip
             if getattr(args, k) is not None
         ]

@@ -20,6 +20,7 @@ import sys
 import warnings
 from pathlib import Path
 
+from ham.cli.options import add_objects_file_option, objects_from_args
 from ham.errors import HamError
 
 
@@ -44,6 +45,8 @@ def add_commands(subparsers) -> None:
     q.add_argument(
         "--num-envs", type=int, default=8, help="sub-environments of make_vec (default 8)"
     )
+    q.add_argument("--objects", default=None, help="online object set (default: paper)")
+    add_objects_file_option(q)
     q.set_defaults(func=cmd_check)
 
     q = sub.add_parser("bench", help="environment steps per second (ours, and one ap_gym env)")
@@ -149,8 +152,14 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 
 # --------------------------------------------------------------------------- check
-def check_all(table: str | None = None, glances: int = 3, num_envs: int = 8) -> list[str]:
-    """Run the checks of ``ham envs check``; returns one line per passed check, raises on failure."""
+def check_all(
+    table: str | None = None, glances: int = 3, num_envs: int = 8, world: dict | None = None
+) -> list[str]:
+    """Run the checks of ``ham envs check``; returns one line per passed check, raises on failure.
+
+    ``world``: the online world's dict (sub-environments in other processes rebuild it, objects
+    file included).
+    """
     import gymnasium as gym
     import numpy as np
     from gymnasium.utils.env_checker import check_env
@@ -162,6 +171,8 @@ def check_all(table: str | None = None, glances: int = 3, num_envs: int = 8) -> 
     from ham.envs import ap
 
     kw = {"glances": glances, "table": table}
+    if world is not None:
+        kw["world"] = world
     lines = []
     for name, env in (
         (ham.envs.ENV_ID, ham.envs.HapticGlanceEnv(**kw)),
@@ -215,7 +226,16 @@ def cmd_check(args: argparse.Namespace) -> int:
         raise HamError(f"glance table {args.table!r} does not exist")
     if args.num_envs < 1:
         raise HamError(f"--num-envs {args.num_envs}; accepted: an integer >= 1")
-    for line in check_all(args.table, args.glances, args.num_envs):
+    world = None
+    if args.table is not None and args.objects is not None:
+        raise HamError(f"--objects {args.objects!r} chooses the online world's objects; the table "
+                       f"{args.table!r} has its own: give one of them")  # fmt: skip
+    if args.objects is not None or args.objects_file is not None:
+        from ham.world.config import WorldConfig
+
+        objects, record = objects_from_args(args)
+        world = WorldConfig(objects=objects, objects_file=record).to_dict()
+    for line in check_all(args.table, args.glances, args.num_envs, world):
         print(line)
     return 0
 

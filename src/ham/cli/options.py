@@ -44,6 +44,25 @@ def load_objects_file_arg(args: argparse.Namespace) -> dict | None:
     return load_objects_file(path)
 
 
+def objects_from_args(
+    args: argparse.Namespace, objects: str | None = None
+) -> tuple[str, dict | None]:
+    """The object set and the objects-file record of ``--objects`` / ``--objects-file``.
+
+    Without ``--objects`` the set is the file's objects when a file is given, else ``paper``.
+    """
+    from ham.world.objects import load_objects, resolve_set
+
+    record = load_objects_file_arg(args)
+    objects = objects or getattr(args, "objects", None)
+    if objects is None:
+        objects = ",".join(load_objects(record)) if record else "paper"
+    elif record is not None:
+        # Record names, not ids: another objects file loaded first would shift the file's ids.
+        objects = ",".join(o.name for o in resolve_set(objects))
+    return objects, record
+
+
 def add_world_options(p: argparse.ArgumentParser, *, objects: bool = True) -> None:
     """Options that build a :class:`ham.world.config.WorldConfig` (paper defaults)."""
     if objects:
@@ -83,13 +102,9 @@ def world_from_args(args: argparse.Namespace, objects: str | None = None):
 
     from ham.world.config import WorldConfig
     from ham.world.glance import PoseConfig
-    from ham.world.objects import load_objects
     from ham.world.sensor import SensorConfig
 
-    record = load_objects_file_arg(args)
-    objects = objects or getattr(args, "objects", None)
-    if objects is None:
-        objects = ",".join(load_objects(record)) if record else "paper"
+    objects, record = objects_from_args(args, objects)
 
     sensor = SensorConfig()
     changes = {}

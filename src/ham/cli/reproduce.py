@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 
+from ham.cli.options import add_objects_file_option, command_line, objects_from_args
 from ham.experiments.reproduce import EXECUTORS, PROFILES, TARGETS, TRAINED_VARIANTS, reproduce
 
 
@@ -51,10 +52,19 @@ def add_commands(subparsers) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--out", required=True, help="output folder; finished runs in it are skipped")
+    p.add_argument(
+        "--objects",
+        default=None,
+        help="object set (default: paper; with --objects-file: the file's objects)",
+    )
+    add_objects_file_option(p)
     p.set_defaults(func=cmd_reproduce)
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
+    from ham.world.config import WorldConfig
+
+    objects, record = objects_from_args(args)
     summary = reproduce(
         args.target,
         args.profile,
@@ -66,9 +76,10 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         device=args.device,
         retries=args.retries,
         progress=not args.quiet,
-        command="ham " + " ".join(sys.argv[1:]),
+        command=command_line(args),
         glances=args.glances,
         variants=args.variants,
+        world=WorldConfig(objects=objects, objects_file=record),
     )
     if args.json:
         json.dump(summary, sys.stdout, default=str)

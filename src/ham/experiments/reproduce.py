@@ -28,11 +28,15 @@ import traceback
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ham.errors import HamError
 from ham.experiments.runs import is_finished, run_dir
+
+if TYPE_CHECKING:
+    from ham.world.config import WorldConfig
 
 TARGETS = ("table1", "table2", "figures", "all")
 EXECUTORS = ("local", "ray")
@@ -156,8 +160,18 @@ class Job:
 
 
 # --------------------------------------------------------------------------- plan
-def plan(target: str, profile: Profile, seeds: int, table: str, device: str = "cpu") -> list[Job]:
-    """The runs ``target`` needs, deduplicated (Table 2's concat2 run is Table 1's full model)."""
+def plan(
+    target: str,
+    profile: Profile,
+    seeds: int,
+    table: str,
+    device: str = "cpu",
+    n_objects: int = 4,
+) -> list[Job]:
+    """The runs ``target`` needs, deduplicated (Table 2's concat2 run is Table 1's full model).
+
+    ``n_objects``: the classes of the table's object set (the paper's 4 objects by default).
+    """
     from ham.learn.train import TrainConfig
     from ham.model.agent import HamConfig
 
@@ -177,7 +191,9 @@ def plan(target: str, profile: Profile, seeds: int, table: str, device: str = "c
             key = f"{variant}-{combiner}-g{g}-s{seed}"
             if key in jobs:
                 continue
-            model = HamConfig(glances=g, combiner=combiner, **TRAINED_VARIANTS[variant])
+            model = HamConfig(
+                n_objects=n_objects, glances=g, combiner=combiner, **TRAINED_VARIANTS[variant]
+            )
             cfg = TrainConfig(
                 model=model,
                 steps=profile.steps,
@@ -398,11 +414,14 @@ def reproduce(
     command: str | None = None,
     glances: Iterable[int] | None = None,
     variants: Iterable[str] | None = None,
+    world: WorldConfig | None = None,
 ) -> dict:
     """Plan, run (skipping finished runs), aggregate and report. Returns the summary dict.
 
     ``glances`` and ``variants`` cut Table 1 and the figures to a part of the grid (Table 2 is
     always the four combiners at 3 glances), e.g. the paper's protocol for one row on a laptop.
+    ``world``: the world of the glance table (default: the paper's); with an objects file, every
+    worker registers the file's objects from the record in the table and the world.
     """
     from tqdm.auto import tqdm
 
@@ -424,11 +443,16 @@ def reproduce(
         raise HamError(f"workers = {workers}; accepted: >= 1")
     root = Path(out).resolve()
     root.mkdir(parents=True, exist_ok=True)
-    world = WorldConfig()
+    world = world or WorldConfig()
+    n_objects = len(world.resolve_objects())
     table = root / f"table_{profile.table_grid}.h5"
-    if not table.exists():
-        build_table(world, profile.table_grid, table, progress=progress, command="ham reproduce")
-    jobs = plan(target, profile, profile.seeds, str(table), device)
+    if table.exists():
+        _check_table_objects(table, world)
+    else:
+        build_table(
+            world, profile.table_grid, table, progress=progress, command=command or "ham reproduce"
+        )
+    jobs = plan(target, profile, profile.seeds, str(table), device, n_objects=n_objects)
     (root / "plan.json").write_text(json.dumps([j.to_dict() for j in jobs], indent=1))
 
     results: dict[str, dict] = {}
@@ -461,6 +485,20 @@ def reproduce(
     summary["skipped"] = skipped
     summary["ran"] = sum(r["status"] == "done" for r in results.values())
     return summary
+
+
+def _check_table_objects(table: Path, world: WorldConfig) -> None:
+    """Refuse to reuse ``OUT``'s table when it was built for other objects than ``world``'s."""
+    from ham.world.table import table_info
+
+    built = table_info(table).world
+    rec = built.get("objects_file")
+    if (built.get("objects"), rec) != (world.objects, world.objects_file):
+        name = f" from {rec['name']}" if rec else ""
+        raise HamError(
+            f"{table} holds glances of objects {built.get('objects')!r}{name}, not "
+            f"{world.objects!r}; use another --out (or the same objects and objects file)"
+        )
 
 
 def write_outputs(

@@ -347,8 +347,8 @@ _ORDER: list[str] = []
 _ORIGIN: dict[str, str] = {}
 #: Objects files loaded in this process: sha256 -> the names they registered (loading is idempotent).
 _FILES: dict[str, tuple[str, ...]] = {}
-#: While an objects file runs: (its name, the names it registered so far).
-_LOADING: tuple[str, list[str]] | None = None
+#: While an objects file runs: (its name, its sha256, the names it registered so far).
+_LOADING: tuple[str, str, list[str]] | None = None
 
 #: Named object sets; ``paper`` is the paper's four objects in the paper's order.
 OBJECT_SETS: dict[str, tuple[str, ...]] = {
@@ -367,11 +367,16 @@ def register(obj: HapticObject, *, replace: bool = False) -> int:
         raise HamError(f"register() takes a HapticObject, got {type(obj).__name__}")
     if obj.name in _REGISTRY and (not replace or _LOADING is not None):
         raise HamError(
-            f"object name {obj.name!r} is already registered ({_ORIGIN.get(obj.name, 'by the program')}); "
-            "choose another name" + ("" if _LOADING is not None else " or pass replace=True")
+            f"object name {obj.name!r} is already registered "
+            f"({_ORIGIN.get(obj.name, 'by the program')}); choose another name"
+            + (
+                f"; this file (sha256 {_LOADING[1][:12]}) may only add new names"
+                if _LOADING
+                else " or pass replace=True"
+            )
         )
     if _LOADING is not None:
-        _LOADING[1].append(obj.name)
+        _LOADING[2].append(obj.name)
         _ORIGIN[obj.name] = f"objects file {_LOADING[0]!r}"
     else:
         _ORIGIN[obj.name] = "by the program"
@@ -496,7 +501,7 @@ def load_objects(record: dict) -> list[str]:
     if _LOADING is not None:
         raise HamError(f"objects file {name!r}: objects files cannot load other objects files")
     added: list[str] = []
-    _LOADING = (name, added)
+    _LOADING = (name, sha, added)
     try:
         if Path(name).suffix.lower() == ".py":
             _run_python(name, record["source"])
