@@ -16,19 +16,8 @@ import pytest
 from tests.conftest import run_ham
 
 HEADER = "import numpy as np\nfrom ham.world.objects import HapticObject, register\n"
-OWN = (
-    HEADER
-    + """
-register(HapticObject.from_function(
-    "cylinder", lambda x: 0.02 + 0.5 * np.sqrt(np.clip(0.045**2 - x**2, 0, None)),
-    description="half cylinder on a plinth"))
-register(HapticObject.from_polyline("wedge", [(-0.045, 0.0), (0.045, 0.03)]))
-register(HapticObject.from_heightmap("bump", [0.01, 0.01, 0.04, 0.01, 0.01]))
-register(HapticObject.from_polyline(
-    "notch", [(-0.045, 0.04), (-0.005, 0.04), (-0.005, 0.02), (0.005, 0.02), (0.005, 0.04),
-              (0.045, 0.04)]))
-"""
-)
+#: The example of docs/world.md, "Your own objects": the tests keep the docs' file working.
+OWN = (Path(__file__).parents[1] / "docs" / "examples" / "my_objects.py").read_text()
 NAMES = ["cylinder", "wedge", "bump", "notch"]
 
 
@@ -59,6 +48,8 @@ def own(tmp_path_factory):
 
 def test_objects_and_glance_take_the_file(own):
     f, _ = own
+    docs = (Path(__file__).parents[1] / "docs" / "world.md").read_text()
+    assert OWN.strip() in docs  # the example shown is the example tested
     rows = json.loads(ok(run_ham("objects", "--objects-file", str(f), "--json")).stdout)
     mine = [r for r in rows if r["name"] in NAMES]
     assert [(r["id"], r["name"]) for r in mine] == list(enumerate(NAMES, start=8))
@@ -224,17 +215,42 @@ BAD_FILES = [
 ]  # fmt: skip
 
 
-@pytest.mark.parametrize("name, body, message", BAD_FILES, ids=[b[0] for b in BAD_FILES])
-def test_a_bad_objects_file_is_one_line_and_writes_nothing(tmp_path, name, body, message):
+def _write_bad(tmp_path: Path, name: str, body: str | None) -> Path:
     f = tmp_path / name
     if body is not None:
         f.write_text(body if f.suffix in (".toml", ".json", ".txt") else HEADER + body + "\n")
+    return f
+
+
+@pytest.mark.parametrize("name, body, message", BAD_FILES, ids=[b[0] for b in BAD_FILES])
+def test_a_bad_objects_file_is_refused_and_registers_nothing(tmp_path, name, body, message):
+    from ham.errors import HamError
+    from ham.world.objects import load_objects_file, names
+
+    f = _write_bad(tmp_path, name, body)
+    before = names()
+    with pytest.raises(HamError) as err:
+        load_objects_file(f)
+    text = str(err.value)
+    assert message.format(dir=tmp_path) in text and "\n" not in text
+    if name not in ("objects.txt", "missing.py"):
+        assert text.startswith(f"objects file {name!r}")
+    assert names() == before  # a failed file leaves the registry as it was
+
+
+#: One of each kind through the real CLI: exit 2, one line, no traceback, no file written.
+CLI_CASES = ["const.py", "scalar.py", "nan.py", "below.py", "tall.py", "width0.py", "taken.py",
+             "comma.py", "number.py", "empty.py", "raises.py", "syntax.py", "nothing.py",
+             "missing.py", "bad.toml"]  # fmt: skip
+
+
+@pytest.mark.parametrize("name", CLI_CASES)
+def test_a_bad_objects_file_is_one_line_and_writes_nothing(tmp_path, name):
+    _, body, message = next(b for b in BAD_FILES if b[0] == name)
+    f = _write_bad(tmp_path, name, body)
     r = run_ham("table", "build", "--objects-file", str(f), "--grid", "3", "--quiet",
                 "--out", str(tmp_path / "t.h5"))  # fmt: skip
-    line = one_line_error(r)
-    assert message.format(dir=tmp_path) in line
-    if name not in ("objects.txt", "missing.py"):
-        assert f"objects file {name!r}" in line
+    assert message.format(dir=tmp_path) in one_line_error(r)
     assert sorted(p.name for p in tmp_path.iterdir()) == ([name] if body is not None else [])
 
 
@@ -271,6 +287,7 @@ def test_a_changed_record_or_a_conflicting_file_is_refused(own, tmp_path):
     assert "objects file 'my_objects.py': recorded sha256" in line and "does not match" in line
     # Same names, other shapes: the table's objects and the file's cannot both be 'cylinder'.
     other = tmp_path / "my_objects.py"
+    assert "0.02 + 0.5" in OWN
     other.write_text(OWN.replace("0.02 + 0.5", "0.01 + 0.5"))
     out = tmp_path / "run2"
     r = run_ham("train", "--table", str(table), "--objects-file", str(other), "--steps", "2",
