@@ -312,3 +312,15 @@ def test_commands_record_the_real_argv(tmp_path):
     a, b = r.stdout.strip().splitlines()[-2:]
     assert a == f"python -c: ham.world.table.build_table(grid=2, out={str(tmp_path / 'a.h5')!r})"
     assert b == f"ham table build --grid 2 --quiet --out {Path(tmp_path / 'b.h5')}"
+
+
+def test_object_options_that_would_be_ignored_are_refused(own, tmp_path):
+    f, table = own
+    r = run_ham("train", "--table", str(table), "--objects", "paper", "--out", str(tmp_path / "a"))
+    assert "--objects 'paper' chooses the online world's objects; the table" in one_line_error(r)
+    r = run_ham("train", "--env", "ap_gym:CIFAR10-v0", "--objects-file", str(f),
+                "--out", str(tmp_path / "b"))  # fmt: skip
+    assert "--env ap_gym:CIFAR10-v0 is another world" in one_line_error(r)
+    r = run_ham("envs", "check", "--table", str(table), "--objects", "wedge")
+    assert "--objects 'wedge' chooses the online world's objects" in one_line_error(r)
+    assert list(tmp_path.iterdir()) == []

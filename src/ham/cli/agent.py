@@ -163,6 +163,9 @@ def _config_from_args(args: argparse.Namespace):
 
     world = _world_from_args(args)
     n_objects = None
+    if args.table and args.objects is not None:
+        raise HamError(f"--objects {args.objects!r} chooses the online world's objects; the table "
+                       f"{args.table!r} has its own: give one of them")  # fmt: skip
     if args.table:
         from ham.world.table import table_info
 
@@ -213,6 +216,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     from ham.learn.train import resume, train
 
     _set_threads(args.threads)
+    if args.env and (args.objects is not None or args.objects_file is not None):
+        raise HamError(f"--objects/--objects-file choose the haptic world's objects; --env "
+                       f"{args.env} is another world: give one of them")  # fmt: skip
     if args.env:  # another world: the ap_gym adapter (ham.learn.ap_adapter)
         from ham.cli.envs import train_from_args
 
