@@ -324,3 +324,26 @@ def test_object_options_that_would_be_ignored_are_refused(own, tmp_path):
     r = run_ham("envs", "check", "--table", str(table), "--objects", "wedge")
     assert "--objects 'wedge' chooses the online world's objects" in one_line_error(r)
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"height": 0.0}, "object 'a': height = 0.0; accepted: a number in (0, 0.09] (m)"),
+        ({"width": float("nan")}, "object 'a': width = nan; accepted: a number in (0, 0.2] (m)"),
+        ({"depth": 0.3}, "object 'a': depth = 0.3; accepted: a number in (0, 0.2] (m)"),
+        ({"profile": 3}, "object 'a': profile 3 is not a function"),
+        ({"name": "1"}, "object name '1'; accepted: a letter or '_' first"),
+        ({"description": "two\nlines"}, "description 'two\\nlines'; accepted: one line of text"),
+    ],
+)
+def test_the_plain_constructor_checks_its_fields(kwargs, message):
+    import numpy as np
+
+    from ham.errors import HamError
+    from ham.world.objects import HapticObject
+
+    fields = {"name": "a", "profile": np.ones_like, **kwargs}
+    with pytest.raises(HamError) as err:
+        HapticObject(**fields)
+    assert message in str(err.value)

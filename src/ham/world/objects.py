@@ -119,7 +119,8 @@ class HapticObject:
         _check_size(self.name, "width", self.width)
         _check_size(self.name, "depth", self.depth)
         h = self.height
-        if not (isinstance(h, (int, float)) and math.isfinite(h) and 0 < h <= MAX_HEIGHT):
+        number = isinstance(h, (int, float, np.integer, np.floating)) and not isinstance(h, bool)
+        if not (number and math.isfinite(h) and 0 < h <= MAX_HEIGHT):
             raise HamError(
                 f"object {self.name!r}: height = {h!r}; accepted: a number in (0, {MAX_HEIGHT}] (m)"
             )
