@@ -109,14 +109,21 @@ def _config_from_args(args: argparse.Namespace):
     from ham.cli.config_args import overrides
     from ham.learn.train import TrainConfig, model_for_source
     from ham.model.agent import HamConfig
+    from ham.world.config import WorldConfig
 
     world = _world_from_args(args)
+    if args.table and args.objects is not None:
+        raise HamError(f"--objects {args.objects!r} chooses the online world's objects; the table "
+                       f"{args.table!r} has its own: give one of them")  # fmt: skip
     if args.table:
         from ham.world.table import table_info
 
         if not Path(args.table).exists():
             raise HamError(f"glance table {args.table!r} does not exist")
-        _check_table_sensor(args, table_info(args.table))
+        info = table_info(args.table)
+        _check_table_sensor(args, info)
+        # Register the table's recorded objects file now: a conflict fails before DIR is made.
+        WorldConfig.from_dict(info.world)
     if args.env:
         from ham.cli.options import sensor_changes_from_args
 
@@ -165,6 +172,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     from ham.learn.train import resume, train
 
     _set_threads(args.threads)
+    if args.env and (args.objects is not None or args.objects_file is not None):
+        raise HamError(f"--objects/--objects-file choose the haptic world's objects; --env "
+                       f"{args.env} is another world: give one of them")  # fmt: skip
     progress = not args.no_progress
     if args.resume:
         if args.out:
@@ -174,7 +184,17 @@ def cmd_train(args: argparse.Namespace) -> int:
         ignored = [flag for flag in given(args) if flag != "--steps"]
         ignored += [
             f"--{k.replace('_', '-')}"
-            for k in ("table", "env", "actions", "max_step_length", "eval_env", "taxels", "pitch")
+            for k in (
+                "table",
+                "env",
+                "actions",
+                "max_step_length",
+                "eval_env",
+                "taxels",
+                "pitch",
+                "objects",
+                "objects_file",
+            )  # fmt: skip
             if getattr(args, k, None) is not None
         ]
         if ignored:

@@ -22,6 +22,7 @@ import sys
 import warnings
 from pathlib import Path
 
+from ham.cli.options import add_objects_file_option, objects_from_args
 from ham.errors import HamError
 
 
@@ -49,6 +50,8 @@ def add_commands(subparsers) -> None:
     from ham.cli.options import add_sensor_options
 
     add_sensor_options(q)  # the online world's pad (a table carries its own)
+    q.add_argument("--objects", default=None, help="online object set (default: paper)")
+    add_objects_file_option(q)
     q.set_defaults(func=cmd_check)
 
     q = sub.add_parser("bench", help="environment steps per second (ours, and one ap_gym env)")
@@ -125,9 +128,13 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------- check
 def check_all(
-    table: str | None = None, glances: int = 3, num_envs: int = 8, world=None
+    table: str | None = None, glances: int = 3, num_envs: int = 8, world: dict | None = None
 ) -> list[str]:
-    """Run the checks of ``ham envs check``; returns one line per passed check, raises on failure."""
+    """Run the checks of ``ham envs check``; returns one line per passed check, raises on failure.
+
+    ``world``: the online world's dict (sub-environments in other processes rebuild it, objects
+    file included).
+    """
     import gymnasium as gym
     import numpy as np
     from gymnasium.utils.env_checker import check_env
@@ -138,7 +145,9 @@ def check_all(
     ap_gym = import_ap_gym()
     from ham.envs import ap
 
-    kw = {"glances": glances, "table": table, "world": world}
+    kw = {"glances": glances, "table": table}
+    if world is not None:
+        kw["world"] = world
     lines = []
     for name, env in (
         (ham.envs.ENV_ID, ham.envs.HapticGlanceEnv(**kw)),
@@ -196,13 +205,19 @@ def cmd_check(args: argparse.Namespace) -> int:
 
     world = None
     changes = sensor_changes_from_args(args)
-    if changes:
-        if args.table is not None:
-            raise HamError("--taxels/--pitch set the online world's pad; a --table has its own")
+    if changes and args.table is not None:
+        raise HamError("--taxels/--pitch set the online world's pad; a --table has its own")
+    if args.table is not None and args.objects is not None:
+        raise HamError(f"--objects {args.objects!r} chooses the online world's objects; the table "
+                       f"{args.table!r} has its own: give one of them")  # fmt: skip
+    if changes or args.objects is not None or args.objects_file is not None:
         from ham.world.config import WorldConfig
         from ham.world.sensor import SensorConfig
 
-        world = WorldConfig(sensor=SensorConfig(**changes))
+        objects, record = objects_from_args(args)
+        world = WorldConfig(
+            objects=objects, objects_file=record, sensor=SensorConfig(**changes)
+        ).to_dict()
     for line in check_all(args.table, args.glances, args.num_envs, world):
         print(line)
     return 0

@@ -15,7 +15,15 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ham import __version__
-from ham.cli.options import add_world_options, finite_float, print_json, world_from_args  # noqa: F401
+from ham.cli.options import (  # noqa: F401
+    add_objects_file_option,
+    add_world_options,
+    command_line,
+    finite_float,
+    load_objects_file_arg,
+    print_json,
+    world_from_args,
+)
 from ham.errors import HamError
 
 # Modules that add subcommands; a missing optional one is skipped.
@@ -32,6 +40,7 @@ _COMMAND_MODULES = (
 def cmd_objects(args: argparse.Namespace) -> int:
     from ham.world import objects
 
+    load_objects_file_arg(args)
     objs = objects.resolve_set(args.set)
     rows = [
         {
@@ -40,6 +49,7 @@ def cmd_objects(args: argparse.Namespace) -> int:
             "width": o.width,
             "height": o.height,
             "description": o.description,
+            "origin": objects.origin(o.name),
         }
         for o in objs
     ]
@@ -51,7 +61,8 @@ def cmd_objects(args: argparse.Namespace) -> int:
         print_json(rows)
     else:
         for r in rows:
-            print(f"{r['id']:>3}  {r['name']:<13} {r['description']}")
+            mark = "" if r["origin"] == "built-in" else f" [{r['origin']}]"
+            print(f"{r['id']:>3}  {r['name']:<13} {r['description']}{mark}")
         if args.out:
             print(f"wrote {args.out}")
     return 0
@@ -59,11 +70,16 @@ def cmd_objects(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------- glance
 def cmd_glance(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
     from ham.world import objects
     from ham.world.config import make_simulator
 
+    world = world_from_args(args)  # registers --objects-file's objects first
     obj = objects.get(args.object)
-    world = world_from_args(args, objects=obj.name)
+    if args.objects is not None and obj not in world.resolve_objects():
+        raise HamError(f"--object {args.object!r} is not in --objects {args.objects!r}")
+    world = replace(world, objects=obj.name)
     sim = make_simulator(world)
     result = sim.glance([0], [args.x], [args.phi])
     data = result.to_json(0)
@@ -92,7 +108,7 @@ def cmd_table_build(args: argparse.Namespace) -> int:
 
     world = world_from_args(args)
     out = build_table(
-        world, args.grid, args.out, progress=not args.quiet, command="ham " + " ".join(sys.argv[1:])
+        world, args.grid, args.out, progress=not args.quiet, command=command_line(args)
     )
     print(f"wrote {out}")
     return 0
@@ -112,6 +128,9 @@ def cmd_table_info(args: argparse.Namespace) -> int:
 
     print(f"  sensor:    {SensorConfig(**info.sensor).describe()}")
     print(f"  pose:      {info.world.get('pose')}")
+    record = info.world.get("objects_file")
+    if record:
+        print(f"  objects file: {record.get('name')} (sha256 {record.get('sha256')})")
     print(f"  ham {info.ham_version}, created {info.created}")
     print(f"  command:   {info.command}")
     print(f"  checksum:  sha256 {info.checksum}")
@@ -148,9 +167,7 @@ def cmd_table_show(args: argparse.Namespace) -> int:
 def cmd_table_import(args: argparse.Namespace) -> int:
     from ham.world.table import import_authors
 
-    out = import_authors(
-        args.file, args.out, axes=args.axes, command="ham " + " ".join(sys.argv[1:])
-    )
+    out = import_authors(args.file, args.out, axes=args.axes, command=command_line(args))
     print(f"wrote {out}")
     return 0
 
@@ -176,6 +193,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", default="all", help="paper, mhsb, all (default) or names/ids")
     p.add_argument("--json", action="store_true")
     p.add_argument("--out", help="PNG of the side profiles")
+    add_objects_file_option(p)
     p.set_defaults(func=cmd_objects)
 
     p = sub.add_parser("glance", help="one haptic glance: lower the pad until 2 N, read the image")
@@ -188,7 +206,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--json", action="store_true", help="print the result as JSON (raw pressure)")
     p.add_argument("--out", help="PNG: the pad over the profile and its N x N image")
-    add_world_options(p, objects=False)
+    add_world_options(p)
     p.set_defaults(func=cmd_glance)
 
     t = sub.add_parser("table", help="glance tables (the paper's pre-recorded data set)")
@@ -233,7 +251,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
+    args._ham_argv = argv  # what tables record as their command (ham.cli.options.command_line)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2 if args.command is None else 2

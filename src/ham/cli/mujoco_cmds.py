@@ -14,6 +14,7 @@ import os
 import sys
 from pathlib import Path
 
+from ham.cli.options import add_objects_file_option, objects_from_args
 from ham.errors import HamError
 
 GL_HELP = (
@@ -35,7 +36,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--x", type=float, required=True, help="normalized position q_x in [-1, 1]")
     p.add_argument("--phi", type=float, required=True, help="normalized angle q_phi in [-1, 1]")
     p.add_argument("--out", required=True, help="output PNG path")
-    p.add_argument("--objects", default="paper", help="object set (default: paper)")
+    p.add_argument("--objects", default=None, help="object set (default: paper; with "
+                   "--objects-file: the file's objects)")  # fmt: skip
+    add_objects_file_option(p)
     p.add_argument("--sensor", default="taxels", choices=["taxels", "gazebo"], help="read-out")
     p.add_argument("--width", type=int, default=960, help="image width in pixels (64..4096)")
     p.add_argument("--height", type=int, default=720, help="image height in pixels (64..4096)")
@@ -55,8 +58,9 @@ def cmd_render(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".png":
         raise HamError(f"--out {args.out!r} must end in .png")
+    objects, _ = objects_from_args(args)  # registers --objects-file's objects
     render_glance(
-        args.objects,
+        objects,
         args.object,
         args.x,
         args.phi,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 
 from ham.errors import HamError
@@ -17,14 +18,61 @@ def finite_float(text: str) -> float:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
 
 
+def command_line(args: argparse.Namespace) -> str:
+    """The command as the user ran it (``ham.cli.main.main`` keeps its argv), for tables' records."""
+    argv = getattr(args, "_ham_argv", None)
+    return "ham " + shlex.join(sys.argv[1:] if argv is None else argv)
+
+
+def add_objects_file_option(p: argparse.ArgumentParser) -> None:
+    """``--objects-file FILE``: register the user's own objects before the command runs."""
+    p.add_argument(
+        "--objects-file",
+        metavar="FILE",
+        help="a .py file that registers your own objects (ham.world.objects.register), or a "
+        ".json/.toml list of polylines/heightmaps; recorded in tables and runs (docs/world.md)",
+    )
+
+
+def load_objects_file_arg(args: argparse.Namespace) -> dict | None:
+    """Register ``--objects-file``'s objects; its record (name, sha256, source), or ``None``."""
+    path = getattr(args, "objects_file", None)
+    if path is None:
+        return None
+    from ham.world.objects import load_objects_file
+
+    return load_objects_file(path)
+
+
+def objects_from_args(
+    args: argparse.Namespace, objects: str | None = None
+) -> tuple[str, dict | None]:
+    """The object set and the objects-file record of ``--objects`` / ``--objects-file``.
+
+    Without ``--objects`` the set is the file's objects when a file is given, else ``paper``.
+    """
+    from ham.world.objects import load_objects, resolve_set
+
+    record = load_objects_file_arg(args)
+    objects = objects or getattr(args, "objects", None)
+    if objects is None:
+        objects = ",".join(load_objects(record)) if record else "paper"
+    elif record is not None:
+        # Record names, not ids: another objects file loaded first would shift the file's ids.
+        objects = ",".join(o.name for o in resolve_set(objects))
+    return objects, record
+
+
 def add_world_options(p: argparse.ArgumentParser, *, objects: bool = True) -> None:
     """Options that build a :class:`ham.world.config.WorldConfig` (paper defaults)."""
     if objects:
         p.add_argument(
             "--objects",
-            default="paper",
-            help="object set: paper (default), mhsb, all, or a comma list of names/ids",
+            default=None,
+            help="object set: paper (default; with --objects-file: the file's objects), mhsb, "
+            "all, or a comma list of names/ids",
         )
+        add_objects_file_option(p)
     p.add_argument("--simulator", default="fast", help="fast (default) or mujoco")
     p.add_argument(
         "--sensor",
@@ -90,6 +138,8 @@ def world_from_args(args: argparse.Namespace, objects: str | None = None):
     from ham.world.glance import PoseConfig
     from ham.world.sensor import SensorConfig
 
+    objects, record = objects_from_args(args, objects)
+
     sensor = SensorConfig()
     changes = {}
     if args.foam_stiffness is not None:
@@ -109,11 +159,12 @@ def world_from_args(args: argparse.Namespace, objects: str | None = None):
             )
         mujoco["readout"] = "gazebo"
     return WorldConfig(
-        objects=objects or getattr(args, "objects", "paper"),
+        objects=objects,
         simulator=args.simulator,
         sensor=sensor,
         pose=PoseConfig.preset(args.pose),
         mujoco=mujoco,
+        objects_file=record,
     )
 
 

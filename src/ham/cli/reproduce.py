@@ -7,6 +7,7 @@ import argparse
 import json
 import sys
 
+from ham.cli.options import add_objects_file_option, command_line, objects_from_args
 from ham.errors import HamError
 from ham.experiments.reproduce import EXECUTORS, PROFILES, TARGETS, TRAINED_VARIANTS, reproduce
 
@@ -64,6 +65,12 @@ def add_commands(subparsers) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--out", required=True, help="output folder; finished runs in it are skipped")
+    p.add_argument(
+        "--objects",
+        default=None,
+        help="object set (default: paper; with --objects-file: the file's objects)",
+    )
+    add_objects_file_option(p)
     p.set_defaults(func=cmd_reproduce)
 
 
@@ -72,6 +79,9 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         return cmd_grid(args)
     if args.file is not None:
         raise HamError(f"FILE {args.file!r} goes with `ham reproduce grid FILE`, not {args.target}")
+    from ham.world.config import WorldConfig
+
+    objects, record = objects_from_args(args)
     summary = reproduce(
         args.target,
         args.profile or "quick",
@@ -83,9 +93,10 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         device=args.device or "cpu",
         retries=args.retries,
         progress=not args.quiet,
-        command="ham " + " ".join(sys.argv[1:]),
+        command=command_line(args),
         glances=args.glances,
         variants=args.variants,
+        world=WorldConfig(objects=objects, objects_file=record),
     )
     if args.json:
         json.dump(summary, sys.stdout, default=str)
@@ -107,6 +118,11 @@ def cmd_grid(args: argparse.Namespace) -> int:
     given = [f"--{k}" for k in ("profile", "glances", "variants") if getattr(args, k) is not None]
     if given:
         raise HamError(f"{', '.join(given)} apply to the paper's tables, not to a grid file")
+    if args.objects is not None or args.objects_file is not None:
+        raise HamError(
+            "--objects/--objects-file apply to the paper's tables; a grid file names its "
+            "objects in its [world] table (docs/grids.md)"
+        )
     summary = run_grid(
         args.file,
         args.out,

@@ -28,11 +28,15 @@ import traceback
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ham.errors import HamError
 from ham.experiments.runs import is_finished, run_dir
+
+if TYPE_CHECKING:
+    from ham.world.config import WorldConfig
 
 TARGETS = ("table1", "table2", "figures", "all")
 EXECUTORS = ("local", "ray")
@@ -506,11 +510,14 @@ def reproduce(
     command: str | None = None,
     glances: Iterable[int] | None = None,
     variants: Iterable[str] | None = None,
+    world: WorldConfig | None = None,
 ) -> dict:
     """Plan, run (skipping finished runs), aggregate and report. Returns the summary dict.
 
     ``glances`` and ``variants`` cut Table 1 and the figures to a part of the grid (Table 2 is
     always the four combiners at 3 glances), e.g. the paper's protocol for one row on a laptop.
+    ``world``: the world of the glance table (default: the paper's); with an objects file, every
+    worker registers the file's objects from the record in the table and the world.
     """
     from ham.world.config import WorldConfig
     from ham.world.table import build_table
@@ -530,10 +537,14 @@ def reproduce(
         raise HamError(f"workers = {workers}; accepted: >= 1")
     root = Path(out).resolve()
     root.mkdir(parents=True, exist_ok=True)
-    world = WorldConfig()
+    world = world or WorldConfig()
     table = root / f"table_{profile.table_grid}.h5"
-    if not table.exists():
-        build_table(world, profile.table_grid, table, progress=progress, command="ham reproduce")
+    if table.exists():
+        _check_table_objects(table, world)
+    else:
+        build_table(
+            world, profile.table_grid, table, progress=progress, command=command or "ham reproduce"
+        )
     jobs = plan(target, profile, profile.seeds, str(table), device, world.to_dict())
     (root / "plan.json").write_text(json.dumps([j.to_dict() for j in jobs], indent=1))
 
@@ -550,6 +561,20 @@ def reproduce(
     summary["skipped"] = skipped
     summary["ran"] = sum(r["status"] == "done" for r in results.values())
     return summary
+
+
+def _check_table_objects(table: Path, world: WorldConfig) -> None:
+    """Refuse to reuse ``OUT``'s table when it was built for other objects than ``world``'s."""
+    from ham.world.table import table_info
+
+    built = table_info(table).world
+    rec = built.get("objects_file")
+    if (built.get("objects"), rec) != (world.objects, world.objects_file):
+        name = f" from {rec['name']}" if rec else ""
+        raise HamError(
+            f"{table} holds glances of objects {built.get('objects')!r}{name}, not "
+            f"{world.objects!r}; use another --out (or the same objects and objects file)"
+        )
 
 
 def write_outputs(

@@ -27,6 +27,11 @@ class WorldConfig:
 
     ``mujoco`` holds :class:`ham.world.mujoco_sim.MujocoConfig` overrides (e.g. ``{"readout": "gazebo"}``)
     for the MuJoCo simulator; the fast simulator ignores it.
+
+    ``objects_file`` records the user's objects file (``--objects-file``) as
+    ``{"name", "sha256", "source"}`` (:func:`ham.world.objects.read_objects_file`): a world loaded
+    from a table or run (:meth:`from_dict`) and a world resolved in any process
+    (:meth:`resolve_objects`) registers the same objects from the recorded text, hash verified.
     """
 
     objects: str = "paper"
@@ -35,8 +40,21 @@ class WorldConfig:
     pose: PoseConfig = field(default_factory=PoseConfig)
     glance: GlanceConfig = field(default_factory=GlanceConfig)
     mujoco: dict = field(default_factory=dict)
+    objects_file: dict | None = None
+
+    def __post_init__(self) -> None:
+        if self.objects_file is not None:
+            _objects.check_record(self.objects_file)
+
+    def register_objects(self) -> list[str]:
+        """Register the recorded objects file's objects (once per process); their names."""
+        if self.objects_file is None:
+            return []
+        return _objects.load_objects(self.objects_file)
 
     def resolve_objects(self) -> list[HapticObject]:
+        # A world may arrive pickled in a fresh worker process: register before resolving.
+        self.register_objects()
         return _objects.resolve_set(self.objects)
 
     def to_dict(self) -> dict:
@@ -44,17 +62,21 @@ class WorldConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> WorldConfig:
+        """The world saved by :meth:`to_dict`; registers its recorded objects file's objects."""
         try:
-            return cls(
+            world = cls(
                 objects=d.get("objects", "paper"),
                 simulator=d.get("simulator", "fast"),
                 sensor=SensorConfig(**d.get("sensor", {})),
                 pose=PoseConfig(**d.get("pose", {})),
                 glance=GlanceConfig(**d.get("glance", {})),
                 mujoco=dict(d.get("mujoco", {})),
+                objects_file=d.get("objects_file"),
             )
         except TypeError as exc:
             raise HamError(f"world config has an unknown field: {exc}") from None
+        world.register_objects()
+        return world
 
 
 SimulatorFactory = Callable[..., Simulator]

@@ -23,13 +23,23 @@ The default set ``paper`` holds the paper's four objects in the paper's order:
 Four MHSB-like shapes (ids 4..7) ship for experiments beyond the paper: ``ridge``,
 ``trough``, ``step`` and ``double_ridge``. Users add their own with :func:`register`
 and the constructors :meth:`HapticObject.from_function`, :meth:`HapticObject.from_polyline`
-and :meth:`HapticObject.from_heightmap`.
+and :meth:`HapticObject.from_heightmap`, in their own program or in an *objects file*
+(``--objects-file FILE`` on the command line, :func:`load_objects_file`): a self-contained Python
+file that registers objects, or a JSON/TOML list of polylines and heightmaps. A world records the
+file's name, sha256 and text (:func:`read_objects_file`), so a table or run built from it
+re-registers the same objects wherever it is loaded (:func:`load_objects`), in any process.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
+import math
+import re
+import tomllib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -39,8 +49,43 @@ from ham.errors import HamError
 BLOCK_SIZE = 0.09
 #: Height of every block (m). The paper says only "the same height"; we use half the edge.
 BLOCK_HEIGHT = 0.045
+#: Largest width and depth (m) of a user's object: objects stand 0.3 m apart in the MuJoCo scene,
+#: so a block up to 20 cm wide stays out of the pad's reach in the neighbouring zone.
+MAX_SIZE = 0.2
+#: The block height limit (m): no surface point above the block's 9 cm edge.
+MAX_HEIGHT = BLOCK_SIZE
+#: Samples of a height function checked by :meth:`HapticObject.from_function` (the simulators'
+#: height maps and outlines use the same count).
+PROFILE_SAMPLES = 4097
 
 HeightFn = Callable[[np.ndarray], np.ndarray]
+
+# A name is one token: usable in comma lists, HDF5 paths and file names, and never an id.
+_NAME = re.compile(r"[^\W\d][\w.+-]*")
+_NAME_RULE = (
+    "accepted: a letter or '_' first, then letters, digits, '_', '-', '.', '+' "
+    "(no ',', ':', '/', spaces; not a number)"
+)
+
+
+def check_name(name: object) -> str:
+    """``name`` if it can name an object, else a :class:`HamError` naming it."""
+    if not isinstance(name, str):
+        raise HamError(f"object name {name!r} is a {type(name).__name__}; {_NAME_RULE}")
+    if not _NAME.fullmatch(name) or len(name) > 64:
+        raise HamError(f"object name {name!r}; {_NAME_RULE}, at most 64 characters")
+    if name in OBJECT_SETS or name == "all":
+        raise HamError(f"object name {name!r} is the name of an object set; choose another name")
+    return name
+
+
+def _check_size(name: str, what: str, value: object) -> float:
+    ok = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)
+    if not ok or not (math.isfinite(value) and 0 < value <= MAX_SIZE):
+        raise HamError(
+            f"object {name!r}: {what} = {value!r}; accepted: a number in (0, {MAX_SIZE}] (m)"
+        )
+    return float(value)
 
 
 @dataclass(frozen=True, eq=False)
@@ -48,8 +93,9 @@ class HapticObject:
     """A rigid block described by its height profile along x.
 
     Attributes:
-        name: stable registry name.
-        profile: vectorized ``h(x)`` in metres for ``x`` in ``[-width/2, width/2]`` (local frame).
+        name: stable registry name (see :func:`check_name`).
+        profile: vectorized ``h(x)`` in metres for a 1-D array ``x`` in ``[-width/2, width/2]``
+            (local frame), returning an array of the same shape.
         width: extent along x (m); the block occupies ``[-width/2, width/2]``.
         depth: extent along y (m); the shape is constant along y.
         height: the block's maximum height (m), used for plots and scene sizes.
@@ -66,12 +112,30 @@ class HapticObject:
     vertices: np.ndarray | None = field(default=None, repr=False)
     description: str = ""
 
+    def __post_init__(self) -> None:
+        check_name(self.name)
+        if not callable(self.profile):
+            raise HamError(f"object {self.name!r}: profile {self.profile!r} is not a function")
+        _check_size(self.name, "width", self.width)
+        _check_size(self.name, "depth", self.depth)
+        h = self.height
+        number = isinstance(h, (int, float, np.integer, np.floating)) and not isinstance(h, bool)
+        if not (number and math.isfinite(h) and 0 < h <= MAX_HEIGHT):
+            raise HamError(
+                f"object {self.name!r}: height = {h!r}; accepted: a number in (0, {MAX_HEIGHT}] (m)"
+            )
+        if not isinstance(self.description, str) or "\n" in self.description:
+            raise HamError(
+                f"object {self.name!r}: description {self.description!r}; accepted: one line of text"
+            )
+
     def height_at(self, x: np.ndarray) -> np.ndarray:
         """Surface height (m) at local positions ``x``: the profile on the block, 0 (table) beside it."""
         x = np.asarray(x)
         half = 0.5 * self.width
         inside = (x >= -half) & (x <= half)
-        h = self.profile(np.clip(x, -half, half))
+        # The profile is only ever asked about 1-D arrays: flatten, then restore the shape.
+        h = np.asarray(self.profile(np.clip(x, -half, half).reshape(-1))).reshape(x.shape)
         return np.where(inside, h, 0.0).astype(x.dtype if x.dtype.kind == "f" else np.float64)
 
     def outline(self, samples: int = 257) -> np.ndarray:
@@ -95,10 +159,35 @@ class HapticObject:
         depth: float = BLOCK_SIZE,
         description: str = "",
     ) -> HapticObject:
-        """An object from a vectorized height function ``h(x)`` (metres, local frame)."""
-        xs = np.linspace(-0.5 * width, 0.5 * width, 1001)
-        hs = np.asarray(profile(xs), dtype=np.float64)
-        _check_heights(name, hs)
+        """An object from a vectorized height function ``h(x)`` (metres, local frame).
+
+        ``profile`` takes a 1-D array of positions and returns their heights, an array of the same
+        shape (``lambda x: np.full_like(x, 0.03)`` for a flat top, not ``lambda x: 0.03``). It is
+        checked on :data:`PROFILE_SAMPLES` points across the block: finite, in
+        ``[0, MAX_HEIGHT]``, not 0 everywhere.
+        """
+        check_name(name)
+        if not callable(profile):
+            raise HamError(f"object {name!r}: profile {profile!r} is not a function of x")
+        width = _check_size(name, "width", width)
+        _check_size(name, "depth", depth)
+        xs = np.linspace(-0.5 * width, 0.5 * width, PROFILE_SAMPLES)
+        try:
+            out = profile(xs.copy())
+            hs = np.asarray(out, dtype=np.float64)
+        except Exception as exc:  # noqa: BLE001 - the user's function: any failure is bad input
+            msg = " ".join(str(exc).split())
+            raise HamError(
+                f"object {name!r}: profile h(x) failed on an array x of shape {xs.shape}: "
+                f"{type(exc).__name__}: {msg}"
+            ) from None
+        if hs.shape != xs.shape:
+            raise HamError(
+                f"object {name!r}: profile h(x) returned shape {hs.shape} for x of shape "
+                f"{xs.shape}; accepted: a vectorized function returning one height per x "
+                "(e.g. np.full_like(x, 0.03), not 0.03)"
+            )
+        _check_heights(name, xs, hs)
         return cls(name, profile, width, depth, float(hs.max()), None, description)
 
     @classmethod
@@ -115,17 +204,26 @@ class HapticObject:
         The polyline spans the block: its first x is ``-width/2`` and its last ``+width/2``.
         Two consecutive points with the same x make a vertical step.
         """
-        pts = np.asarray(points, dtype=np.float64)
-        if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
-            raise HamError(
-                f"object {name!r}: polyline must be N >= 2 points (x, z), got {pts.shape}"
-            )
+        check_name(name)
+        try:
+            pts = np.asarray(points, dtype=np.float64)
+        except (TypeError, ValueError):
+            pts = None
+        if pts is None or pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
+            got = "not numbers" if pts is None else f"shape {pts.shape}"
+            raise HamError(f"object {name!r}: polyline must be N >= 2 points (x, z), got {got}")
+        if not np.all(np.isfinite(pts[:, 0])):
+            bad = pts[~np.isfinite(pts[:, 0]), 0][0]
+            raise HamError(f"object {name!r}: polyline x = {bad}; accepted: finite numbers (m)")
         if np.any(np.diff(pts[:, 0]) < 0):
-            raise HamError(f"object {name!r}: polyline x must be non-decreasing left to right")
-        _check_heights(name, pts[:, 1])
-        width = float(pts[-1, 0] - pts[0, 0])
-        if width <= 0:
-            raise HamError(f"object {name!r}: polyline must have positive width, got {width}")
+            i = int(np.argmax(np.diff(pts[:, 0]) < 0))
+            raise HamError(
+                f"object {name!r}: polyline x must be non-decreasing left to right, "
+                f"got x = {pts[i, 0]:.6g} then {pts[i + 1, 0]:.6g}"
+            )
+        width = _check_size(name, "width (last x - first x)", float(pts[-1, 0] - pts[0, 0]))
+        _check_size(name, "depth", depth)
+        _check_heights(name, pts[:, 0], pts[:, 1])
         centre = 0.5 * (pts[0, 0] + pts[-1, 0])
         pts = pts - np.array([centre, 0.0])
         return cls(
@@ -143,18 +241,33 @@ class HapticObject:
         description: str = "",
     ) -> HapticObject:
         """An object from heights (m) sampled evenly across the block, joined by straight lines."""
-        hs = np.asarray(heights, dtype=np.float64)
-        if hs.ndim != 1 or len(hs) < 2:
-            raise HamError(f"object {name!r}: heightmap must be a 1-D array of >= 2 heights")
+        check_name(name)
+        try:
+            hs = np.asarray(heights, dtype=np.float64)
+        except (TypeError, ValueError):
+            hs = None
+        if hs is None or hs.ndim != 1 or len(hs) < 2:
+            raise HamError(f"object {name!r}: heightmap must be a 1-D list of >= 2 heights (m)")
+        width = _check_size(name, "width", width)
         xs = np.linspace(-0.5 * width, 0.5 * width, len(hs))
         return cls.from_polyline(name, np.stack([xs, hs], 1), depth=depth, description=description)
 
 
-def _check_heights(name: str, hs: np.ndarray) -> None:
-    if not np.all(np.isfinite(hs)):
-        raise HamError(f"object {name!r}: heights must be finite")
-    if np.any(hs < 0):
-        raise HamError(f"object {name!r}: heights must be >= 0 (the table is at z = 0)")
+def _check_heights(name: str, xs: np.ndarray, hs: np.ndarray) -> None:
+    """Heights inside the block: finite, ``0 <= h <= MAX_HEIGHT``, and not all 0 (no block)."""
+    rule = f"accepted: finite heights in [0, {MAX_HEIGHT}] m"
+    for bad, what in (
+        (~np.isfinite(hs), "is not finite"),
+        (hs < 0, "is below the table (z = 0)"),
+        (hs > MAX_HEIGHT, f"is above the block height limit {MAX_HEIGHT} m"),
+    ):
+        if np.any(bad):
+            i = int(np.argmax(bad))
+            raise HamError(
+                f"object {name!r}: height {hs[i]:.6g} at x = {xs[i]:.6g} m {what}; {rule}"
+            )
+    if not np.any(hs > 0):
+        raise HamError(f"object {name!r}: every height is 0 (no block); {rule}, not all 0")
 
 
 def _polyline_profile(pts: np.ndarray) -> HeightFn:
@@ -231,6 +344,12 @@ def _builtin() -> list[HapticObject]:
 # --------------------------------------------------------------------------- registry
 _REGISTRY: dict[str, HapticObject] = {}
 _ORDER: list[str] = []
+#: Where each registered object came from, for error messages: "built-in", an objects file, ...
+_ORIGIN: dict[str, str] = {}
+#: Objects files loaded in this process: sha256 -> the names they registered (loading is idempotent).
+_FILES: dict[str, tuple[str, ...]] = {}
+#: While an objects file runs: (its name, its sha256, the names it registered so far).
+_LOADING: tuple[str, str, list[str]] | None = None
 
 #: Named object sets; ``paper`` is the paper's four objects in the paper's order.
 OBJECT_SETS: dict[str, tuple[str, ...]] = {
@@ -240,15 +359,38 @@ OBJECT_SETS: dict[str, tuple[str, ...]] = {
 
 
 def register(obj: HapticObject, *, replace: bool = False) -> int:
-    """Add ``obj`` to the registry and return its id (ids are stable: registration order)."""
+    """Add ``obj`` to the registry and return its id (ids are stable: registration order).
+
+    An objects file may only add new names (``replace`` is refused there): a table or run that
+    records the file must mean the same objects wherever it is loaded.
+    """
     if not isinstance(obj, HapticObject):
         raise HamError(f"register() takes a HapticObject, got {type(obj).__name__}")
-    if obj.name in _REGISTRY and not replace:
-        raise HamError(f"object {obj.name!r} is already registered (pass replace=True)")
+    if obj.name in _REGISTRY and (not replace or _LOADING is not None):
+        raise HamError(
+            f"object name {obj.name!r} is already registered "
+            f"({_ORIGIN.get(obj.name, 'by the program')}); choose another name"
+            + (
+                f"; this file (sha256 {_LOADING[1][:12]}) may only add new names"
+                if _LOADING
+                else " or pass replace=True"
+            )
+        )
+    if _LOADING is not None:
+        _LOADING[2].append(obj.name)
+        _ORIGIN[obj.name] = f"objects file {_LOADING[0]!r}"
+    else:
+        _ORIGIN[obj.name] = "by the program"
     if obj.name not in _REGISTRY:
         _ORDER.append(obj.name)
     _REGISTRY[obj.name] = obj
     return _ORDER.index(obj.name)
+
+
+def origin(name: str) -> str:
+    """Where the registered object ``name`` came from: ``built-in``, an objects file, ..."""
+    get(name)
+    return _ORIGIN.get(name, "by the program")
 
 
 def names() -> list[str]:
@@ -298,5 +440,168 @@ def resolve_set(spec: str | Sequence[str | int]) -> list[HapticObject]:
     return objs
 
 
+# --------------------------------------------------------------------------- objects files
+OBJECTS_FILE_SUFFIXES = (".py", ".json", ".toml")
+
+
+def read_objects_file(path: str | Path) -> dict:
+    """The record of an objects file: ``{"name", "sha256", "source"}`` (nothing is registered).
+
+    The record is what a world keeps (:attr:`ham.world.config.WorldConfig.objects_file`): the
+    file's text itself, so that any process can register the same objects with :func:`load_objects`.
+    """
+    p = Path(path)
+    if p.suffix.lower() not in OBJECTS_FILE_SUFFIXES:
+        raise HamError(
+            f"objects file {str(p)!r}: accepted: a .py file that registers objects, or a "
+            ".json/.toml list of polylines and heightmaps"
+        )
+    try:
+        source = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise HamError(f"objects file {str(p)!r} does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        msg = " ".join(str(exc).split())
+        raise HamError(f"cannot read objects file {str(p)!r}: {msg}") from None
+    sha = hashlib.sha256(source.encode("utf-8")).hexdigest()
+    return {"name": p.name, "sha256": sha, "source": source}
+
+
+def check_record(record: object) -> dict:
+    """``record`` if it is a complete objects-file record whose text has its sha256, else an error."""
+    keys = ("name", "sha256", "source")
+    if not (
+        isinstance(record, dict)
+        and set(record) == set(keys)
+        and all(isinstance(record[k], str) for k in keys)
+    ):
+        got = sorted(record) if isinstance(record, dict) else type(record).__name__
+        raise HamError(f"objects_file record {got}; accepted: a dict of strings {list(keys)}")
+    sha = hashlib.sha256(record["source"].encode("utf-8")).hexdigest()
+    if sha != record["sha256"]:
+        raise HamError(
+            f"objects file {record['name']!r}: recorded sha256 {record['sha256'][:16]}... does "
+            f"not match its recorded text ({sha[:16]}...); the record was altered"
+        )
+    if Path(record["name"]).suffix.lower() not in OBJECTS_FILE_SUFFIXES:
+        raise HamError(f"objects_file name {record['name']!r}; accepted: *.py, *.json, *.toml")
+    return record
+
+
+def load_objects(record: dict) -> list[str]:
+    """Register the objects of an objects-file record (verified); returns their names in id order.
+
+    Idempotent per file content (sha256): a process that already loaded it registers nothing
+    again. A file that fails, registers nothing, or takes a name already in use registers nothing.
+    """
+    global _LOADING
+    record = check_record(record)
+    name, sha = record["name"], record["sha256"]
+    if sha in _FILES:
+        return list(_FILES[sha])
+    if _LOADING is not None:
+        raise HamError(f"objects file {name!r}: objects files cannot load other objects files")
+    added: list[str] = []
+    _LOADING = (name, sha, added)
+    try:
+        if Path(name).suffix.lower() == ".py":
+            _run_python(name, record["source"])
+        else:
+            _register_data(name, record["source"])
+        if not added:
+            raise HamError(
+                f"objects file {name!r} registers no objects; accepted: a file that calls "
+                "ham.world.objects.register(HapticObject.from_function/from_polyline/"
+                "from_heightmap(...))"
+            )
+    except BaseException:
+        for n in added:  # leave the registry as it was: the added names are the last ids
+            _REGISTRY.pop(n, None)
+            _ORIGIN.pop(n, None)
+            _ORDER.remove(n)
+        raise
+    finally:
+        _LOADING = None
+    for n in added:
+        _ORIGIN[n] = f"objects file {name!r} (sha256 {sha[:12]})"
+    _FILES[sha] = tuple(added)
+    return list(added)
+
+
+def load_objects_file(path: str | Path) -> dict:
+    """Read the objects file ``path``, register its objects, and return its record."""
+    record = read_objects_file(path)
+    load_objects(record)
+    return record
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
+
+
+def _run_python(name: str, source: str) -> None:
+    try:
+        code = compile(source, name, "exec")
+    except SyntaxError as exc:
+        raise HamError(
+            f"objects file {name!r} has a syntax error at line {exc.lineno}: {exc.msg}"
+        ) from None
+    namespace = {"__name__": "ham_objects_file", "__file__": name}
+    try:
+        exec(code, namespace)  # noqa: S102 - running the user's own objects file is the point
+    except HamError as exc:
+        raise HamError(f"objects file {name!r}: {_one_line(exc)}") from None
+    except (Exception, SystemExit) as exc:  # noqa: BLE001 - any failure of the user's file
+        tb, line = exc.__traceback__, None
+        while tb is not None:  # the innermost line of the file itself
+            if tb.tb_frame.f_code.co_filename == name:
+                line = tb.tb_lineno
+            tb = tb.tb_next
+        where = f" at line {line}" if line else ""
+        raise HamError(
+            f"objects file {name!r} raised {type(exc).__name__}{where}: {_one_line(exc)}"
+        ) from None
+
+
+def _register_data(name: str, source: str) -> None:
+    """JSON/TOML: ``objects = [{name, polyline | heightmap, width?, depth?, description?}, ...]``."""
+    try:
+        data = json.loads(source) if name.lower().endswith(".json") else tomllib.loads(source)
+    except (ValueError, tomllib.TOMLDecodeError) as exc:
+        raise HamError(f"objects file {name!r} is not valid: {_one_line(exc)}") from None
+    entries = data.get("objects") if isinstance(data, dict) else None
+    if not isinstance(entries, list):
+        raise HamError(
+            f"objects file {name!r}: accepted: a top-level list 'objects' of tables "
+            "{name, polyline | heightmap, width, depth, description}"
+        )
+    allowed = {"name", "polyline", "heightmap", "width", "depth", "description"}
+    for i, e in enumerate(entries):
+        if not isinstance(e, dict) or "name" not in e:
+            raise HamError(f"objects file {name!r}: objects[{i}] needs a name")
+        unknown = sorted(set(e) - allowed)
+        shape = [k for k in ("polyline", "heightmap") if k in e]
+        if unknown or len(shape) != 1:
+            raise HamError(
+                f"objects file {name!r}: objects[{i}] ({e['name']!r}) has "
+                + (f"unknown keys {unknown}" if unknown else f"shape keys {shape}")
+                + f"; accepted: one of polyline, heightmap, and {sorted(allowed - {'polyline', 'heightmap'})}"
+            )
+        kw = {k: e[k] for k in ("depth", "description") if k in e}
+        try:
+            if "polyline" in e:
+                if "width" in e:
+                    raise HamError(f"object {e['name']!r}: a polyline's width is its x span")
+                obj = HapticObject.from_polyline(e["name"], e["polyline"], **kw)
+            else:
+                obj = HapticObject.from_heightmap(
+                    e["name"], e["heightmap"], width=e.get("width", BLOCK_SIZE), **kw
+                )
+            register(obj)
+        except HamError as exc:
+            raise HamError(f"objects file {name!r}: {exc}") from None
+
+
 for _obj in _builtin():
     register(_obj)
+    _ORIGIN[_obj.name] = "built-in"

@@ -25,6 +25,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shlex
 import sys
 import time
 from dataclasses import dataclass, field
@@ -38,6 +39,7 @@ from tqdm.auto import tqdm
 import ham
 from ham.errors import HamError
 from ham.world.config import WorldConfig, make_simulator
+from ham.world.objects import load_objects
 from ham.world.sensor import SensorConfig
 
 FORMAT = "ham-glance-table"
@@ -62,6 +64,12 @@ def _check_grid(grid: int) -> None:
         raise HamError(f"grid = {grid!r}; accepted: an integer 2..2001 (the paper uses 201)")
 
 
+def _python_command(call: str) -> str:
+    """The command of a table written through the Python API: the program and the call."""
+    argv = [a for a in sys.argv if a]
+    return f"python {shlex.join(argv)}: {call}" if argv else f"python: {call}"
+
+
 def _checksum(f: h5py.File, names: list[str]) -> str:
     h = hashlib.sha256()
     for name in names:
@@ -82,7 +90,9 @@ def build_table(
 ) -> Path:
     """Record ``grid x grid`` glances per object of ``world`` into the HDF5 file ``out``.
 
-    Resumes from ``out.partial`` when one exists for the same world and grid.
+    Resumes from ``out.partial`` when one exists for the same world and grid. ``command`` is
+    recorded in the file (the CLI passes its argv; default: the Python program and this call).
+    The world, and so any objects file it was built from (name, sha256, text), is recorded too.
     """
     _check_grid(grid)
     out = Path(out)
@@ -156,7 +166,9 @@ def build_table(
                     f["progress"][oi, sl] = True  # only after the data: a crash redoes the block
                     f.flush()
                     bar.update(int((~done[oi, sl]).sum()) * grid)
-        f.attrs["command"] = command or " ".join(sys.argv)
+        f.attrs["command"] = command or _python_command(
+            f"ham.world.table.build_table(grid={grid}, out={str(out)!r})"
+        )
         f.attrs["created"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
         f.attrs["checksum"] = _checksum(f, names)
         del f["progress"]
@@ -275,6 +287,7 @@ class GlanceTable:
 
     @property
     def world(self) -> WorldConfig:
+        """The world the table was built in (its objects file's objects are registered)."""
         return WorldConfig.from_dict(self.info.world)
 
     @property
@@ -285,9 +298,14 @@ class GlanceTable:
     def load(
         cls, path: str | os.PathLike, *, verify: bool = True, device: str = "cpu"
     ) -> GlanceTable:
-        """Read ``path``; refuse truncated, corrupt or mismatched files with a clear error."""
+        """Read ``path``; refuse truncated, corrupt or mismatched files with a clear error.
+
+        Registers the objects of the objects file the table was built from (hash verified).
+        """
         with _open(path) as f:
             info = _read_info(f, str(path))
+            if info.world.get("objects_file") is not None:
+                load_objects(info.world["objects_file"])
             try:
                 arrays = [f[f"objects/{n}/pressure"][...] for n in info.objects]
                 extras = {
@@ -388,7 +406,10 @@ def import_authors(
             simulator=json.dumps({"simulator": "gazebo (authors' data set)", "axes": axes}),
             ham_version=ham.__version__,
             source=f"authors:{Path(src).name}",
-            command=command or " ".join(sys.argv),
+            command=command
+            or _python_command(
+                f"ham.world.table.import_authors({str(src)!r}, {str(out)!r}, axes={axes!r})"
+            ),
             created=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         )
         for name, a in zip(AUTHORS_OBJECTS, arrays, strict=True):
