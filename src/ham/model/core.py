@@ -19,12 +19,13 @@ authors' model (``4 * 256 * (256 + 256) + 4 * 256`` = 525,312).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 from torch import nn
 
 from ham.errors import HamError
 
-CORES: tuple[str, ...] = ("lstm", "mlp")
 ACTIVATIONS: tuple[str, ...] = ("tanh", "relu")
 
 State = tuple[torch.Tensor, ...]
@@ -79,6 +80,39 @@ class MLPCore(nn.Module):
         return torch.relu(self.dense(g)), state
 
 
+#: name -> factory ``(input_size, hidden_size, **options) -> core``; ``HamConfig.core`` is a key.
+#: A core is a module with ``initial_state(batch, like) -> State`` and
+#: ``forward(g, state) -> (tau, state)``, ``tau`` of ``hidden_size`` features.
+CORES: dict[str, Callable[..., nn.Module]] = {}
+
+
+def register_core(name: str):
+    """Decorator: make a core factory available as ``HamConfig(core=name)`` (``--core name``).
+
+    The factory is called as ``factory(input_size, hidden_size, activation=...,
+    truncate_bptt=..., forget_bias=..., bias=...)`` and may ignore the options it has no use for.
+    """
+
+    def add(factory: Callable[..., nn.Module]) -> Callable[..., nn.Module]:
+        if name in CORES:
+            raise HamError(f"core {name!r} is registered already")
+        CORES[name] = factory
+        return factory
+
+    return add
+
+
+@register_core("lstm")
+def _lstm(input_size: int, hidden_size: int, *, activation: str, truncate_bptt: bool,
+          forget_bias: float, **_) -> LSTMCore:  # fmt: skip
+    return LSTMCore(input_size, hidden_size, activation, truncate_bptt, forget_bias)
+
+
+@register_core("mlp")
+def _mlp(input_size: int, hidden_size: int, *, bias: bool, **_) -> MLPCore:
+    return MLPCore(input_size, hidden_size, bias)
+
+
 def make_core(
     kind: str,
     input_size: int,
@@ -88,10 +122,13 @@ def make_core(
     truncate_bptt: bool = False,
     forget_bias: float = 1.0,
     bias: bool = True,
-) -> LSTMCore | MLPCore:
-    """The core named ``kind`` (``lstm`` or ``mlp``)."""
-    if kind == "lstm":
-        return LSTMCore(input_size, hidden_size, activation, truncate_bptt, forget_bias)
-    if kind == "mlp":
-        return MLPCore(input_size, hidden_size, bias)
-    raise HamError(f"core {kind!r}; accepted: {', '.join(CORES)}")
+) -> nn.Module:
+    """The core registered as ``kind`` (``lstm``, ``mlp``, or one of :func:`register_core`)."""
+    try:
+        factory = CORES[kind]
+    except KeyError:
+        raise HamError(f"core {kind!r}; accepted: {', '.join(CORES)}") from None
+    return factory(
+        input_size, hidden_size, activation=activation, truncate_bptt=truncate_bptt,
+        forget_bias=forget_bias, bias=bias,
+    )  # fmt: skip
