@@ -18,3 +18,16 @@ def check_choices(config) -> None:
         if allowed is not None and getattr(config, f.name) not in allowed:
             value = getattr(config, f.name)
             raise HamError(f"{f.name} = {value!r}; accepted: {', '.join(allowed)}")
+
+
+def check_known_fields(cls, d: dict, what: str) -> None:
+    """A dict read from a file names only fields of the dataclass ``cls``: anything else is a
+    typo or a file from another version, refused with the accepted names."""
+    import dataclasses
+
+    if not isinstance(d, dict):
+        raise HamError(f"{what} {d!r}; accepted: a mapping of field names to values")
+    known = [f.name for f in dataclasses.fields(cls)]
+    unknown = sorted(set(d) - set(known))
+    if unknown:
+        raise HamError(f"{what} has unknown fields {unknown}; accepted: {', '.join(known)}")

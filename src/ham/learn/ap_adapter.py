@@ -49,13 +49,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 import torch
 
-from ham.errors import HamError
+from ham.errors import HamError, check_known_fields
 from ham.model.agent import HamConfig
 
 ACTIONS: tuple[str, ...] = ("relative", "absolute")
@@ -170,10 +170,7 @@ class ApGymConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> ApGymConfig:
-        known = {f.name for f in fields(cls)}
-        unknown = set(d) - known
-        if unknown:
-            raise HamError(f"ap_gym env config has unknown fields {sorted(unknown)}")
+        check_known_fields(cls, d, "ap_gym env config")
         return cls(**d)
 
 

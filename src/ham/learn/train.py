@@ -29,13 +29,13 @@ import json
 import math
 import os
 import time
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import torch
 from tqdm.auto import tqdm
 
-from ham.errors import HamError, check_choices
+from ham.errors import HamError, check_choices, check_known_fields
 from ham.learn.ap_adapter import ApGymConfig, ApGymGlanceEnv
 from ham.learn.environment import HapticEnv
 from ham.learn.evaluation import EVAL_POLICIES, evaluate
@@ -172,11 +172,8 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> TrainConfig:
+        check_known_fields(cls, d, "train config")
         d = dict(d)
-        known = {f.name for f in fields(cls)}
-        unknown = set(d) - known
-        if unknown:
-            raise HamError(f"train config has unknown fields {sorted(unknown)}")
         d["model"] = HamConfig.from_dict(d.get("model", {}))
         d["world"] = WorldConfig.from_dict(d.get("world", {}))
         if d.get("env") is not None:

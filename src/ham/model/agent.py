@@ -20,12 +20,12 @@ default; where the authors' code differs, the field offers the code's choice as 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 
 import torch
 from torch import nn
 
-from ham.errors import HamError, check_choices
+from ham.errors import HamError, check_choices, check_known_fields
 from ham.model.baseline import Baseline
 from ham.model.classifier import Classifier
 from ham.model.core import ACTIVATIONS, CORES, State, make_core
@@ -101,10 +101,7 @@ class HamConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> HamConfig:
-        known = {f.name for f in fields(cls)}
-        unknown = set(d) - known
-        if unknown:
-            raise HamError(f"model config has unknown fields {sorted(unknown)}")
+        check_known_fields(cls, d, "model config")
         return cls(**d)
 
 
