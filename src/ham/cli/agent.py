@@ -158,10 +158,17 @@ def _set_threads(threads: int | None) -> None:
 def _config_from_args(args: argparse.Namespace):
     from ham.learn.train import TrainConfig
     from ham.model.agent import HamConfig
+    from ham.world.config import WorldConfig
     from ham.world.objects import resolve_set
 
     world = _world_from_args(args)
     n_objects = None
+    if args.table and world != WorldConfig():
+        # the table holds its own world: world options would be silently ignored
+        raise HamError(
+            f"--table {args.table} holds its own world; remove the world options "
+            f"({', '.join(_world_changes(world))}) or train --online"
+        )
     if args.table:
         from ham.world.table import table_info
 
@@ -205,6 +212,20 @@ def _config_from_args(args: argparse.Namespace):
     )
 
 
+def _world_changes(world) -> list[str]:
+    """``key=value`` for each field of ``world`` that differs from the default world."""
+    from ham.world.config import WorldConfig
+
+    def flat(d: dict, prefix: str = "") -> dict:
+        out = {}
+        for k, v in d.items():
+            out.update(flat(v, f"{prefix}{k}.") if isinstance(v, dict) else {prefix + k: v})
+        return out
+
+    new, old = flat(world.to_dict()), flat(WorldConfig().to_dict())
+    return [f"{k}={v!r}" for k, v in new.items() if old.get(k, object()) != v]
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     from ham.learn.train import resume, train
 
@@ -214,6 +235,10 @@ def cmd_train(args: argparse.Namespace) -> int:
 
         return train_from_args(args)
     progress = not args.no_progress
+    env_only = [o for o, v in (("--actions", args.actions), ("--max-step-length", args.max_step_length),
+                               ("--eval-env", args.eval_env)) if v is not None]  # fmt: skip
+    if env_only:
+        raise HamError(f"{', '.join(env_only)}: accepted only with --env ap_gym:ENV_ID")
     if args.resume:
         if args.out:
             raise HamError("give either --resume DIR or --out DIR, not both")
@@ -247,8 +272,12 @@ def cmd_train(args: argparse.Namespace) -> int:
     else:
         if not args.out:
             raise HamError("ham train needs --out DIR (or --resume DIR)")
+        from ham.world.devices import check_device
+        from ham.world.files import check_output_dir
+
+        out = check_output_dir(args.out)
         config = _config_from_args(args)
-        out = Path(args.out)
+        check_device(config.device)  # before any output: a missing GPU is named at once
         from ham.model.agent import HapticAttentionModel, count_parameters
 
         n = count_parameters(HapticAttentionModel(config.model))
@@ -302,14 +331,19 @@ def cmd_heatmap(args: argparse.Namespace) -> int:
     from ham.experiments.figures import plot_heatmap
     from ham.learn.evaluation import heatmap_data
     from ham.learn.train import load_run
+    from ham.world.files import atomic_write, check_output
 
+    check_output(args.out, (".png",))
+    if args.json:
+        check_output(args.json, (".json",), what="--json")
     run = load_run(args.run, device=args.device)
     policy = args.eval_policy or run.config.eval_policy
     data = heatmap_data(run.agent, run.env, args.batches, args.bins, seed=args.seed, policy=policy)
     data["step"] = run.step
     out = plot_heatmap(data, args.out)
     if args.json:
-        Path(args.json).write_text(json.dumps(data) + "\n")
+        text = json.dumps(data) + "\n"
+        atomic_write(args.json, lambda tmp: tmp.write_text(text), what="heat map data")
     print(f"wrote {out} (accuracy {data['accuracy']:.4f} over {args.batches} batches)")
     return 0
 

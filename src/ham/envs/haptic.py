@@ -38,6 +38,7 @@ import torch
 
 from ham.errors import HamError
 from ham.world.config import WorldConfig
+from ham.world.devices import check_device
 
 ENV_NORMALIZATIONS: tuple[str, ...] = ("l2", "l1", "none")
 RENDER_MODES: tuple[str, ...] = ("rgb_array",)
@@ -65,7 +66,7 @@ class GlanceBackend:
     Args:
         table: a glance table (HDF5) to look glances up in; ``None``: simulate them online.
         world: the world simulated online (:class:`ham.world.config.WorldConfig` or its dict; paper
-            defaults); ignored with a table, which carries its own.
+            defaults); refused with a table, which carries its own.
         normalization: ``l2`` (paper), ``l1`` (authors' code) or ``none`` (raw pressure, Pa).
         device: where glances are computed (``cpu`` or ``cuda``); observations are NumPy.
     """
@@ -83,13 +84,17 @@ class GlanceBackend:
             raise HamError(
                 f"normalization = {normalization!r}; accepted: {', '.join(ENV_NORMALIZATIONS)}"
             )
+        if table is not None and world is not None:
+            raise HamError(
+                f"table = {str(table)!r} and world = {world!r}: give one (a table holds its own world)"
+            )
         if isinstance(world, dict):
             world = WorldConfig.from_dict(world)
         if world is not None and not isinstance(world, WorldConfig):
             raise HamError(f"world = {world!r}; accepted: a WorldConfig, its dict, or None")
         if table is not None and not Path(table).exists():
             raise HamError(f"glance table {str(table)!r} does not exist")
-        self.device = torch.device(device)
+        self.device = check_device(device)
         self.source, self.world = make_source(table, world, self.device)
         self.table = None if table is None else str(table)
         self.normalization = normalization

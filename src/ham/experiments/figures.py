@@ -20,13 +20,16 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ham.errors import HamError  # noqa: E402
+from ham.world.files import atomic_write, check_output  # noqa: E402
 
 
-def _out(out_png: str | os.PathLike) -> Path:
-    out = Path(out_png)
-    if out.parent and not out.parent.exists():
-        out.parent.mkdir(parents=True, exist_ok=True)
-    return out
+def _save(fig, out_png: str | os.PathLike) -> Path:
+    """Write ``fig`` to the PNG ``out_png`` atomically (checked path; no partial file)."""
+    try:
+        out = check_output(out_png, (".png",), what="picture")
+        return atomic_write(out, lambda tmp: fig.savefig(tmp, dpi=120), what="picture")
+    finally:
+        plt.close(fig)
 
 
 def plot_training_curve(metrics: dict, out_png: str | os.PathLike) -> Path:
@@ -60,10 +63,7 @@ def plot_training_curve(metrics: dict, out_png: str | os.PathLike) -> Path:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="lower right")
     fig.tight_layout()
-    out = _out(out_png)
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+    return _save(fig, out_png)
 
 
 def plot_heatmap(heatmap_data: dict, out_png: str | os.PathLike) -> Path:
@@ -107,7 +107,4 @@ def plot_heatmap(heatmap_data: dict, out_png: str | os.PathLike) -> Path:
         fontsize=10,
     )
     fig.tight_layout()
-    out = _out(out_png)
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+    return _save(fig, out_png)

@@ -46,7 +46,6 @@ import dataclasses
 import json
 import math
 import os
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -54,6 +53,8 @@ import torch
 
 from ham.errors import HamError
 from ham.model.agent import HamConfig, HapticAttentionModel
+from ham.world.devices import check_device
+from ham.world.files import check_output_dir
 
 ACTIONS: tuple[str, ...] = ("relative", "absolute")
 NORMALIZATIONS: tuple[str, ...] = ("none", "l2", "l1")
@@ -178,7 +179,7 @@ class ApGymGlanceEnv:
         self.normalization = normalization
         self.seed = int(seed)
         self.eval_seed = int(eval_seed)
-        self.device = torch.device(device)
+        self.device = check_device(device)
         self.max_step_length = max_step_length
         self.env_kwargs = dict(env_kwargs or {})
 
@@ -455,7 +456,7 @@ def train_on_ap_gym(
     """
     from ham.learn import train as ham_train
 
-    out = Path(out)
+    out = check_output_dir(out)
     if (out / ham_train.CHECKPOINT_FILE).exists():
         raise HamError(f"{str(out)!r} already holds a run; choose another --out")
     train_fields = dict(train or {})

@@ -38,6 +38,8 @@ from ham.learn.evaluation import EVAL_POLICIES, evaluate
 from ham.learn.hybrid_loss import REDUCTIONS, HybridLoss, hybrid_loss
 from ham.model.agent import HamConfig, HapticAttentionModel, count_parameters
 from ham.world.config import WorldConfig
+from ham.world.devices import check_device
+from ham.world.files import check_output_dir
 from ham.world.sensor import NORMALIZATIONS
 from ham.world.source import make_source
 
@@ -132,8 +134,7 @@ class TrainConfig:
             raise HamError(
                 f"normalization {self.normalization!r}; accepted: {', '.join(NORMALIZATIONS)}"
             )
-        if self.device.split(":")[0] not in DEVICES:
-            raise HamError(f"device {self.device!r}; accepted: {', '.join(DEVICES)}")
+        check_device(self.device, available=False)  # spelling only: a saved GPU run loads on CPU
 
     def learning_rate(self, step: int) -> float:
         """``alpha_t = max(alpha_min, alpha_0 * delta_alpha^(t / T))`` (section "Training")."""
@@ -180,9 +181,7 @@ class Run:
 
     @classmethod
     def create(cls, config: TrainConfig) -> Run:
-        device = torch.device(config.device)
-        if device.type == "cuda" and not torch.cuda.is_available():
-            raise HamError("device 'cuda' requested but CUDA is not available; use --device cpu")
+        device = check_device(config.device)
         source, world = make_source(config.table, config.world, device)
         if source.n_objects != config.model.n_objects:
             raise HamError(
@@ -291,12 +290,13 @@ def load_run(out: str | os.PathLike, device: str | None = None) -> Run:
 # --------------------------------------------------------------------------- the loop
 def train(config: TrainConfig, out: str | os.PathLike, *, progress: bool = True) -> dict:
     """Train a fresh run into directory ``out``; returns the metrics (also in metrics.json)."""
-    out = Path(out)
+    out = check_output_dir(out)
     if (out / CHECKPOINT_FILE).exists():
         raise HamError(f"{str(out)!r} already holds a run; continue it with --resume {out}")
+    run = Run.create(config)  # first: a bad table or device leaves no half-made run directory
     out.mkdir(parents=True, exist_ok=True)
     _write_json(out / CONFIG_FILE, config.to_dict())
-    return train_loop(Run.create(config), out, progress)
+    return train_loop(run, out, progress)
 
 
 def resume(out: str | os.PathLike, *, steps: int | None = None, progress: bool = True) -> dict:
@@ -305,11 +305,14 @@ def resume(out: str | os.PathLike, *, steps: int | None = None, progress: bool =
     config = TrainConfig.from_dict(read_json(out / CONFIG_FILE))
     if steps is not None:
         config = replace(config, steps=steps)
-        _write_json(out / CONFIG_FILE, config.to_dict())
     run = Run.create(config)
     run.load_state_dict(load_checkpoint(out))
     if run.step > config.steps:
-        raise HamError(f"the run is at step {run.step}, beyond --steps {config.steps}")
+        raise HamError(
+            f"--steps {config.steps}: the run is already at step {run.step}; accepted: >= {run.step}"
+        )
+    if steps is not None:  # only once accepted: a refused --steps leaves the run as it was
+        _write_json(out / CONFIG_FILE, config.to_dict())
     return train_loop(run, out, progress)
 
 

@@ -30,6 +30,10 @@ import torch
 
 from ham.errors import HamError
 
+#: Stiffer foam than this is rigid within float32's resolution of z (2 N on 64 cm^2 compresses it
+#: 0.3 nm, below the ~4 nm spacing of float32 heights near 4.5 cm).
+MAX_FOAM_STIFFNESS = 1e12
+
 Normalization = Literal["l2", "l1", "none"]
 NORMALIZATIONS: tuple[str, ...] = ("l2", "l1", "none")
 
@@ -70,12 +74,15 @@ class SensorConfig:
         _positive("taxels", self.taxels, integer=True)
         _positive("pitch", self.pitch)
         _positive("foam_stiffness", self.foam_stiffness)
+        _at_most("foam_stiffness", self.foam_stiffness, MAX_FOAM_STIFFNESS, "Pa/m (rigid beyond)")
         _positive("foam_thickness", self.foam_thickness)
         if not (math.isfinite(self.housing_thickness) and self.housing_thickness >= 0):
             raise HamError(f"housing_thickness = {self.housing_thickness} must be >= 0 (m)")
         _positive("supersample", self.supersample, integer=True)
         if self.spread_sigma is not None:
             _positive("spread_sigma", self.spread_sigma)
+            # wider than the pad, the blur leaves a flat smear: no image left to read
+            _at_most("spread_sigma", self.spread_sigma, self.size, "m (the pad's edge)")
         if self.quantize_bits is not None and not (
             isinstance(self.quantize_bits, int) and 1 <= self.quantize_bits <= 32
         ):
@@ -94,6 +101,11 @@ class SensorConfig:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+def _at_most(name: str, value: float, top: float, unit: str) -> None:
+    if value > top:
+        raise HamError(f"{name} = {value!r}; accepted: a positive number <= {top:g} {unit}")
 
 
 def _positive(name: str, value: float, *, integer: bool = False) -> None:
