@@ -520,6 +520,23 @@ def _ap(**kw):
     return call
 
 
+def _ap_step(action, vector=False):
+    def call(fx):
+        import ham.envs
+        from ham.learn.ap_adapter import import_ap_gym
+
+        ap_gym = import_ap_gym()
+        env = (
+            ap_gym.make_vec(ham.envs.AP_ENV_ID, num_envs=2)
+            if vector
+            else ap_gym.make(ham.envs.AP_ENV_ID)
+        )
+        env.reset(seed=0)
+        env.step(action)
+
+    return call
+
+
 def _vec(**kw):
     def call(fx):
         import gymnasium as gym
@@ -682,6 +699,29 @@ PY_CASES = [
     ("gym-step-nan-pose", _env_step({"pose": [float("nan"), 0.0], "prediction": 0}), "nan"),
     ("gym-reset-object-99", _env_step({"pose": [0.0, 0.0], "prediction": 0}, {"object": 99}), "99"),
     ("ap-glances-0", _ap(glances=0), "glances = 0"),
+    ("ap-action-keys", _ap_step({"pose": [0.0, 0.0], "prediction": np.zeros(4)}), "'pose'"),
+    ("ap-prediction-nan", _ap_step({"action": np.zeros(2), "prediction": np.full(4, np.nan)}), "nan"),
+    ("ap-prediction-shape", _ap_step({"action": np.zeros(2), "prediction": np.zeros(3)}), "(3,)"),
+    ("ap-vec-action-keys", _ap_step({"pose": 1}, vector=True), "'pose'"),
+    ("gym-table-int", _gym(table=5), "5"),
+    ("gym-reset-unknown-option", _env_step({"pose": [0.0, 0.0], "prediction": 0}, {"objekt": 1}), "objekt"),
+    ("gym-reset-options-list", _env_step({"pose": [0.0, 0.0], "prediction": 0}, [1]), "[1]"),
+    ("gym-step-extra-key", _env_step({"pose": [0.0, 0.0], "prediction": 0, "force": 2}), "force"),
+    ("gym-step-no-prediction", _env_step({"pose": [0.0, 0.0]}), "prediction"),
+    ("gym-step-prediction-99", _env_step({"pose": [0.0, 0.0], "prediction": 99}), "99"),
+    ("train-config-beta-str", _train_config(beta="high"), "'high'"),
+    ("train-config-decay-str", _train_config(lr_decay="slow"), "'slow'"),
+    ("train-config-momentum-none", _train_config(momentum=None), "None"),
+    ("train-config-seed-bool", _train_config(seed=True), "True"),
+    ("train-config-table-int", _train_config(table=5), "5"),
+    ("train-config-world-dict", _train_config(world={}), "{}"),
+    ("train-config-model-dict", _train_config(model={}), "{}"),
+    ("train-config-nesterov-str", _train_config(nesterov="no"), "'no'"),
+    ("train-config-from-list", lambda fx: __import__("ham.learn.train", fromlist=["x"]).TrainConfig.from_dict([1]), "[1]"),
+    ("pose-config-str", lambda fx: __import__("ham.world.glance", fromlist=["x"]).PoseConfig(phi_max="wide"), "'wide'"),
+    ("glance-config-str", lambda fx: __import__("ham.world.glance", fromlist=["x"]).GlanceConfig(force_threshold="2N"), "'2N'"),
+    ("sensor-bits-bool", _sensor(quantize_bits=True), "True"),
+    ("sensor-housing-str", _sensor(housing_thickness="thick"), "thick"),
     ("ap-device-bad", _ap(device="cpu:abc"), "'cpu:abc'"),
     ("ap-world-unknown", _ap(world={"colour": "red"}), "colour"),
     ("train-config-device", _train_config(device="cpu:abc"), "'cpu:abc'"),

@@ -106,6 +106,15 @@ class TrainConfig:
     log_every: int = 10
 
     def __post_init__(self) -> None:
+        for name, kind in (("model", HamConfig), ("world", WorldConfig), ("nesterov", bool)):
+            if not isinstance(getattr(self, name), kind):
+                raise HamError(f"{name} = {getattr(self, name)!r}; accepted: a {kind.__name__}")
+        if self.table is not None and not isinstance(self.table, str):
+            raise HamError(f"table = {self.table!r}; accepted: a glance table's path or None")
+        for name in ("lr", "lr_min", "lr_decay", "momentum", "beta"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise HamError(f"{name} = {v!r}; accepted: a finite number")
         for name in ("steps", "batch_size", "lr_step", "eval_every", "eval_batches", "log_every"):
             v = getattr(self, name)
             low = 0 if name == "steps" else 1
@@ -121,7 +130,7 @@ class TrainConfig:
             raise HamError(f"momentum = {self.momentum!r}; accepted: 0 <= momentum < 1")
         if not (math.isfinite(self.beta) and self.beta >= 0):
             raise HamError(f"beta = {self.beta!r}; accepted: a finite number >= 0")
-        if not isinstance(self.seed, int) or self.seed < 0:
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
             raise HamError(f"seed = {self.seed!r}; accepted: an integer >= 0")
         for name in ("classification_reduction", "reinforce_reduction"):
             if getattr(self, name) not in REDUCTIONS:
@@ -147,6 +156,8 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> TrainConfig:
+        if not isinstance(d, dict):
+            raise HamError(f"train config {d!r}; accepted: a dict of TrainConfig fields")
         d = dict(d)
         known = {f.name for f in fields(cls)}
         unknown = set(d) - known

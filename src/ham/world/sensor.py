@@ -76,7 +76,12 @@ class SensorConfig:
         _positive("foam_stiffness", self.foam_stiffness)
         _at_most("foam_stiffness", self.foam_stiffness, MAX_FOAM_STIFFNESS, "Pa/m (rigid beyond)")
         _positive("foam_thickness", self.foam_thickness)
-        if not (math.isfinite(self.housing_thickness) and self.housing_thickness >= 0):
+        h = self.housing_thickness
+        if (
+            isinstance(h, bool)
+            or not isinstance(h, (int, float))
+            or not (math.isfinite(h) and h >= 0)
+        ):
             raise HamError(f"housing_thickness = {self.housing_thickness} must be >= 0 (m)")
         _positive("supersample", self.supersample, integer=True)
         if self.spread_sigma is not None:
@@ -84,7 +89,9 @@ class SensorConfig:
             # wider than the pad, the blur leaves a flat smear: no image left to read
             _at_most("spread_sigma", self.spread_sigma, self.size, "m (the pad's edge)")
         if self.quantize_bits is not None and not (
-            isinstance(self.quantize_bits, int) and 1 <= self.quantize_bits <= 32
+            isinstance(self.quantize_bits, int)
+            and not isinstance(self.quantize_bits, bool)
+            and 1 <= self.quantize_bits <= 32
         ):
             raise HamError(f"quantize_bits = {self.quantize_bits!r}; accepted: None or 1..32")
         _positive("full_scale", self.full_scale)
