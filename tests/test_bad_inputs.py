@@ -243,6 +243,8 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("glance-out-txt", ["glance", "--object", "box", "--x", "0", "--phi", "0", "--out", "notes.txt"], "'notes.txt'"),
     ("glance-out-fake-png", ["glance", "--object", "box", "--x", "0", "--phi", "0", "--out", "fake.png"], "'fake.png'"),
     ("glance-out-under-file", ["glance", "--object", "box", "--x", "0", "--phi", "0", "--out", "notes.txt/x.png"], "notes.txt"),
+    ("glance-out-proc", ["glance", "--object", "box", "--x", "0", "--phi", "0", "--out", "/proc/x.png"], "'/proc/x.png'"),
+    ("build-out-proc", ["table", "build", "--grid", "3", "--out", "/proc/t.h5"], "/proc/t.h5"),
     ("glance-out-empty", ["glance", "--object", "box", "--x", "0", "--phi", "0", "--out", " "], "' '"),
     ("objects-set-unknown", ["objects", "--set", "nosuch"], "'nosuch'"),
     ("objects-set-99", ["objects", "--set", "99"], "99"),
@@ -341,6 +343,8 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("train-table-and-objects", ["train", "--out", "r", "--table", "{good}", "--objects", "box"], "objects='box'"),
     ("train-table-and-sigma", ["train", "--out", "r", "--table", "{good}", "--spread-sigma", "0.005"], "spread_sigma=0.005"),
     ("train-table-and-simulator", ["train", "--out", "r", "--table", "{good}", "--simulator", "mujoco"], "simulator='mujoco'"),
+    ("train-env-and-objects", ["train", "--out", "r", "--env", AP_ENV, "--objects", "mhsb"], "objects='mhsb'"),
+    ("resume-and-sigma", ["train", "--resume", "{run}", "--spread-sigma", "0.005"], "spread_sigma=0.005"),
     ("train-objects-one", ["train", "--out", "r", "--objects", "box"], "n_objects = 1"),
     ("train-objects-unknown", ["train", "--out", "r", "--objects", "nosuch"], "'nosuch'"),
     ("train-sigma-100", ["train", "--out", "r", "--spread-sigma", "100"], "100"),
@@ -780,6 +784,19 @@ def test_case_count():
     assert len(set(c[0] for c in CLI_CASES)) == len(CLI_CASES)
     assert len(set(c[0] for c in PY_CASES)) == len(PY_CASES)
     assert ids
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+@pytest.mark.parametrize("out", ["locked/g.png", "locked/sub/g.png"])
+def test_unwritable_folder(out, work, capsys):
+    (work / "locked").mkdir(mode=0o500)
+    try:
+        rc, _, err = run_inprocess(["glance", "--object", "box", "--x", "0", "--phi", "0",
+                                    "--out", out], capsys)  # fmt: skip
+    finally:
+        (work / "locked").rmdir()
+    assert rc == 2
+    check_message(err, "not writable")
 
 
 # --------------------------------------------------------------------------- what still works

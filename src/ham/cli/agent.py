@@ -158,17 +158,10 @@ def _set_threads(threads: int | None) -> None:
 def _config_from_args(args: argparse.Namespace):
     from ham.learn.train import TrainConfig
     from ham.model.agent import HamConfig
-    from ham.world.config import WorldConfig
     from ham.world.objects import resolve_set
 
     world = _world_from_args(args)
     n_objects = None
-    if args.table and world != WorldConfig():
-        # the table holds its own world: world options would be silently ignored
-        raise HamError(
-            f"--table {args.table} holds its own world; remove the world options "
-            f"({', '.join(_world_changes(world))}) or train --online"
-        )
     if args.table:
         from ham.world.table import table_info
 
@@ -212,6 +205,24 @@ def _config_from_args(args: argparse.Namespace):
     )
 
 
+def _refuse_world_options(args: argparse.Namespace) -> None:
+    """World options with --table, --env or --resume would be silently ignored: refuse them."""
+    from ham.world.config import WorldConfig
+
+    owner = (
+        f"--table {args.table}" if args.table else f"--env {args.env}" if args.env
+        else f"--resume {args.resume}" if args.resume else None
+    )  # fmt: skip
+    if owner is None:
+        return
+    world = _world_from_args(args)
+    if world != WorldConfig():
+        raise HamError(
+            f"{owner} brings its own world; remove the world options "
+            f"({', '.join(_world_changes(world))})"
+        )
+
+
 def _world_changes(world) -> list[str]:
     """``key=value`` for each field of ``world`` that differs from the default world."""
     from ham.world.config import WorldConfig
@@ -230,6 +241,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     from ham.learn.train import resume, train
 
     _set_threads(args.threads)
+    _refuse_world_options(args)
     if args.env:  # another world: the ap_gym adapter (ham.learn.ap_adapter)
         from ham.cli.envs import train_from_args
 
