@@ -456,19 +456,16 @@ def test_cli_bad_input(case, fx, work, capsys):
 # The real CLI in a subprocess behaves the same (parser errors, HamError, files, devices).
 SUBPROCESS = [
     "unknown-command",
-    "table-no-action",
     "glance-x-not-number",
     "x-minus-inf",
     "sigma-100",
     "glance-out-jpg",
-    "glance-out-dir",
     "build-out-txt",
     "info-altered",
     "verify-noobjects",
     "train-device-cpu-abc",
     "evaluate-seed-minus",
     "reproduce-workers-0",
-    "reproduce-retries-minus",
     "heatmap-json-dir",
     "envs-check-table-nan",
 ]
