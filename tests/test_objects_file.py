@@ -320,7 +320,7 @@ def test_object_options_that_would_be_ignored_are_refused(own, tmp_path):
     assert "--objects 'paper' chooses the online world's objects; the table" in one_line_error(r)
     r = run_ham("train", "--env", "ap_gym:CIFAR10-v0", "--objects-file", str(f),
                 "--out", str(tmp_path / "b"))  # fmt: skip
-    assert "--env ap_gym:CIFAR10-v0 is another world" in one_line_error(r)
+    assert "--env ap_gym:CIFAR10-v0 brings its own world" in one_line_error(r)
     r = run_ham("envs", "check", "--table", str(table), "--objects", "wedge")
     assert "--objects 'wedge' chooses the online world's objects" in one_line_error(r)
     assert list(tmp_path.iterdir()) == []

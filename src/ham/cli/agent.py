@@ -132,6 +132,7 @@ def _config_from_args(args: argparse.Namespace):
                 f"--taxels/--pitch set the haptic world's pad; --env {args.env} brings its own "
                 "glimpse: leave them out"
             )
+    _refuse_world_options(args)  # --table and --env bring their own world: nothing is ignored
     # The input size (taxels^2) and the classes come from the table or the online world.
     model = model_for_source(HamConfig(**overrides(args, HamConfig)), args.table, world)
     table = str(Path(args.table).resolve()) if args.table else None
@@ -168,13 +169,45 @@ def _check_table_sensor(args: argparse.Namespace, info) -> None:
             )
 
 
+def _refuse_world_options(args: argparse.Namespace) -> None:
+    """World options with --table, --env or --resume would be silently ignored: refuse them."""
+    from ham.world.config import WorldConfig
+
+    owner = (
+        f"--table {args.table}" if args.table else f"--env {args.env}" if args.env
+        else f"--resume {args.resume}" if args.resume else None
+    )  # fmt: skip
+    if owner is None:
+        return
+    world = _world_from_args(args)
+    if world != WorldConfig():
+        raise HamError(
+            f"{owner} brings its own world; remove the world options "
+            f"({', '.join(_world_changes(world))})"
+        )
+
+
+def _world_changes(world) -> list[str]:
+    """``key=value`` for each field of ``world`` that differs from the default world."""
+    from ham.world.config import WorldConfig
+
+    def flat(d: dict, prefix: str = "") -> dict:
+        out = {}
+        for k, v in d.items():
+            out.update(flat(v, f"{prefix}{k}.") if isinstance(v, dict) else {prefix + k: v})
+        return out
+
+    d = world.to_dict()
+    if d.get("objects_file"):  # name the file, not its recorded text
+        d["objects_file"] = d["objects_file"]["name"]
+    new, old = flat(d), flat(WorldConfig().to_dict())
+    return [f"{k}={v!r}" for k, v in new.items() if old.get(k, object()) != v]
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     from ham.learn.train import resume, train
 
     _set_threads(args.threads)
-    if args.env and (args.objects is not None or args.objects_file is not None):
-        raise HamError(f"--objects/--objects-file choose the haptic world's objects; --env "
-                       f"{args.env} is another world: give one of them")  # fmt: skip
     progress = not args.no_progress
     if args.resume:
         if args.out:
@@ -202,13 +235,18 @@ def cmd_train(args: argparse.Namespace) -> int:
                 f"--resume continues the run with its own config; remove {', '.join(ignored)} "
                 "(only --steps may change)"
             )
+        _refuse_world_options(args)  # the run brings its own world
         out = Path(args.resume)
         metrics = resume(out, steps=args.steps, progress=progress)
     else:
         if not args.out:
             raise HamError("ham train needs --out DIR (or --resume DIR)")
+        from ham.world.devices import check_device
+        from ham.world.files import check_output_dir
+
+        out = check_output_dir(args.out)
         config = _config_from_args(args)
-        out = Path(args.out)
+        check_device(config.device)  # before any output: a missing GPU is named at once
         from ham.model.agent import HapticAttentionModel, count_parameters
 
         n = count_parameters(HapticAttentionModel(config.model))
@@ -288,14 +326,19 @@ def cmd_heatmap(args: argparse.Namespace) -> int:
     from ham.experiments.figures import plot_heatmap
     from ham.learn.evaluation import heatmap_data
     from ham.learn.train import load_run
+    from ham.world.files import atomic_write, check_output
 
+    check_output(args.out, (".png",))
+    if args.json:
+        check_output(args.json, (".json",), what="--json")
     run = load_run(args.run, device=args.device)
     policy = args.eval_policy or run.config.eval_policy
     data = heatmap_data(run.agent, run.env, args.batches, args.bins, seed=args.seed, policy=policy)
     data["step"] = run.step
     out = plot_heatmap(data, args.out)
     if args.json:
-        Path(args.json).write_text(json.dumps(data) + "\n")
+        text = json.dumps(data) + "\n"
+        atomic_write(args.json, lambda tmp: tmp.write_text(text), what="heat map data")
     print(f"wrote {out} (accuracy {data['accuracy']:.4f} over {args.batches} batches)")
     return 0
 

@@ -249,8 +249,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
     import ham.envs
     from ham.learn.ap_adapter import import_ap_gym
 
-    if args.threads < 1 or any(n < 1 for n in args.num_envs):
-        raise HamError("--threads and --num-envs take integers >= 1")
+    if args.threads < 1:
+        raise HamError(f"--threads {args.threads}; accepted: an integer >= 1")
+    if any(n < 1 for n in args.num_envs):
+        raise HamError(f"--num-envs {args.num_envs}; accepted: integers >= 1")
     torch.set_num_threads(args.threads)
     ap_gym = import_ap_gym()
     with warnings.catch_warnings():

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import math
+import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -25,6 +26,10 @@ from ham.cli.options import (  # noqa: F401
     world_from_args,
 )
 from ham.errors import HamError
+from ham.world.files import check_output
+
+PNG = (".png",)
+HDF5 = (".h5", ".hdf5")
 
 # Modules that add subcommands; a missing optional one is skipped.
 _COMMAND_MODULES = (
@@ -40,6 +45,8 @@ _COMMAND_MODULES = (
 def cmd_objects(args: argparse.Namespace) -> int:
     from ham.world import objects
 
+    if args.out:
+        check_output(args.out, PNG)
     load_objects_file_arg(args)
     objs = objects.resolve_set(args.set)
     rows = [
@@ -75,6 +82,8 @@ def cmd_glance(args: argparse.Namespace) -> int:
     from ham.world import objects
     from ham.world.config import make_simulator
 
+    if args.out:
+        check_output(args.out, PNG)
     world = world_from_args(args)  # registers --objects-file's objects first
     obj = objects.get(args.object)
     if args.objects is not None and obj not in world.resolve_objects():
@@ -106,6 +115,7 @@ def cmd_glance(args: argparse.Namespace) -> int:
 def cmd_table_build(args: argparse.Namespace) -> int:
     from ham.world.table import build_table
 
+    check_output(args.out, HDF5)
     world = world_from_args(args)
     out = build_table(
         world, args.grid, args.out, progress=not args.quiet, command=command_line(args)
@@ -115,9 +125,9 @@ def cmd_table_build(args: argparse.Namespace) -> int:
 
 
 def cmd_table_info(args: argparse.Namespace) -> int:
-    from ham.world.table import table_info
+    from ham.world.table import verify_table
 
-    info = table_info(args.file)
+    info = verify_table(args.file)  # a corrupt table is refused, not described
     if args.json:
         print_json(info.to_dict())
         return 0
@@ -133,7 +143,18 @@ def cmd_table_info(args: argparse.Namespace) -> int:
         print(f"  objects file: {record.get('name')} (sha256 {record.get('sha256')})")
     print(f"  ham {info.ham_version}, created {info.created}")
     print(f"  command:   {info.command}")
-    print(f"  checksum:  sha256 {info.checksum}")
+    print(f"  checksum:  sha256 {info.checksum} (verified)")
+    return 0
+
+
+def cmd_table_verify(args: argparse.Namespace) -> int:
+    from ham.world.table import verify_table
+
+    info = verify_table(args.file)
+    print(
+        f"ok {args.file}: {len(info.objects)} objects x {info.grid} x {info.grid} glances, "
+        "finite non-negative pressures, checksum sha256 matches"
+    )
     return 0
 
 
@@ -143,6 +164,7 @@ def cmd_table_show(args: argparse.Namespace) -> int:
     from ham.world.drawing import draw_table_grid
     from ham.world.table import GlanceTable, grid_values
 
+    check_output(args.out, PNG)
     table = GlanceTable.load(args.file)
     names = table.objects
     key = args.object
@@ -154,8 +176,11 @@ def cmd_table_show(args: argparse.Namespace) -> int:
         oi = names.index(key)
     else:
         raise HamError(f"object {key!r} not in table; accepted: {names} or 0..{len(names) - 1}")
-    if args.n < 2:
-        raise HamError(f"--n = {args.n}; accepted: >= 2")
+    top = min(table.grid, 25)  # more panels than grid points repeat; more than 25 is unreadable
+    if not 2 <= args.n <= top:
+        raise HamError(
+            f"--n {args.n}; accepted: an integer 2..{top} (this table's grid is {table.grid})"
+        )
     q = grid_values(table.grid)
     pick = np.round(np.linspace(0, table.grid - 1, args.n)).astype(int)
     p = table.pressure[oi].numpy()[np.ix_(pick, pick)]
@@ -167,6 +192,7 @@ def cmd_table_show(args: argparse.Namespace) -> int:
 def cmd_table_import(args: argparse.Namespace) -> int:
     from ham.world.table import import_authors
 
+    check_output(args.out, HDF5)
     out = import_authors(args.file, args.out, axes=args.axes, command=command_line(args))
     print(f"wrote {out}")
     return 0
@@ -175,14 +201,44 @@ def cmd_table_import(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------- demo
 def cmd_demo(args: argparse.Namespace) -> int:
     from ham.experiments.demo import run_demo
+    from ham.world.files import check_output_dir
 
+    check_output_dir(args.out)
     run_demo(Path(args.out), quick=args.quick)
     return 0
 
 
 # --------------------------------------------------------------------------- parser
+class HamArgumentParser(argparse.ArgumentParser):
+    """argparse with the CLI's error style: one line ``ham: error: ...``, exit 2, no usage dump.
+
+    Subparsers inherit the class, so every subcommand answers the same way. Values that start
+    with a minus sign and read as numbers (``-0.5``, ``-1e-3``, ``-inf``, ``-nan``) are values,
+    not options: ``--x -inf`` reaches the range check instead of "expected one argument".
+    """
+
+    _NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$", re.I)
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = self._NUMBER
+
+    def error(self, message: str):  # type: ignore[override]
+        where = self.prog.removeprefix("ham").strip()
+        one_line = " ".join(message.split())
+        self.exit(2, f"ham: error: {where + ': ' if where else ''}{one_line}\n")
+
+
+def _need_action(parser: argparse.ArgumentParser, dest: str, metavar: str) -> None:
+    """A command group given without its action: one line naming the accepted actions."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            parser.error(f"{metavar} missing; accepted: {', '.join(action.choices)}")
+    parser.error(f"{metavar} missing")  # pragma: no cover
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = HamArgumentParser(
         prog="ham",
         description="The Haptic Attention Model: haptic glances, glance tables, training, reproduction.",
     )
@@ -211,9 +267,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     t = sub.add_parser("table", help="glance tables (the paper's pre-recorded data set)")
     tsub = t.add_subparsers(dest="table_command", metavar="ACTION")
+    t.set_defaults(func=lambda args: _need_action(t, "table_command", "ACTION"))
     p = tsub.add_parser("build", help="record a grid x grid table of glances per object")
-    p.add_argument("--grid", type=int, default=201)
-    p.add_argument("--out", required=True, help="HDF5 file to write (atomically)")
+    p.add_argument("--grid", type=int, default=201, help="poses per axis, 2..2001 (default 201)")
+    p.add_argument("--out", required=True, help="HDF5 file to write (atomically), .h5 or .hdf5")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_world_options(p)
     p.set_defaults(func=cmd_table_build)
@@ -221,15 +278,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("file")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_table_info)
+    p = tsub.add_parser(
+        "verify", help="check a table: structure, finite non-negative pressures, checksum"
+    )
+    p.add_argument("file")
+    p.set_defaults(func=cmd_table_verify)
     p = tsub.add_parser("show", help="draw a grid of a table's images for one object")
     p.add_argument("file")
     p.add_argument("--object", required=True, help="name or index in the table")
-    p.add_argument("--n", type=int, default=7, help="poses per axis (default 7)")
+    p.add_argument("--n", type=int, default=7, help="poses per axis, 2..25 (default 7)")
     p.add_argument("--out", required=True, help="PNG")
     p.set_defaults(func=cmd_table_show)
     p = tsub.add_parser("import-authors", help="convert the authors' HDF5 data set to a table")
     p.add_argument("file")
-    p.add_argument("--out", required=True)
+    p.add_argument("--out", required=True, help="HDF5 table to write, .h5 or .hdf5")
     p.add_argument("--axes", default="x,phi", help="order of their first two axes: x,phi or phi,x")
     p.set_defaults(func=cmd_table_import)
 
@@ -255,12 +317,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     args._ham_argv = argv  # what tables record as their command (ham.cli.options.command_line)
     if not getattr(args, "func", None):
-        parser.print_help()
-        return 2 if args.command is None else 2
+        _need_action(parser, "command", "COMMAND")
     try:
         return int(args.func(args) or 0)
     except HamError as exc:
-        print(f"ham: error: {exc}", file=sys.stderr)
+        # one line, whatever a wrapped library message held (h5py's span several)
+        print(f"ham: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # a file the user named that the checks did not foresee: still one line
+        print(f"ham: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("ham: interrupted", file=sys.stderr)

@@ -55,9 +55,9 @@ def cmd_render(args: argparse.Namespace) -> int:
     """Entry point of ``ham render``; returns the exit code."""
     width = _check_size("width", args.width)
     height = _check_size("height", args.height)
-    out = Path(args.out)
-    if out.suffix.lower() != ".png":
-        raise HamError(f"--out {args.out!r} must end in .png")
+    from ham.world.files import check_output
+
+    out = check_output(args.out, (".png",))
     objects, _ = objects_from_args(args)  # registers --objects-file's objects
     render_glance(
         objects,
@@ -153,11 +153,13 @@ def render_glance(
     im = a1.imshow(res.pressure[0].numpy(), cmap="viridis", origin="lower")
     a1.set_title(f"{readout} read-out (Pa); rows y, columns u", fontsize=9)
     fig.colorbar(im, ax=a1, fraction=0.046)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    from ham.world.files import atomic_write
+
     fig.tight_layout()
-    fig.savefig(out, dpi=100)
-    plt.close(fig)
-    return out
+    try:
+        return atomic_write(out, lambda tmp: fig.savefig(tmp, dpi=100), what="picture")
+    finally:
+        plt.close(fig)
 
 
 def main(argv: list[str] | None = None) -> int:

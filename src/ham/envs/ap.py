@@ -39,6 +39,7 @@ from ham.envs.haptic import (
     attach_world,
     check_num_envs,
     observation_space,
+    reset_option,
 )
 from ham.errors import HamError
 from ham.world.config import WorldConfig
@@ -62,6 +63,16 @@ def _logits(prediction: Any, shape: tuple[int, ...]) -> np.ndarray:
     if np.isnan(p).any():
         raise HamError("prediction contains NaN; accepted: finite logits")
     return p
+
+
+def _ap_action(action: Any) -> Any:
+    """ap_gym's action: a dict with exactly ``action`` (the pose) and ``prediction`` (logits)."""
+    if not isinstance(action, dict) or set(action) != {"action", "prediction"}:
+        raise HamError(
+            f"action {action!r}; accepted: a dict with 'action' (the pose q_x, q_phi) and "
+            "'prediction' (logits)"
+        )
+    return action
 
 
 class HapticGlanceAPEnv(ap_gym.ActiveClassificationEnv):
@@ -95,7 +106,7 @@ class HapticGlanceAPEnv(ap_gym.ActiveClassificationEnv):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         super().reset(seed=seed)
-        self.episodes.start(self.np_random, (options or {}).get("object"))
+        self.episodes.start(self.np_random, reset_option(options, "object"))
         obj = int(self.episodes.objects[0])
         info = {
             "object": obj,
@@ -103,6 +114,9 @@ class HapticGlanceAPEnv(ap_gym.ActiveClassificationEnv):
             "prediction": {"target": self._target()},
         }
         return self._obs(), info
+
+    def step(self, action: dict[str, Any]):
+        return super().step(_ap_action(action))
 
     def _step(
         self, action: np.ndarray, prediction: np.ndarray
@@ -151,12 +165,15 @@ class HapticGlanceAPVectorEnv(ap_gym.ActiveClassificationVectorEnv):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         super().reset(seed=seed)
-        self.episodes.start(self.np_random, (options or {}).get("objects"))
+        self.episodes.start(self.np_random, reset_option(options, "objects"))
         self._autoreset = False
         return self.episodes.observation(), {
             **self.episodes.info(),
             "prediction": {"target": self._targets()},
         }
+
+    def step(self, actions: dict[str, Any]):
+        return super().step(_ap_action(actions))
 
     def _step(
         self, action: np.ndarray, prediction: np.ndarray

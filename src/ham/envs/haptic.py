@@ -38,6 +38,7 @@ import torch
 
 from ham.errors import HamError
 from ham.world.config import WorldConfig
+from ham.world.devices import check_device
 
 ENV_NORMALIZATIONS: tuple[str, ...] = ("l2", "l1", "none")
 RENDER_MODES: tuple[str, ...] = ("rgb_array",)
@@ -54,6 +55,15 @@ def check_glances(glances: Any) -> int:
     return int(glances)
 
 
+def reset_option(options: Any, key: str) -> Any:
+    """``options[key]`` of ``reset(options=...)`` (``None`` if absent); other keys are refused."""
+    if options is None:
+        return None
+    if not isinstance(options, dict) or set(options) - {key}:
+        raise HamError(f"reset options {options!r}; accepted: None or {{{key!r}: ...}}")
+    return options.get(key)
+
+
 def _check_render_mode(render_mode: str | None) -> str | None:
     if render_mode is not None and render_mode not in RENDER_MODES:
         raise HamError(f"render_mode = {render_mode!r}; accepted: None, {', '.join(RENDER_MODES)}")
@@ -66,7 +76,7 @@ class GlanceBackend:
     Args:
         table: a glance table (HDF5) to look glances up in; ``None``: simulate them online.
         world: the world simulated online (:class:`ham.world.config.WorldConfig` or its dict; paper
-            defaults); ignored with a table, which carries its own.
+            defaults); refused with a table, which carries its own.
         normalization: ``l2`` (paper), ``l1`` (authors' code) or ``none`` (raw pressure, Pa).
         device: where glances are computed (``cpu`` or ``cuda``); observations are NumPy.
     """
@@ -84,13 +94,19 @@ class GlanceBackend:
             raise HamError(
                 f"normalization = {normalization!r}; accepted: {', '.join(ENV_NORMALIZATIONS)}"
             )
+        if table is not None and not isinstance(table, (str, Path)):
+            raise HamError(f"table = {table!r}; accepted: a glance table's path, or None")
+        if table is not None and world is not None:
+            raise HamError(
+                f"table = {str(table)!r} and world = {world!r}: give one (a table holds its own world)"
+            )
         if isinstance(world, dict):
             world = WorldConfig.from_dict(world)
         if world is not None and not isinstance(world, WorldConfig):
             raise HamError(f"world = {world!r}; accepted: a WorldConfig, its dict, or None")
         if table is not None and not Path(table).exists():
             raise HamError(f"glance table {str(table)!r} does not exist")
-        self.device = torch.device(device)
+        self.device = check_device(device)
         self.source, self.world = make_source(table, world, self.device)
         self.table = None if table is None else str(table)
         self.normalization = normalization
@@ -278,13 +294,13 @@ class HapticGlanceEnv(gym.Env):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         super().reset(seed=seed)
-        self.episodes.start(self.np_random, (options or {}).get("object"))
+        self.episodes.start(self.np_random, reset_option(options, "object"))
         return self._obs(), self._info()
 
     def step(
         self, action: dict[str, Any]
     ) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
-        if not isinstance(action, dict) or "pose" not in action or "prediction" not in action:
+        if not isinstance(action, dict) or set(action) != {"pose", "prediction"}:
             raise HamError(
                 f"action {action!r}; accepted: a dict with 'pose' (2 numbers) and 'prediction' (an id)"
             )
@@ -357,7 +373,7 @@ class HapticGlanceVectorEnv(gym.vector.VectorEnv):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         super().reset(seed=seed)
-        self.episodes.start(self.np_random, (options or {}).get("objects"))
+        self.episodes.start(self.np_random, reset_option(options, "objects"))
         self._autoreset = False
         return self.episodes.observation(), self.episodes.info()
 
@@ -365,7 +381,7 @@ class HapticGlanceVectorEnv(gym.vector.VectorEnv):
         self, actions: dict[str, Any]
     ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         n = self.num_envs
-        if not isinstance(actions, dict) or "pose" not in actions or "prediction" not in actions:
+        if not isinstance(actions, dict) or set(actions) != {"pose", "prediction"}:
             raise HamError(
                 f"actions {actions!r}; accepted: a dict with 'pose' ({n}, 2) and 'prediction' ({n},)"
             )

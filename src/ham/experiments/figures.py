@@ -24,26 +24,18 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ham.errors import HamError  # noqa: E402
-
-
-def _out(out_png: str | os.PathLike) -> Path:
-    out = Path(out_png)
-    if out.parent and not out.parent.exists():
-        out.parent.mkdir(parents=True, exist_ok=True)
-    return out
+from ham.world.files import atomic_write, check_output  # noqa: E402
 
 
 def _save(fig, out_png: str | os.PathLike, **savefig) -> Path:
-    """Write ``fig`` as PNG through ``NAME.tmp`` and ``os.replace``: never half an image."""
-    out = _out(out_png)
-    tmp = out.with_name(out.name + ".tmp")
+    """Write ``fig`` to the PNG ``out_png`` atomically (checked path; no partial file)."""
     try:
-        fig.savefig(tmp, dpi=120, format="png", **savefig)
-        os.replace(tmp, out)
+        out = check_output(out_png, (".png",), what="picture")
+        return atomic_write(
+            out, lambda tmp: fig.savefig(tmp, dpi=120, format="png", **savefig), what="picture"
+        )
     finally:
         plt.close(fig)
-        tmp.unlink(missing_ok=True)
-    return out
 
 
 def plot_training_curve(metrics: dict, out_png: str | os.PathLike) -> Path:

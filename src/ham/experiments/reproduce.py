@@ -520,8 +520,12 @@ def reproduce(
     worker registers the file's objects from the record in the table and the world.
     """
     from ham.world.config import WorldConfig
+    from ham.world.devices import check_device
+    from ham.world.files import check_output_dir
     from ham.world.table import build_table
 
+    if target not in TARGETS:
+        raise HamError(f"target {target!r}; accepted: {', '.join(TARGETS)}")
     if profile_name not in PROFILES:
         raise HamError(f"profile {profile_name!r}; accepted: {', '.join(PROFILES)}")
     if executor not in EXECUTORS:
@@ -532,10 +536,15 @@ def reproduce(
             raise HamError(f"seeds = {seeds!r}; accepted: an integer >= 1")
         profile = replace(profile, seeds=seeds)
     profile = profile.subset(glances, variants)
+    if workers is not None and not (isinstance(workers, int) and workers >= 1):
+        raise HamError(f"workers = {workers!r}; accepted: an integer >= 1 (default: all cores)")
     workers = workers or os.cpu_count() or 1
-    if workers < 1:
-        raise HamError(f"workers = {workers}; accepted: >= 1")
-    root = Path(out).resolve()
+    if ray_address is not None and executor != "ray":
+        raise HamError(f"--ray-address {ray_address!r}: accepted only with --executor ray")
+    if not (isinstance(retries, int) and retries >= 0):
+        raise HamError(f"retries = {retries!r}; accepted: an integer >= 0")
+    check_device(device)
+    root = check_output_dir(out).resolve()
     root.mkdir(parents=True, exist_ok=True)
     world = world or WorldConfig()
     table = root / f"table_{profile.table_grid}.h5"

@@ -57,6 +57,7 @@ import torch
 
 from ham.errors import HamError, check_known_fields
 from ham.model.agent import HamConfig
+from ham.world.devices import check_device
 
 ACTIONS: tuple[str, ...] = ("relative", "absolute")
 NORMALIZATIONS: tuple[str, ...] = ("none", "l2", "l1")
@@ -237,7 +238,7 @@ class ApGymGlanceEnv:
         self.normalization = normalization
         self.seed = int(seed)
         self.eval_seed = int(eval_seed)
-        self.device = torch.device(device)
+        self.device = check_device(device)
         self.max_step_length = max_step_length
         self.env_kwargs = dict(env_kwargs or {})
 

@@ -57,11 +57,15 @@ class EvalResult:
 
 
 EVAL_POLICIES: tuple[str, ...] = ("mean", "sample")
+#: Heat-map bins per axis: finer than the 201-point glance table's grid shows nothing new.
+MAX_BINS = 201
 
 
-def _check(batches: int, policy: str) -> None:
+def _check(batches: int, policy: str, seed: int = 0) -> None:
     if not (isinstance(batches, int) and batches >= 1):
         raise HamError(f"batches = {batches!r}; accepted: an integer >= 1")
+    if not (isinstance(seed, int) and not isinstance(seed, bool) and 0 <= seed < 2**63):
+        raise HamError(f"seed = {seed!r}; accepted: an integer 0 .. 2**63-1")
     if policy not in EVAL_POLICIES:
         raise HamError(f"evaluation policy {policy!r}; accepted: {', '.join(EVAL_POLICIES)}")
 
@@ -75,7 +79,7 @@ def evaluate(
     policy: str = "mean",
 ) -> EvalResult:
     """Accuracies of ``agent`` on ``batches`` balanced batches of ``env`` (poses seeded by ``seed``)."""
-    _check(batches, policy)
+    _check(batches, policy, seed)
     generator = torch.Generator(device=env.device)
     generator.manual_seed(int(seed))
     glances, k = agent.config.glances, env.n_objects
@@ -141,9 +145,9 @@ def heatmap_data(
     Returns a JSON-ready dict; ``counts[o][i][j]`` counts object ``o`` with ``q_x`` in bin ``i``
     and ``q_phi`` in bin ``j``.
     """
-    _check(batches, policy)
-    if not (isinstance(bins, int) and bins >= 1):
-        raise HamError(f"bins = {bins!r}; accepted: an integer >= 1")
+    _check(batches, policy, seed)
+    if not (isinstance(bins, int) and 1 <= bins <= MAX_BINS):
+        raise HamError(f"bins = {bins!r}; accepted: an integer 1..{MAX_BINS}")
     generator = torch.Generator(device=env.device)
     generator.manual_seed(int(seed))
     k = env.n_objects

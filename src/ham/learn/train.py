@@ -43,6 +43,8 @@ from ham.learn.hybrid_loss import REDUCTIONS, HybridLoss, hybrid_loss
 from ham.learn.info_loss import InfoLoss, info_loss
 from ham.model.agent import HamConfig, HapticAttentionModel, count_parameters
 from ham.world.config import WorldConfig
+from ham.world.devices import check_device
+from ham.world.files import check_output_dir
 from ham.world.sensor import NORMALIZATIONS
 from ham.world.source import check_model_fits, make_source
 
@@ -129,6 +131,15 @@ class TrainConfig:
     entropy_coef: float = 0.0
 
     def __post_init__(self) -> None:
+        for name, kind in (("model", HamConfig), ("world", WorldConfig), ("nesterov", bool)):
+            if not isinstance(getattr(self, name), kind):
+                raise HamError(f"{name} = {getattr(self, name)!r}; accepted: a {kind.__name__}")
+        if self.table is not None and not isinstance(self.table, str):
+            raise HamError(f"table = {self.table!r}; accepted: a glance table's path or None")
+        for name in ("lr", "lr_min", "lr_decay", "momentum", "beta"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise HamError(f"{name} = {v!r}; accepted: a finite number")
         for name in ("steps", "batch_size", "lr_step", "eval_every", "eval_batches", "log_every"):
             v = getattr(self, name)
             low = 0 if name == "steps" else 1
@@ -144,7 +155,7 @@ class TrainConfig:
             raise HamError(f"momentum = {self.momentum!r}; accepted: 0 <= momentum < 1")
         if not (math.isfinite(self.beta) and self.beta >= 0):
             raise HamError(f"beta = {self.beta!r}; accepted: a finite number >= 0")
-        if not isinstance(self.seed, int) or self.seed < 0:
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
             raise HamError(f"seed = {self.seed!r}; accepted: an integer >= 0")
         check_choices(self)
         for name in ("gamma", "gae_lambda"):
@@ -154,8 +165,7 @@ class TrainConfig:
         if not (isinstance(self.entropy_coef, (int, float)) and math.isfinite(self.entropy_coef)
                 and self.entropy_coef >= 0):  # fmt: skip
             raise HamError(f"entropy_coef = {self.entropy_coef!r}; accepted: a finite number >= 0")
-        if self.device.split(":")[0] not in DEVICES:
-            raise HamError(f"device {self.device!r}; accepted: {', '.join(DEVICES)}")
+        check_device(self.device, available=False)  # spelling only: a saved GPU run loads on CPU
         if self.env is not None and self.table is not None:
             raise HamError(
                 f"table {self.table!r} and env {self.env.env!r} exclude each other; give one"
@@ -224,9 +234,7 @@ class Run:
         the haptic world from a glance table or online, or ``config.env`` on ap_gym), the model
         with its initial weights, the optimizer and the pose generator. The run owns ``env``
         (:meth:`close`)."""
-        device = torch.device(config.device)
-        if device.type == "cuda" and not torch.cuda.is_available():
-            raise HamError("device 'cuda' requested but CUDA is not available; use --device cpu")
+        device = check_device(config.device)
         if env is None:
             env = make_env(config, device)
         _check_env(config.model, env)
@@ -408,10 +416,10 @@ def load_run(out: str | os.PathLike, device: str | None = None) -> Run:
 # --------------------------------------------------------------------------- the loop
 def train(config: TrainConfig, out: str | os.PathLike, *, progress: bool = True) -> dict:
     """Train a fresh run into directory ``out``; returns the metrics (also in metrics.json)."""
-    out = Path(out)
+    out = check_output_dir(out)
     if (out / CHECKPOINT_FILE).exists():
         raise HamError(f"{str(out)!r} already holds a run; continue it with --resume {out}")
-    run = Run.create(config)  # before any file: a bad config leaves no run directory behind
+    run = Run.create(config)  # first: a bad table, device or config leaves no run directory
     try:
         out.mkdir(parents=True, exist_ok=True)
         _write_json(out / CONFIG_FILE, config.to_dict())
@@ -426,13 +434,16 @@ def resume(out: str | os.PathLike, *, steps: int | None = None, progress: bool =
     config = TrainConfig.from_dict(read_json(out / CONFIG_FILE))
     if steps is not None:
         config = replace(config, steps=steps)
-        _write_json(out / CONFIG_FILE, config.to_dict())
-    checkpoint = load_checkpoint(out)
     run = Run.create(config)
     try:
-        run.load_state_dict(checkpoint)
+        run.load_state_dict(load_checkpoint(out))
         if run.step > config.steps:
-            raise HamError(f"the run is at step {run.step}, beyond --steps {config.steps}")
+            raise HamError(
+                f"--steps {config.steps}: the run is already at step {run.step}; "
+                f"accepted: >= {run.step}"
+            )
+        if steps is not None:  # only once accepted: a refused --steps leaves the run as it was
+            _write_json(out / CONFIG_FILE, config.to_dict())
         return train_loop(run, out, progress)
     finally:
         run.close()

@@ -12,13 +12,13 @@ Third parties add a simulator with :func:`register_simulator`.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 
 from ham.errors import HamError
 from ham.world import objects as _objects
 from ham.world.glance import FastSimulator, GlanceConfig, PoseConfig, Simulator
 from ham.world.objects import HapticObject
-from ham.world.sensor import SensorConfig
+from ham.world.sensor import MAX_FOAM_STIFFNESS, SensorConfig
 
 
 @dataclass(frozen=True)
@@ -42,15 +42,33 @@ class WorldConfig:
     mujoco: dict = field(default_factory=dict)
     objects_file: dict | None = None
 
-    def __post_init__(self) -> None:
-        if self.objects_file is not None:
-            _objects.check_record(self.objects_file)
-
     def register_objects(self) -> list[str]:
         """Register the recorded objects file's objects (once per process); their names."""
         if self.objects_file is None:
             return []
         return _objects.load_objects(self.objects_file)
+
+    def __post_init__(self) -> None:
+        for name, kind in (("objects", str), ("simulator", str), ("sensor", SensorConfig),
+                           ("pose", PoseConfig), ("glance", GlanceConfig), ("mujoco", dict)):  # fmt: skip
+            if not isinstance(getattr(self, name), kind):
+                raise HamError(
+                    f"world {name} = {getattr(self, name)!r}; accepted: a {kind.__name__}"
+                )
+        if self.objects_file is not None:
+            _objects.check_record(self.objects_file)
+        # The foam must carry the glance's stop force on the whole face before it is compressed
+        # through: softer, and even the flat box blocks the pad with no 2 N reading.
+        s, need = self.sensor, self.glance.force_threshold
+        lowest = need / (s.foam_thickness * s.size**2)
+        if s.foam_stiffness < lowest:
+            least_size = (need / (s.foam_thickness * s.foam_stiffness)) ** 0.5
+            raise HamError(
+                f"foam_stiffness = {s.foam_stiffness:g} Pa/m: the pad ({s.describe()}) is too "
+                f"small to carry {need:g} N on its {s.foam_thickness * 1000:g} mm foam; accepted: "
+                f"taxels * pitch > {least_size:.4g} m, or foam_stiffness in "
+                f"{lowest:.3g} .. {MAX_FOAM_STIFFNESS:g} Pa/m"
+            )
 
     def resolve_objects(self) -> list[HapticObject]:
         # A world may arrive pickled in a fresh worker process: register before resolving.
@@ -62,21 +80,41 @@ class WorldConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> WorldConfig:
-        """The world saved by :meth:`to_dict`; registers its recorded objects file's objects."""
-        try:
-            world = cls(
-                objects=d.get("objects", "paper"),
-                simulator=d.get("simulator", "fast"),
-                sensor=SensorConfig(**d.get("sensor", {})),
-                pose=PoseConfig(**d.get("pose", {})),
-                glance=GlanceConfig(**d.get("glance", {})),
-                mujoco=dict(d.get("mujoco", {})),
-                objects_file=d.get("objects_file"),
-            )
-        except TypeError as exc:
-            raise HamError(f"world config has an unknown field: {exc}") from None
+        """The world saved by :meth:`to_dict`; unknown keys and wrong types are refused by name;
+        registers its recorded objects file's objects."""
+        _check_keys("world", d, [f.name for f in fields(cls)])
+        parts = {}
+        for name, kind in (
+            ("sensor", SensorConfig),
+            ("pose", PoseConfig),
+            ("glance", GlanceConfig),
+        ):
+            sub = d.get(name, {})
+            _check_keys(f"world {name}", sub, [f.name for f in fields(kind)])
+            try:
+                parts[name] = kind(**sub)
+            except TypeError as exc:  # e.g. a string where a number belongs
+                raise HamError(f"world {name} {sub!r}: {exc}") from None
+        mujoco = d.get("mujoco", {})
+        if not isinstance(mujoco, dict):
+            raise HamError(f"world mujoco = {mujoco!r}; accepted: a dict of MujocoConfig fields")
+        world = cls(
+            objects=d.get("objects", "paper"),
+            simulator=d.get("simulator", "fast"),
+            mujoco=dict(mujoco),
+            objects_file=d.get("objects_file"),
+            **parts,
+        )
         world.register_objects()
         return world
+
+
+def _check_keys(what: str, d, accepted: list[str]) -> None:
+    if not isinstance(d, dict):
+        raise HamError(f"{what} = {d!r}; accepted: a dict with keys {', '.join(accepted)}")
+    unknown = sorted(str(k) for k in d if k not in accepted)
+    if unknown:
+        raise HamError(f"{what} has unknown keys {unknown}; accepted: {', '.join(accepted)}")
 
 
 SimulatorFactory = Callable[..., Simulator]

@@ -15,22 +15,18 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ham.errors import HamError  # noqa: E402
+from ham.world.files import atomic_write, check_output  # noqa: E402
 from ham.world.objects import HapticObject  # noqa: E402
 
 
 def _save(fig, out: str | os.PathLike) -> Path:
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp.png")
     try:
-        fig.savefig(tmp, dpi=110, bbox_inches="tight")
-    except OSError as exc:
-        raise HamError(f"cannot write picture {str(out)!r}: {exc}") from None
+        out = check_output(out, (".png",), what="picture")
+        return atomic_write(
+            out, lambda tmp: fig.savefig(tmp, dpi=110, bbox_inches="tight"), what="picture"
+        )
     finally:
         plt.close(fig)
-    os.replace(tmp, out)
-    return out
 
 
 def _solid(ax, obj: HapticObject, color: str = "#b08850") -> None:

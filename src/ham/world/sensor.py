@@ -36,6 +36,9 @@ from ham.errors import HamError
 #: Most cells per side: a 128 x 128 image is 16,384 values per glance (64 KB), and a 201 x 201
 #: table of one object 2.6 GB; beyond that tables and networks stop being practical.
 MAX_TAXELS = 128
+#: Stiffer foam than this is rigid within float32's resolution of z (2 N on 64 cm^2 compresses it
+#: 0.3 nm, below the ~4 nm spacing of float32 heights near 4.5 cm).
+MAX_FOAM_STIFFNESS = 1e12
 
 Normalization = Literal["l2", "l1", "none"]
 NORMALIZATIONS: tuple[str, ...] = ("l2", "l1", "none")
@@ -85,14 +88,24 @@ class SensorConfig:
         object.__setattr__(self, "taxels", int(self.taxels))  # NumPy ints: JSON-ready
         _positive("pitch", self.pitch)
         _positive("foam_stiffness", self.foam_stiffness)
+        _at_most("foam_stiffness", self.foam_stiffness, MAX_FOAM_STIFFNESS, "Pa/m (rigid beyond)")
         _positive("foam_thickness", self.foam_thickness)
-        if not (math.isfinite(self.housing_thickness) and self.housing_thickness >= 0):
+        h = self.housing_thickness
+        if (
+            isinstance(h, bool)
+            or not isinstance(h, (int, float))
+            or not (math.isfinite(h) and h >= 0)
+        ):
             raise HamError(f"housing_thickness = {self.housing_thickness} must be >= 0 (m)")
         _positive("supersample", self.supersample, integer=True)
         if self.spread_sigma is not None:
             _positive("spread_sigma", self.spread_sigma)
+            # wider than the pad, the blur leaves a flat smear: no image left to read
+            _at_most("spread_sigma", self.spread_sigma, self.size, "m (the pad's edge)")
         if self.quantize_bits is not None and not (
-            isinstance(self.quantize_bits, int) and 1 <= self.quantize_bits <= 32
+            isinstance(self.quantize_bits, int)
+            and not isinstance(self.quantize_bits, bool)
+            and 1 <= self.quantize_bits <= 32
         ):
             raise HamError(f"quantize_bits = {self.quantize_bits!r}; accepted: None or 1..32")
         _positive("full_scale", self.full_scale)
@@ -126,6 +139,11 @@ class SensorConfig:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+def _at_most(name: str, value: float, top: float, unit: str) -> None:
+    if value > top:
+        raise HamError(f"{name} = {value!r}; accepted: a positive number <= {top:g} {unit}")
 
 
 def _positive(name: str, value: float, *, integer: bool = False) -> None:

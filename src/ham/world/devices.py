@@ -1,0 +1,39 @@
+"""The one check of a device string (``cpu``, ``cuda``, ``cuda:N``) for every layer."""
+
+from __future__ import annotations
+
+import torch
+
+from ham.errors import HamError
+
+DEVICE_TYPES: tuple[str, ...] = ("cpu", "cuda")
+
+
+def check_device(device: str | torch.device, *, available: bool = True) -> torch.device:
+    """``device`` as a :class:`torch.device`, or a one-line :class:`HamError` naming it.
+
+    Accepted: ``cpu`` and ``cuda`` / ``cuda:N``. With ``available`` (the default) CUDA must also
+    be present with device ``N``; without, only the spelling is checked (a saved config may name
+    a GPU that this machine lacks, and be overridden with ``--device cpu``).
+    """
+    accepted = "cpu, cuda or cuda:N"
+    if not isinstance(device, (str, torch.device)):
+        raise HamError(f"device {device!r}; accepted: {accepted}")
+    try:
+        d = torch.device(device)
+    except (RuntimeError, ValueError, TypeError):
+        raise HamError(f"device {str(device)!r}; accepted: {accepted}") from None
+    if d.type not in DEVICE_TYPES or (d.type == "cpu" and d.index not in (None, 0)):
+        raise HamError(f"device {str(device)!r}; accepted: {accepted}")
+    if available and d.type == "cuda":
+        if not torch.cuda.is_available():
+            raise HamError(
+                f"device {str(device)!r}: CUDA is not available on this machine; accepted: cpu"
+            )
+        n = torch.cuda.device_count()
+        if d.index is not None and d.index >= n:
+            raise HamError(
+                f"device {str(device)!r}: this machine has {n} CUDA device(s); accepted: "
+                f"cuda:0..cuda:{n - 1}"
+            )
+    return d
