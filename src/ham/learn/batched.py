@@ -171,8 +171,7 @@ class BatchedRuns:
             [uniform_locations(batch, r.policy_generator, objects.device) for r in runs]
         )  # the first glance: random (the paper)
         state = tuple(
-            t.unsqueeze(0).repeat(n, *([1] * t.dim()))
-            for t in agent.core.initial_state(batch, q)
+            t.unsqueeze(0).repeat(n, *([1] * t.dim())) for t in agent.core.initial_state(batch, q)
         )
         locations, logits, baselines, mus, sigmas = [], [], [], [], []
         flat_objects = objects.reshape(-1)
@@ -196,7 +195,13 @@ class BatchedRuns:
             q = torch.stack(qs)
         mu = torch.stack(mus, 1) if mus else None
         sigma = torch.stack(sigmas, 1) if sigmas else None
-        return torch.stack(locations, 1), torch.stack(logits, 1), torch.stack(baselines, 1), mu, sigma
+        return (
+            torch.stack(locations, 1),
+            torch.stack(logits, 1),
+            torch.stack(baselines, 1),
+            mu,
+            sigma,
+        )
 
     def _losses(self, objects, locations, logits, baselines, mu, sigma):
         c = self.runs[self.active[0]].config
@@ -281,11 +286,17 @@ class BatchedRuns:
                 _log_eval(writers[i], _evaluate(r, None, None), r.config.model.glances)
                 self._save(i)
                 self._maybe_stop(i)
-            sums[i] = [torch.zeros((), device=r.env.device), torch.zeros((), device=r.env.device), 0]
+            sums[i] = [
+                torch.zeros((), device=r.env.device),
+                torch.zeros((), device=r.env.device),
+                0,
+            ]
         if self.stopped:
             self._drop([i for i in self.stopped if i in self.active])
         total = sum(self.runs[i].config.steps - self.runs[i].step for i in self.active)
-        bar = tqdm(total=total, disable=not progress, unit="step", desc=f"train x{len(self.active)}")
+        bar = tqdm(
+            total=total, disable=not progress, unit="step", desc=f"train x{len(self.active)}"
+        )
         t_train, n_train = 0.0, 0
         try:
             while self.active:
@@ -400,12 +411,14 @@ def train_batched(
     for k, (c, out) in enumerate(zip(configs, outs, strict=True)):
         if (out / CHECKPOINT_FILE).exists():
             saved = TrainConfig.from_dict(read_json(out / CONFIG_FILE))
+            # where it runs (device, table path) may change between invocations, as on resume
+            saved = replace(saved, steps=c.steps, device=c.device, table=c.table)
             if shape_key(saved) != shape_key(c) or saved.seed != c.seed:
                 raise HamError(
                     f"{str(out)!r} holds another run (seed {saved.seed}); accepted: the same "
                     "config, or an empty directory"
                 )
-            configs[k] = replace(saved, steps=c.steps)
+            configs[k] = saved
             resumed.append(k)
     runs = _open_runs(configs, outs)
     for k in resumed:
