@@ -373,7 +373,8 @@ def check_batched_options(executor: str, batch_runs: int | None, stop_at_perfect
         given = [n for n, v in (("--batch-runs", batch_runs), ("--stop-at-perfect", stop_at_perfect))
                  if v]  # fmt: skip
         if given:
-            raise HamError(f"{', '.join(given)} need --executor batched (got {executor!r})")
+            verb = "needs" if len(given) == 1 else "need"
+            raise HamError(f"{', '.join(given)} {verb} --executor batched (got {executor!r})")
     if batch_runs is not None and not (
         isinstance(batch_runs, int) and not isinstance(batch_runs, bool) and batch_runs >= 1
     ):

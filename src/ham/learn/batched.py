@@ -253,7 +253,8 @@ class BatchedRuns:
             if not finite[k]:
                 continue
             for name, p in r.agent.named_parameters():
-                p.grad = self.stacked[name].grad[k]
+                grad = self.stacked[name].grad  # None: unused (one glance: the location heads)
+                p.grad = None if grad is None else grad[k]
             r.optimizer.step()
             for p in r.agent.parameters():
                 p.grad = None
