@@ -248,7 +248,6 @@ class BatchedRuns:
         for v in self.stacked.values():
             v.grad = None
         torch.where(mask, totals, torch.zeros_like(totals)).sum().backward()
-        out = []
         for k, r in enumerate(runs):
             if not finite[k]:
                 continue
@@ -259,10 +258,19 @@ class BatchedRuns:
             for p in r.agent.parameters():
                 p.grad = None
             r.step += 1
-            try:
-                _check_weights(r)
-            except HamError as exc:
-                self.results[self.active[k]] = str(exc)
+        # the weights of all runs in one reduction (one sync on a GPU), as _check_weights does
+        with torch.no_grad():
+            sums = torch.stack([v.reshape(len(runs), -1).sum(1) for v in self.stacked.values()])
+            weights_ok = torch.isfinite(sums.sum(0)).tolist()
+        out = []
+        for k, r in enumerate(runs):
+            if not finite[k]:
+                continue
+            if not weights_ok[k]:
+                try:
+                    _check_weights(r)  # the message, with the first weight named
+                except HamError as exc:
+                    self.results[self.active[k]] = str(exc)
                 failed.append(self.active[k])
                 continue
             out.append((self.active[k], totals[k].detach(), rewards[k].mean()))
@@ -278,6 +286,9 @@ class BatchedRuns:
         from torch.utils.tensorboard import SummaryWriter
         from tqdm.auto import tqdm
 
+        for r, out in zip(self.runs, self.outs, strict=True):
+            out.mkdir(parents=True, exist_ok=True)
+            _write_json(out / CONFIG_FILE, r.config.to_dict())
         writers = {}
         sums = {}
         for i in list(self.active):
@@ -428,9 +439,6 @@ def train_batched(
             raise HamError(f"the run in {str(outs[k])!r} is at step {runs[k].step}, beyond "
                            f"steps {configs[k].steps}")  # fmt: skip
     stopped = {k: s for k, out in enumerate(outs) if (s := _stopped_at(out)) is not None}
-    for c, out in zip(configs, outs, strict=True):
-        out.mkdir(parents=True, exist_ok=True)
-        _write_json(out / CONFIG_FILE, c.to_dict())
     group = BatchedRuns(runs, outs, stop_at_perfect, stopped)
     try:
         return group.train(progress)
