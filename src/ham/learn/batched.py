@@ -61,6 +61,7 @@ from ham.model.policy import TruncatedGaussian, Uniform
 from ham.world.source import check_model_fits, make_source
 
 STOPPED_KEY = "stopped_at_perfect"
+_PARTS = ("classification", "reinforce", "baseline_loss")  # TensorBoard, as train_loop
 
 
 def shape_key(config: TrainConfig) -> str:
@@ -216,7 +217,7 @@ class BatchedRuns:
                 policy = TruncatedGaussian(mu, sigma)
             episode = Episode(objects, locations, logits, baselines, policy)
             h = hybrid_loss(episode, c.beta, c.classification_reduction, c.reinforce_reduction)
-            return h.total, h.reward
+            return h.total, h.reward, h.classification, h.reinforce, h.baseline
 
         if mu is None:
             return torch.vmap(lambda o, lo, lg, b: loss(o, lo, lg, b, None, None))(
@@ -224,17 +225,18 @@ class BatchedRuns:
             )
         return torch.vmap(loss)(objects, locations, logits, baselines, mu, sigma)
 
-    def step(self) -> list[tuple[int, torch.Tensor, torch.Tensor]]:
+    def step(self) -> list[tuple]:
         """One training step of every active run (:func:`ham.learn.train.train_step` for N).
 
-        Returns ``(run index, loss, mean reward)`` of the runs that stepped; a run whose loss or
+        Returns ``(run index, loss, mean reward, [classification, reinforce, baseline])`` of
+        the runs that stepped; a run whose loss or
         weights are not finite leaves the group with its error recorded."""
         runs = [self.runs[i] for i in self.active]
         for r in runs:
             for group in r.optimizer.param_groups:
                 group["lr"] = r.config.learning_rate(r.step)
         objects = torch.stack([r.env.sample_objects() for r in runs])
-        totals, rewards = self._losses(objects, *self._forward(objects))
+        totals, rewards, *parts = self._losses(objects, *self._forward(objects))
         finite = torch.isfinite(totals).tolist()
         failed = []
         for k, ok in enumerate(finite):
@@ -273,7 +275,8 @@ class BatchedRuns:
                     self.results[self.active[k]] = str(exc)
                 failed.append(self.active[k])
                 continue
-            out.append((self.active[k], totals[k].detach(), rewards[k].mean()))
+            out.append((self.active[k], totals[k].detach(), rewards[k].mean(),
+                        [x[k].detach() for x in parts]))  # fmt: skip
         if failed:
             self._drop(failed)
         return out
@@ -318,13 +321,15 @@ class BatchedRuns:
                 n_train += 1
                 bar.update(len(stepped))
                 finished = []
-                for i, loss, reward in stepped:
+                for i, loss, reward, parts in stepped:
                     r, c, w, acc = self.runs[i], self.runs[i].config, writers[i], sums[i]
                     acc[0] += loss
                     acc[1] += reward
                     acc[2] += 1
                     if r.step % c.log_every == 0:
                         w.add_scalar("train/loss", loss.item(), r.step)
+                        for name, x in zip(_PARTS, parts, strict=True):
+                            w.add_scalar(f"train/{name}", x.item(), r.step)
                         w.add_scalar("train/reward", reward.item(), r.step)
                         w.add_scalar("train/lr", r.optimizer.param_groups[0]["lr"], r.step)
                     if r.step % c.eval_every == 0 or r.step == c.steps:
