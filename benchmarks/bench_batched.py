@@ -26,8 +26,9 @@ import numpy as np
 import torch
 
 from ham.learn.batched import BatchedRuns, _open_runs
+from ham.learn.environment import HapticEnv
 from ham.learn.evaluation import evaluate
-from ham.learn.train import Run, TrainConfig, train_step
+from ham.learn.train import Run, TrainConfig, stream_seed, train_step
 from ham.model.agent import HamConfig
 
 TABLE1_GLANCES = (1, 2, 3, 4, 6, 8, 10)
@@ -37,10 +38,14 @@ STEPS, EVALS, SEEDS = 50_000, 250, 10
 def measure(glances: int, runs: int, repeats: int, table: str | None) -> dict:
     configs = [TrainConfig(model=HamConfig(glances=glances), seed=s, table=table)
                for s in range(runs)]  # fmt: skip
-    singles = [Run.create(c) for c in configs]
     with tempfile.TemporaryDirectory() as tmp:
         outs = [Path(tmp) / str(s) for s in range(runs)]
         group = BatchedRuns(_open_runs(configs, outs), outs)  # writes nothing until train()
+        # the single runs glance on the same (one) table in memory, each with its own
+        # environment seeded as Run.create seeds it
+        source = group.runs[0].env.source
+        singles = [Run.create(c, HapticEnv(source, c.batch_size, c.normalization,
+                                           stream_seed(c.seed, 0))) for c in configs]  # fmt: skip
         for _ in range(2):  # warm up both
             group.step()
             for r in singles:

@@ -24,7 +24,6 @@ else is refused with one line (train it with ``ham train`` or ``--executor local
 
 from __future__ import annotations
 
-import copy
 import json
 import os
 import time
@@ -32,8 +31,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import torch
-from torch import nn
-from torch.func import functional_call
+from torch.nn import functional as F
 
 from ham.errors import HamError
 from ham.learn.environment import HapticEnv
@@ -55,7 +53,7 @@ from ham.learn.train import (
     read_json,
     stream_seed,
 )
-from ham.model.agent import Episode, HapticAttentionModel
+from ham.model.agent import Episode, HamConfig
 from ham.model.location_net import uniform_locations
 from ham.model.policy import TruncatedGaussian, Uniform
 from ham.world.source import check_model_fits, make_source
@@ -84,6 +82,11 @@ def check_batchable(config: TrainConfig) -> None:
             f"env {config.env.env!r} cannot be batched; accepted: the haptic world "
             "(train it with ham train or --executor local)"
         )
+    if config.model.policy not in ("learned", "random"):
+        raise HamError(
+            f"policy {config.model.policy!r} cannot be batched; accepted: learned, random "
+            "(train it with ham train or --executor local)"
+        )
     if config.model.first_glance != "random":
         raise HamError(
             f"first_glance {config.model.first_glance!r} cannot be batched; accepted: random "
@@ -91,20 +94,77 @@ def check_batchable(config: TrainConfig) -> None:
         )
 
 
-class _Glance(nn.Module):
-    """One glance of one run through the network: the function :func:`torch.vmap` batches."""
+class _Linear(torch.autograd.Function):
+    """``y = x W^T + b`` for N runs at once: ``x (N, B, in)``, ``W (N, out, in)``, ``b (N, out)``.
 
-    def __init__(self, agent: HapticAttentionModel) -> None:
-        super().__init__()
-        self.agent = agent
+    By hand rather than through :func:`torch.vmap` of ``nn.Linear``: the weight gradient comes
+    out as one ``bmm`` in ``W``'s own layout (vmap's is transposed, then copied: on the CPU that
+    copy and the slower transposed product cost as much as the batching saves)."""
 
-    def forward(self, pressure, q, state, with_policy: bool):
-        a = self.agent
-        tau, state = a.step(pressure, q, state)
-        logits, baseline = a.classifier(tau), a.baseline(tau)
-        dist = a.location.distribution(tau) if with_policy else None
-        params = (dist.mu, dist.sigma) if isinstance(dist, TruncatedGaussian) else ()
-        return state, logits, baseline, params
+    @staticmethod
+    def forward(ctx, x, weight, bias):
+        ctx.save_for_backward(x, weight)
+        ctx.has_bias = bias is not None
+        wt = weight.transpose(1, 2)
+        return torch.bmm(x, wt) if bias is None else torch.baddbmm(bias.unsqueeze(1), x, wt)
+
+    @staticmethod
+    def backward(ctx, grad):
+        x, weight = ctx.saved_tensors
+        gx = torch.bmm(grad, weight) if ctx.needs_input_grad[0] else None
+        gw = torch.bmm(grad.transpose(1, 2), x) if ctx.needs_input_grad[1] else None
+        gb = grad.sum(1) if ctx.has_bias and ctx.needs_input_grad[2] else None
+        return gx, gw, gb
+
+
+class _StackedHam:
+    """The HAM's layers (:mod:`ham.model`) over weights stacked along a leading run axis: one
+    glance of N runs, ``(N, B, ...)`` in and out. Each line mirrors its module (tactile network,
+    core, classifier, baseline, location network), detaches included."""
+
+    def __init__(self, config: HamConfig) -> None:
+        self.c = config
+
+    def _lin(self, p: dict, name: str, x: torch.Tensor) -> torch.Tensor:
+        return _Linear.apply(x, p[name + ".weight"], p.get(name + ".bias"))
+
+    def glance(self, p: dict, pressure, q, state, with_policy: bool):
+        c = self.c
+        # HapticAttentionModel.step: the pose fed to the tactile network
+        location = torch.stack([q[..., 0], q[..., 1] * c.phi_scale], dim=-1)
+        # TactileNetwork
+        what = torch.relu(self._lin(p, "tactile.what", pressure))
+        where = torch.relu(self._lin(p, "tactile.where", location))
+        if c.combiner == "add":
+            g = what + where
+        elif c.combiner == "mul":
+            g = what * where
+        else:
+            g = torch.cat([what, where], dim=-1)
+            for k in range(2 if c.combiner == "concat2" else 1):
+                g = torch.relu(self._lin(p, f"tactile.combine.{2 * k}", g))
+        # the core: LSTMCore or MLPCore
+        if c.core == "lstm":
+            h, cell = state
+            if c.truncate_bptt:
+                h, cell = h.detach(), cell.detach()
+            act = torch.tanh if c.lstm_activation == "tanh" else torch.relu
+            i, f, u, o = self._lin(p, "core.gates", torch.cat([g, h], dim=-1)).chunk(4, dim=-1)
+            cell = torch.sigmoid(f + c.forget_bias) * cell + torch.sigmoid(i) * act(u)
+            tau = torch.sigmoid(o) * act(cell)
+            state = (tau, cell)
+        else:
+            tau = torch.relu(self._lin(p, "core.dense", g))
+        logits = self._lin(p, "classifier.dense", tau)
+        baseline = self._lin(p, "baseline.dense", tau.detach()).squeeze(-1)
+        dist = None
+        if with_policy and c.policy == "learned":  # LocationNetwork: reads tau detached
+            t = tau.detach()
+            mu = torch.tanh(self._lin(p, "location.mu", t))
+            s = self._lin(p, "location.sigma", t)
+            sigma = F.softplus(s) if c.std_activation == "softplus" else torch.sigmoid(s)
+            dist = (mu, sigma + c.sigma_min)
+        return state, logits, baseline, dist
 
 
 class BatchedRuns:
@@ -124,8 +184,8 @@ class BatchedRuns:
         self.active = [
             i for i in range(len(self.runs)) if not self._done(i) and i not in self.stopped
         ]
-        # the structure only: functional_call swaps the stacked weights in
-        self._glance = _Glance(copy.deepcopy(self.runs[0].agent))
+        self._template = self.runs[0].agent  # its config and initial state only
+        self._net = _StackedHam(self._template.config)
         self._names = [n for n, _ in self.runs[0].agent.named_parameters()]
         if self.active:
             self._stack()
@@ -158,16 +218,9 @@ class BatchedRuns:
         """One episode of every active run: objects ``(N, B)`` -> the stacked episode tensors."""
         runs = [self.runs[i] for i in self.active]
         n, batch = objects.shape
-        agent = self._glance.agent
+        agent = self._template
         glances = agent.config.glances
         env = runs[0].env
-        params = {"agent." + k: v for k, v in self.stacked.items()}
-
-        def one(p, pressure, q, state, with_policy):
-            return functional_call(self._glance, p, (pressure, q, state, with_policy))
-
-        step = torch.vmap(lambda p, x, q, s: one(p, x, q, s, True))
-        last = torch.vmap(lambda p, x, q, s: one(p, x, q, s, False))
         q = torch.stack(
             [uniform_locations(batch, r.policy_generator, objects.device) for r in runs]
         )  # the first glance: random (the paper)
@@ -180,7 +233,7 @@ class BatchedRuns:
             # one lookup of N * B glances: a glance depends only on its object and pose
             pressure = env.glance(flat_objects, q.reshape(-1, 2)).view(n, batch, -1)
             final = s == glances - 1
-            state, lg, b, dist = (last if final else step)(params, pressure, q, state)
+            state, lg, b, dist = self._net.glance(self.stacked, pressure, q, state, not final)
             locations.append(q)
             logits.append(lg)
             baselines.append(b)
