@@ -48,8 +48,21 @@ def assert_same_run(batched: Path, single: Path) -> None:
 
 @pytest.mark.parametrize(
     "model",
-    [HamConfig(glances=3), HamConfig(glances=2, policy="random", core="mlp", combiner="mul")],
-    ids=["full", "rloc-mlp-mul"],
+    [
+        HamConfig(glances=3),
+        HamConfig(glances=2, policy="random", core="mlp", combiner="mul"),
+        HamConfig(
+            glances=2,
+            combiner="concat1",
+            bias=False,
+            lstm_activation="relu",
+            std_activation="sigmoid",
+            truncate_bptt=True,
+            forget_bias=0.5,
+        ),
+        HamConfig(glances=1, combiner="add"),
+    ],  # fmt: skip
+    ids=["full", "rloc-mlp-mul", "code-options", "one-glance-add"],
 )
 def test_batched_equals_single_runs(tmp_path, model):
     configs = [tiny(s, model=model) for s in range(3)]

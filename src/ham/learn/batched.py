@@ -124,8 +124,12 @@ class _StackedHam:
 
     def __init__(self, config: HamConfig) -> None:
         self.c = config
+        self.used: set[str] = set()  # the weights read: checked against the model's once
 
     def _lin(self, p: dict, name: str, x: torch.Tensor) -> torch.Tensor:
+        self.used.add(name + ".weight")
+        if name + ".bias" in p:
+            self.used.add(name + ".bias")
         return _Linear.apply(x, p[name + ".weight"], p.get(name + ".bias"))
 
     def glance(self, p: dict, pressure, q, state, with_policy: bool):
@@ -187,6 +191,7 @@ class BatchedRuns:
         self._template = self.runs[0].agent  # its config and initial state only
         self._net = _StackedHam(self._template.config)
         self._names = [n for n, _ in self.runs[0].agent.named_parameters()]
+        self._checked = False
         if self.active:
             self._stack()
 
@@ -290,6 +295,14 @@ class BatchedRuns:
                 group["lr"] = r.config.learning_rate(r.step)
         objects = torch.stack([r.env.sample_objects() for r in runs])
         totals, rewards, *parts = self._losses(objects, *self._forward(objects))
+        if not self._checked:  # a weight the stacked layers skip would silently never train
+            unused = set(self._names) - self._net.used
+            if self._template.config.glances == 1:  # no glance is chosen by the policy
+                unused = {n for n in unused if not n.startswith("location.")}
+            if unused:
+                raise HamError(f"the batched layers do not read the weights {sorted(unused)}; "
+                               "train this model with ham train or --executor local")  # fmt: skip
+            self._checked = True
         finite = torch.isfinite(totals).tolist()
         failed = []
         for k, ok in enumerate(finite):
