@@ -60,6 +60,20 @@ def add_commands(subparsers) -> None:
         "--ray-address", default=None, help="a running Ray cluster (default: start a local one)"
     )
     p.add_argument("--workers", type=int, default=None, help="local processes (default: all cores)")
+    p.add_argument(
+        "--batch-runs",
+        type=int,
+        default=None,
+        metavar="N",
+        help="batched executor: at most N runs of one shape (seeds) per batched model "
+        "(default: all of a shape)",
+    )
+    p.add_argument(
+        "--stop-at-perfect",
+        action="store_true",
+        help="batched executor: stop a run whose best evaluation is 1.000 (its table entry "
+        "cannot change); its metrics.json says stopped_at_perfect",
+    )
     p.add_argument("--device", default=None, help="cpu or cuda (default cpu; grid: the file's)")
     p.add_argument("--retries", type=int, default=1, help="re-runs of a failed run (default 1)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -97,6 +111,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         glances=args.glances,
         variants=args.variants,
         world=WorldConfig(objects=objects, objects_file=record),
+        batch_runs=args.batch_runs,
+        stop_at_perfect=args.stop_at_perfect,
     )
     if args.json:
         json.dump(summary, sys.stdout, default=str)
@@ -134,6 +150,8 @@ def cmd_grid(args: argparse.Namespace) -> int:
         retries=args.retries,
         progress=not args.quiet,
         command="ham " + " ".join(sys.argv[1:]),
+        batch_runs=args.batch_runs,
+        stop_at_perfect=args.stop_at_perfect,
     )
     if args.json:
         json.dump(summary, sys.stdout, default=str)

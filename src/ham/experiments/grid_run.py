@@ -21,7 +21,15 @@ import numpy as np
 
 from ham.errors import HamError
 from ham.experiments.grid import Grid, GridJob, load_grid, settings_text
-from ham.experiments.reproduce import EXECUTORS, _environment, _fmt, _write_json, execute, mean_sem
+from ham.experiments.reproduce import (
+    EXECUTORS,
+    _environment,
+    _fmt,
+    _write_json,
+    check_batched_options,
+    execute,
+    mean_sem,
+)
 from ham.experiments.runs import evaluation_path, has_evaluation, is_finished, run_dir
 
 #: Keys of a run's config that may differ between invocations without making it another run.
@@ -40,10 +48,13 @@ def run_grid(
     retries: int = 1,
     progress: bool = True,
     command: str | None = None,
+    batch_runs: int | None = None,
+    stop_at_perfect: bool = False,
 ) -> dict:
     """Run what is not finished of ``grid`` (a :class:`Grid` or a grid file) into ``out``.
 
     ``seeds`` replaces every cell's seeds by ``0..seeds-1``; ``device`` sets every run's device.
+    ``batch_runs`` (runs per batch) and ``stop_at_perfect`` go with ``executor="batched"``.
     Returns the summary (``results.json`` plus ``ran``, ``skipped`` and ``failures``).
     """
     from ham.world.config import WorldConfig
@@ -53,6 +64,7 @@ def run_grid(
         grid = load_grid(grid)
     if executor not in EXECUTORS:
         raise HamError(f"executor {executor!r}; accepted: {', '.join(EXECUTORS)}")
+    check_batched_options(executor, batch_runs, stop_at_perfect)
     if seeds is not None:
         if not (isinstance(seeds, int) and not isinstance(seeds, bool) and seeds >= 1):
             raise HamError(f"seeds = {seeds!r}; accepted: an integer >= 1")
@@ -81,6 +93,7 @@ def run_grid(
         jobs, todo, root, grid.world, grid.table_grid,
         executor=executor, workers=workers, ray_address=ray_address, retries=retries,
         progress=progress, desc=f"grid {grid.name}",
+        batch_runs=batch_runs, stop_at_perfect=stop_at_perfect,
     )  # fmt: skip
     summary = write_report(root, grid, jobs, failures, command=command, executor=executor)
     summary["skipped"] = len(jobs) - len(todo)

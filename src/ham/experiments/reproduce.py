@@ -39,7 +39,7 @@ if TYPE_CHECKING:
     from ham.world.config import WorldConfig
 
 TARGETS = ("table1", "table2", "figures", "all")
-EXECUTORS = ("local", "ray")
+EXECUTORS = ("local", "ray", "batched")
 
 #: Table 1 of the paper: best accuracy within 50k steps, mean +- s.e.m. over 10 runs.
 PAPER_TABLE1 = {
@@ -367,6 +367,115 @@ def execute_ray(
             ray.shutdown()
 
 
+def check_batched_options(executor: str, batch_runs: int | None, stop_at_perfect: bool) -> None:
+    """``batch_runs`` and ``stop_at_perfect`` need the batched executor; ``batch_runs`` >= 1."""
+    if executor != "batched":
+        given = [n for n, v in (("--batch-runs", batch_runs), ("--stop-at-perfect", stop_at_perfect))
+                 if v]  # fmt: skip
+        if given:
+            verb = "needs" if len(given) == 1 else "need"
+            raise HamError(f"{', '.join(given)} {verb} --executor batched (got {executor!r})")
+    if batch_runs is not None and not (
+        isinstance(batch_runs, int) and not isinstance(batch_runs, bool) and batch_runs >= 1
+    ):
+        raise HamError(f"batch_runs = {batch_runs!r}; accepted: an integer >= 1")
+
+
+def group_jobs(jobs: list, batch_runs: int | None = None) -> list[list]:
+    """Jobs of one shape (the same config but the seed) together, in plan order, at most
+    ``batch_runs`` per group (``None``: all of a shape)."""
+    from ham.learn.batched import shape_key
+    from ham.learn.train import TrainConfig
+
+    groups: dict[str, list] = {}
+    for j in jobs:
+        config = TrainConfig.from_dict(j.config)
+        groups.setdefault(shape_key(config) + f"|{config.steps}", []).append(j)
+    size = batch_runs or max(len(g) for g in groups.values())
+    return [g[k : k + size] for g in groups.values() for k in range(0, len(g), size)]
+
+
+def run_batch(
+    jobs: list[dict], root: str, world: dict, grid: int | None, stop_at_perfect: bool = False
+) -> list[dict]:
+    """Train the jobs of one shape as one batched model (:mod:`ham.learn.batched`); each run
+    resumes from its checkpoint if it has one. Returns one result per job, as :func:`run_job`:
+    a run that diverged fails alone; then each finished run's ``evaluate`` specs."""
+    from ham.learn.batched import train_batched
+    from ham.learn.train import TrainConfig
+
+    started = time.perf_counter()
+    todo = [j for j in jobs if not is_finished(run_dir(Path(root), j["key"]), j["config"]["steps"])]
+    errors: dict[str, str] = {}
+    if todo:
+        configs = [TrainConfig.from_dict(j["config"]) for j in todo]
+        if configs[0].table is not None:
+            _ensure_table(Path(configs[0].table), world, grid)
+        outs = [run_dir(Path(root), j["key"]) for j in todo]
+        results = train_batched(configs, outs, stop_at_perfect=stop_at_perfect)
+        errors = {j["key"]: r for j, r in zip(todo, results, strict=True) if isinstance(r, str)}
+    seconds = (time.perf_counter() - started) / len(jobs)
+    out = []
+    for j in jobs:
+        if j["key"] in errors:
+            out.append(
+                {"key": j["key"], "status": "failed", "error": f"HamError: {errors[j['key']]}"}
+            )
+            continue
+        r = _safe_run(j, root, world, grid)  # finished: only its evaluations, if any
+        if r["status"] != "failed":
+            r["status"] = "done" if j in todo else r["status"]
+            r["seconds"] = seconds + r["seconds"]
+        out.append(r)
+    return out
+
+
+def _safe_batch(jobs: list[dict], root: str, world: dict, grid: int, stop: bool) -> list[dict]:
+    try:
+        return run_batch(jobs, root, world, grid, stop)
+    except BaseException as exc:  # noqa: BLE001 - a worker must report, not die silently
+        if isinstance(exc, KeyboardInterrupt):
+            raise
+        error = f"{type(exc).__name__}: {exc}"
+        tb = traceback.format_exc(limit=6)
+        return [
+            {"key": j["key"], "status": "failed", "error": error, "traceback": tb} for j in jobs
+        ]
+
+
+def execute_batched(
+    jobs: list[Job],
+    root: Path,
+    world: dict,
+    grid: int,
+    workers: int,
+    on_result: Callable[[dict], None],
+    batch_runs: int | None = None,
+    stop_at_perfect: bool = False,
+) -> None:
+    """Jobs of one shape (seeds) trained as one batched model each (:func:`group_jobs`); the
+    groups on a process pool of ``workers`` (one torch thread each), or in this process when
+    there is one group or one worker (the way to use one GPU)."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    groups = [[j.to_dict() for j in g] for g in group_jobs(jobs, batch_runs)]
+    workers = min(workers, len(groups))
+    if workers <= 1:
+        for g in groups:
+            for r in _safe_batch(g, str(root), world, grid, stop_at_perfect):
+                on_result(r)
+        return
+    ctx = mp.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init) as pool:
+        futures = [
+            pool.submit(_safe_batch, g, str(root), world, grid, stop_at_perfect) for g in groups
+        ]
+        for fut in as_completed(futures):
+            for r in fut.result():
+                on_result(r)
+
+
 def execute(
     jobs: list,
     todo: list,
@@ -380,8 +489,12 @@ def execute(
     retries: int,
     progress: bool,
     desc: str,
+    batch_runs: int | None = None,
+    stop_at_perfect: bool = False,
 ) -> tuple[dict[str, dict], list[dict]]:
     """Run ``todo`` (a part of ``jobs``) on ``executor``, re-running failed runs ``retries`` times.
+
+    ``batch_runs`` and ``stop_at_perfect`` go with the ``batched`` executor only.
 
     Returns every run's last result by key and the results of the runs that failed every try.
     """
@@ -404,6 +517,9 @@ def execute(
             print(f"retrying {len(todo)} failed run(s) (attempt {attempt + 1})", file=sys.stderr)
         if executor == "ray":
             execute_ray(todo, root, world, grid, ray_address, on_result)
+        elif executor == "batched":
+            execute_batched(todo, root, world, grid, workers, on_result, batch_runs,
+                            stop_at_perfect)  # fmt: skip
         else:
             execute_local(todo, root, world, grid, workers, on_result)
         todo = [j for j in todo if results.get(j.key, {}).get("status") == "failed"]
@@ -511,6 +627,8 @@ def reproduce(
     glances: Iterable[int] | None = None,
     variants: Iterable[str] | None = None,
     world: WorldConfig | None = None,
+    batch_runs: int | None = None,
+    stop_at_perfect: bool = False,
 ) -> dict:
     """Plan, run (skipping finished runs), aggregate and report. Returns the summary dict.
 
@@ -518,6 +636,7 @@ def reproduce(
     always the four combiners at 3 glances), e.g. the paper's protocol for one row on a laptop.
     ``world``: the world of the glance table (default: the paper's); with an objects file, every
     worker registers the file's objects from the record in the table and the world.
+    ``batch_runs`` (runs per batch) and ``stop_at_perfect`` go with ``executor="batched"``.
     """
     from ham.world.config import WorldConfig
     from ham.world.devices import check_device
@@ -530,6 +649,7 @@ def reproduce(
         raise HamError(f"profile {profile_name!r}; accepted: {', '.join(PROFILES)}")
     if executor not in EXECUTORS:
         raise HamError(f"executor {executor!r}; accepted: {', '.join(EXECUTORS)}")
+    check_batched_options(executor, batch_runs, stop_at_perfect)
     profile = PROFILES[profile_name]
     if seeds is not None:
         if not (isinstance(seeds, int) and seeds >= 1):
@@ -562,6 +682,7 @@ def reproduce(
         jobs, todo, root, world.to_dict(), profile.table_grid,
         executor=executor, workers=workers, ray_address=ray_address, retries=retries,
         progress=progress, desc=f"reproduce {target} ({profile.name})",
+        batch_runs=batch_runs, stop_at_perfect=stop_at_perfect,
     )  # fmt: skip
     skipped = len(jobs) - len(todo)
     summary = write_outputs(

@@ -10,12 +10,22 @@ def run_dir(root: Path, key: str) -> Path:
     return Path(root) / "runs" / key
 
 
-def is_finished(out: Path, steps: int) -> bool:
+def _metrics(out: Path) -> dict:
     try:
-        metrics = json.loads((out / "metrics.json").read_text())
+        return json.loads((Path(out) / "metrics.json").read_text())
     except (OSError, ValueError):
-        return False
-    return int(metrics.get("steps", -1)) >= steps
+        return {}
+
+
+def final_step(out: Path, steps: int) -> int:
+    """The step a run ends at: ``steps``, or the step it stopped at with a perfect evaluation
+    (``stopped_at_perfect``, :mod:`ham.learn.batched`: its best accuracy cannot change)."""
+    stopped = _metrics(out).get("stopped_at_perfect")
+    return steps if stopped is None else min(steps, int(stopped))
+
+
+def is_finished(out: Path, steps: int) -> bool:
+    return int(_metrics(out).get("steps", -1)) >= final_step(out, steps)
 
 
 def evaluation_path(out: Path, spec: dict) -> Path:
@@ -25,7 +35,8 @@ def evaluation_path(out: Path, spec: dict) -> Path:
 
 def has_evaluation(out: Path, spec: dict, steps: int) -> bool:
     try:
-        return int(json.loads(evaluation_path(out, spec).read_text())["steps"]) >= steps
+        done = int(json.loads(evaluation_path(out, spec).read_text())["steps"])
+        return done >= final_step(out, steps)
     except (OSError, ValueError, KeyError, TypeError):
         return False
 

@@ -1,0 +1,127 @@
+"""Seed-steps per second: N runs trained as one batched model vs the same N runs one by one.
+
+For each glance count (3 and 10 by default): N = 10 runs of the paper's model (seeds 0..9)
+as single runs (:func:`ham.learn.train.train_step`, one after another) and as one batched group
+(:class:`ham.learn.batched.BatchedRuns`), measured interleaved in the same process (both see the
+same machine load), one torch thread (as a worker of the local pool). Also one evaluation (100
+batches) per run, which stays per run in both. Prints the ratio and the projected CPU-hours of
+the full paper grid (Table 1: 7 glance counts x 3 trained variants x 10 seeds, Table 2: 3 more
+combiners x 10 seeds at 3 glances; 50,000 steps and 250 evaluations each), with ms/step at
+the other glance counts interpolated linearly in G from the measured ones, and every variant
+costed as the full model (the MLP core is cheaper: an upper bound).
+
+    PYTHONPATH=src python benchmarks/bench_batched.py [--runs 10] [--glances 3 10] [--repeats 4]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ham.learn.batched import BatchedRuns, _open_runs
+from ham.learn.environment import HapticEnv
+from ham.learn.evaluation import evaluate
+from ham.learn.train import Run, TrainConfig, stream_seed, train_step
+from ham.model.agent import HamConfig
+
+TABLE1_GLANCES = (1, 2, 3, 4, 6, 8, 10)
+STEPS, EVALS, SEEDS = 50_000, 250, 10
+
+
+def measure(glances: int, runs: int, repeats: int, table: str | None) -> dict:
+    configs = [TrainConfig(model=HamConfig(glances=glances), seed=s, table=table)
+               for s in range(runs)]  # fmt: skip
+    with tempfile.TemporaryDirectory() as tmp:
+        outs = [Path(tmp) / str(s) for s in range(runs)]
+        group = BatchedRuns(_open_runs(configs, outs), outs)  # writes nothing until train()
+        # the single runs glance on the same (one) table in memory, each with its own
+        # environment seeded as Run.create seeds it
+        source = group.runs[0].env.source
+        singles = [Run.create(c, HapticEnv(source, c.batch_size, c.normalization,
+                                           stream_seed(c.seed, 0))) for c in configs]  # fmt: skip
+        for _ in range(2):  # warm up both
+            group.step()
+            for r in singles:
+                train_step(r)
+        t_single, t_batched = [], []
+        for _ in range(repeats):  # interleaved
+            t0 = time.perf_counter()
+            for r in singles:
+                train_step(r)
+            t1 = time.perf_counter()
+            group.step()
+            t2 = time.perf_counter()
+            t_single.append(t1 - t0)
+            t_batched.append(t2 - t1)
+    t0 = time.perf_counter()
+    evaluate(singles[0].agent, singles[0].env, 100, seed=2)
+    t_eval = time.perf_counter() - t0
+    single, batched = statistics.median(t_single), statistics.median(t_batched)
+    return {
+        "glances": glances,
+        "runs": runs,
+        "single_ms_per_run_step": 1000 * single / runs,
+        "batched_ms_per_run_step": 1000 * batched / runs,
+        "single_seed_steps_per_s": runs / single,
+        "batched_seed_steps_per_s": runs / batched,
+        "ratio": single / batched,
+        "eval_ms": 1000 * t_eval,
+    }
+
+
+def grid_hours(rows: list[dict], key: str) -> float:
+    """CPU-hours of the paper grid with ms/step ``key``, interpolated linearly in G."""
+    g = [r["glances"] for r in rows]
+    ms = [r[key] for r in rows]
+    ev = [r["eval_ms"] for r in rows]
+    if len(rows) == 1:
+        fit = lambda x, y: lambda G: y[0] * G / x[0]  # noqa: E731 - proportional to G
+    else:
+        fit = lambda x, y: np.poly1d(np.polyfit(x, y, 1))  # noqa: E731
+    step, evaluation = fit(g, ms), fit(g, ev)
+    runs = {G: 3 * SEEDS for G in TABLE1_GLANCES}
+    runs[3] += 3 * SEEDS  # Table 2's mul, concat1, add (concat2 is Table 1's full model)
+    ms_total = sum(n * (STEPS * step(G) + EVALS * evaluation(G)) for G, n in runs.items())
+    return ms_total / 3.6e6
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--runs", type=int, default=10)
+    p.add_argument("--glances", type=int, nargs="+", default=[3, 10])
+    p.add_argument("--repeats", type=int, default=4)
+    p.add_argument("--table", default=None, help="a glance table (default: online simulator)")
+    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--json", action="store_true")
+    args = p.parse_args()
+    torch.set_num_threads(args.threads)
+    rows = [measure(g, args.runs, args.repeats, args.table) for g in args.glances]
+    before = grid_hours(rows, "single_ms_per_run_step")
+    after = grid_hours(rows, "batched_ms_per_run_step")
+    if args.json:
+        print(json.dumps({"rows": rows, "grid_cpu_hours": [before, after]}, indent=1))
+        return
+    print(f"{args.runs} runs, {args.threads} torch thread(s), batch 64, the paper's model")
+    print("glances  single ms/run-step  batched ms/run-step  seed-steps/s single  batched  ratio")
+    for r in rows:
+        print(f"{r['glances']:>7}  {r['single_ms_per_run_step']:>18.1f}  "
+              f"{r['batched_ms_per_run_step']:>19.1f}  {r['single_seed_steps_per_s']:>19.1f}  "
+              f"{r['batched_seed_steps_per_s']:>7.1f}  {r['ratio']:>5.2f}")  # fmt: skip
+    evals = ", ".join(f"G={r['glances']}: {r['eval_ms']:.0f} ms" for r in rows)
+    print(f"one evaluation (100 batches, per run in both): {evals}")
+    print(
+        f"paper grid ({7 * 3 * SEEDS + 3 * SEEDS} runs x 50,000 steps + 250 evaluations; ms/step interpolated linearly "
+        f"in G from G = {', '.join(map(str, args.glances))}; every variant costed as the full "
+        f"model): {before:,.0f} CPU-hours one by one, {after:,.0f} batched ({before / after:.2f}x)"
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,200 @@
+"""Batched training (ham.learn.batched): N runs as one stacked model give the single runs' numbers,
+each run keeps its own directory, a diverged run stops alone, resume is bit-identical, and
+``ham reproduce --executor batched`` runs a tiny grid."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+
+from ham.errors import HamError
+from ham.experiments.runs import is_finished
+from ham.learn.batched import BatchedRuns, _open_runs, train_batched
+from ham.learn.train import TrainConfig, load_run, resume, train
+from ham.model.agent import HamConfig
+
+
+def tiny(seed: int, **kw) -> TrainConfig:
+    model = kw.pop("model", HamConfig(glances=3))
+    base = dict(model=model, steps=8, batch_size=8, eval_every=2, eval_batches=2, seed=seed)
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+def metrics(out: Path) -> dict:
+    return json.loads((out / "metrics.json").read_text())
+
+
+def weights(out: Path) -> list[torch.Tensor]:
+    return [p.detach() for p in load_run(out).agent.parameters()]
+
+
+def assert_same_run(batched: Path, single: Path) -> None:
+    """The batched run's numbers are the single run's, to float tolerance."""
+    a, b = metrics(batched), metrics(single)
+    assert [h["accuracy"] for h in a["history"]] == [h["accuracy"] for h in b["history"]]
+    assert [h["step"] for h in a["history"]] == [h["step"] for h in b["history"]]
+    for ha, hb in zip(a["history"][1:], b["history"][1:], strict=True):
+        assert ha["train_loss"] == pytest.approx(hb["train_loss"], rel=1e-5)
+        mu_a, mu_b = torch.tensor(ha["mu_mean"] or 0.0), torch.tensor(hb["mu_mean"] or 0.0)
+        assert torch.allclose(mu_a, mu_b, atol=1e-5)
+    assert a["best_accuracy"] == b["best_accuracy"] and a["steps"] == b["steps"]
+    for p, q in zip(weights(batched), weights(single), strict=True):
+        assert torch.allclose(p, q, rtol=1e-4, atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "model",
+    [
+        HamConfig(glances=3),
+        HamConfig(glances=2, policy="random", core="mlp", combiner="mul"),
+        HamConfig(
+            glances=2,
+            combiner="concat1",
+            bias=False,
+            lstm_activation="relu",
+            std_activation="sigmoid",
+            truncate_bptt=True,
+            forget_bias=0.5,
+        ),
+        HamConfig(glances=1, combiner="add"),
+    ],  # fmt: skip
+    ids=["full", "rloc-mlp-mul", "code-options", "one-glance-add"],
+)
+def test_batched_equals_single_runs(tmp_path, model):
+    configs = [tiny(s, model=model) for s in range(3)]
+    for c in configs:
+        train(c, tmp_path / f"single{c.seed}", progress=False)
+    results = train_batched(configs, [tmp_path / f"b{c.seed}" for c in configs])
+    assert [r["steps"] for r in results] == [8, 8, 8]
+    for c in configs:
+        assert_same_run(tmp_path / f"b{c.seed}", tmp_path / f"single{c.seed}")
+    # different seeds stay different runs: the stacking mixes nothing
+    assert metrics(tmp_path / "b0")["history"][-1]["train_loss"] != pytest.approx(
+        metrics(tmp_path / "b1")["history"][-1]["train_loss"]
+    )
+
+
+def test_each_run_has_the_directory_of_a_single_run(tmp_path):
+    configs = [tiny(s, steps=4) for s in (0, 5)]
+    train(configs[0], tmp_path / "single", progress=False)
+    train_batched(configs, [tmp_path / "b0", tmp_path / "b5"])
+    single = tmp_path / "single"
+    for name in ("b0", "b5"):
+        out = tmp_path / name
+        assert sorted(p.name for p in out.iterdir()) == sorted(p.name for p in single.iterdir())
+        assert list((out / "tb").iterdir())
+        assert set(metrics(out)) == set(metrics(single))
+    assert (tmp_path / "b0/config.json").read_text() == (single / "config.json").read_text()
+    assert json.loads((tmp_path / "b5/config.json").read_text())["seed"] == 5
+    # a checkpoint holds one run's weights, not the stack
+    ck = torch.load(tmp_path / "b0/checkpoint.pt", weights_only=False)
+    ref = torch.load(single / "checkpoint.pt", weights_only=False)
+    for k, v in ck["model"].items():
+        assert v.untyped_storage().nbytes() == ref["model"][k].untyped_storage().nbytes()
+    assert ck["optimizer"]["param_groups"] == ref["optimizer"]["param_groups"]
+    # a batched run continues as a single run
+    resume(tmp_path / "b0", steps=6, progress=False)
+    resume(single, steps=6, progress=False)
+    assert_same_run(tmp_path / "b0", single)
+
+
+def test_a_diverged_run_stops_alone(tmp_path):
+    configs = [tiny(s, steps=6) for s in range(3)]
+    outs = [tmp_path / f"b{s}" for s in range(3)]
+    runs = _open_runs(configs, outs)
+    with torch.no_grad():  # run 1's weights diverged: its first loss is NaN
+        runs[1].agent.core.gates.weight.fill_(float("nan"))
+    results = BatchedRuns(runs, outs).train()
+    assert isinstance(results[1], str)
+    assert results[1].startswith("training diverged at step 1: the loss is nan")
+    assert metrics(outs[1])["steps"] == 0  # its directory keeps its last checkpoint
+    for s in (0, 2):
+        train(configs[s], tmp_path / f"single{s}", progress=False)
+        assert results[s]["steps"] == 6
+        assert_same_run(outs[s], tmp_path / f"single{s}")
+
+
+def test_resume_of_a_batched_group_is_bit_identical(tmp_path):
+    full = [tiny(s) for s in (0, 1)]
+    train_batched(full, [tmp_path / f"full{c.seed}" for c in full])
+    half = [tiny(s, steps=4) for s in (0, 1)]
+    outs = [tmp_path / f"part{c.seed}" for c in half]
+    train_batched(half, outs)
+    assert metrics(outs[0])["steps"] == 4
+    train_batched(full, outs)  # continues from the checkpoints
+    for c in full:
+        a, b = tmp_path / f"full{c.seed}", tmp_path / f"part{c.seed}"
+        assert metrics(a) == metrics(b)
+        for p, q in zip(weights(a), weights(b), strict=True):
+            assert torch.equal(p, q)
+
+
+def test_stop_at_perfect(tmp_path):
+    # one glance, batches of one object, one evaluation batch: accuracy is 0 or 1
+    configs = [tiny(s, model=HamConfig(glances=1), steps=6, batch_size=1, eval_batches=1)
+               for s in (0, 1)]  # fmt: skip
+    outs = [tmp_path / "s0", tmp_path / "s1"]
+    results = train_batched(configs, outs, stop_at_perfect=True)
+    stopped, going = results[1], results[0]
+    assert stopped["best_accuracy"] == 1.0 and stopped["stopped_at_perfect"] == 0
+    assert stopped["steps"] == 0 and metrics(outs[1])["stopped_at_perfect"] == 0
+    assert going["best_accuracy"] < 1.0 and going["steps"] == 6
+    assert "stopped_at_perfect" not in metrics(outs[0])
+    assert is_finished(outs[1], 6) and is_finished(outs[0], 6)
+    again = train_batched(configs, outs, stop_at_perfect=True)  # nothing left to train
+    assert again[1]["steps"] == 0 and metrics(outs[1]) == stopped
+    # without the option nothing stops
+    plain = train_batched(configs, [tmp_path / "p0", tmp_path / "p1"])
+    assert [r["steps"] for r in plain] == [6, 6]
+
+
+def test_refused_configs(tmp_path):
+    with pytest.raises(HamError, match="learner 'info' cannot be batched; accepted: hybrid"):
+        train_batched([tiny(0, learner="info")], [tmp_path / "a"])
+    with pytest.raises(HamError, match="differ in more than seed and steps"):
+        train_batched([tiny(0), tiny(1, lr=1e-3)], [tmp_path / "a", tmp_path / "b"])
+    with pytest.raises(HamError, match="share a directory"):
+        train_batched([tiny(0), tiny(1)], [tmp_path / "a", tmp_path / "a"])
+    train_batched([tiny(0, steps=2)], [tmp_path / "c"])
+    with pytest.raises(HamError, match="holds another run"):
+        train_batched([tiny(1, steps=2)], [tmp_path / "c"])
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_reproduce_batched_executor_matches_local(tmp_path, ham_cli):
+    common = ["reproduce", "table1", "--profile", "smoke", "--glances", "2", "--variants",
+              "full", "rloc", "--seeds", "2", "--workers", "1", "--quiet", "--json"]  # fmt: skip
+    b = ham_cli(*common, "--executor", "batched", "--out", str(tmp_path / "b"))
+    assert b.returncode == 0, b.stderr
+    assert json.loads(b.stdout)["ran"] == 4
+    loc = ham_cli(*common, "--out", str(tmp_path / "l"))
+    assert loc.returncode == 0, loc.stderr
+    for key in ("full-concat2-g2-s0", "full-concat2-g2-s1", "rloc-concat2-g2-s1"):
+        assert_same_run(tmp_path / "b/runs" / key, tmp_path / "l/runs" / key)
+    t_b = json.loads((tmp_path / "b/table1.json").read_text())
+    t_l = json.loads((tmp_path / "l/table1.json").read_text())
+    assert t_b["2"]["full"]["mean"] == pytest.approx(t_l["2"]["full"]["mean"])
+    # finished runs are skipped by every executor
+    again = ham_cli(*common, "--executor", "batched", "--out", str(tmp_path / "b"))
+    assert json.loads(again.stdout)["skipped"] == 4
+    bad = ham_cli(*common, "--stop-at-perfect", "--out", str(tmp_path / "x"))
+    assert bad.returncode == 2
+    assert "ham: error: --stop-at-perfect needs --executor batched" in bad.stderr
+
+
+def test_nan_weights_stop_their_run_alone(tmp_path):
+    # one glance: the location heads take no part in the loss, so NaN there shows only in the
+    # weights check after the update (the loss stays finite)
+    configs = [tiny(s, model=HamConfig(glances=1), steps=4) for s in range(2)]
+    outs = [tmp_path / f"b{s}" for s in range(2)]
+    runs = _open_runs(configs, outs)
+    with torch.no_grad():
+        runs[0].agent.location.mu.weight[0, 0] = float("nan")
+    results = BatchedRuns(runs, outs).train()
+    assert results[0] == "training diverged at step 1: NaN/inf in the weights location.mu.weight"
+    train(configs[1], tmp_path / "single1", progress=False)
+    assert_same_run(outs[1], tmp_path / "single1")
