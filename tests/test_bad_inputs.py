@@ -344,7 +344,7 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("train-table-and-sigma", ["train", "--out", "r", "--table", "{good}", "--spread-sigma", "0.005"], "spread_sigma=0.005"),
     ("train-table-and-simulator", ["train", "--out", "r", "--table", "{good}", "--simulator", "mujoco"], "simulator='mujoco'"),
     ("train-env-and-objects", ["train", "--out", "r", "--env", AP_ENV, "--objects", "mhsb"], "objects='mhsb'"),
-    ("resume-and-sigma", ["train", "--resume", "{run}", "--spread-sigma", "0.005"], "spread_sigma=0.005"),
+    ("resume-and-sigma", ["train", "--resume", "{run}", "--spread-sigma", "0.005"], "--spread-sigma"),
     ("train-objects-one", ["train", "--out", "r", "--objects", "box"], "n_objects = 1"),
     ("train-objects-unknown", ["train", "--out", "r", "--objects", "nosuch"], "'nosuch'"),
     ("train-sigma-100", ["train", "--out", "r", "--spread-sigma", "100"], "100"),

@@ -107,7 +107,7 @@ def add_config_options(
             continue
         kind = _base_type(hints[f.name])
         default = getattr(defaults, f.name)
-        text = docs.get(f.name, f.name.replace("_", " "))
+        text = docs.get(f.name, f.name.replace("_", " ")).replace("``", "")
         text = text.rstrip(".") + f" [default: {default}]"
         kwargs: dict = {"dest": f.name, "default": None, "help": text.replace("%", "%%")}
         choices = f.metadata.get("choices")

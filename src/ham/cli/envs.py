@@ -49,7 +49,7 @@ def add_commands(subparsers) -> None:
     )
     from ham.cli.options import add_sensor_options
 
-    add_sensor_options(q)  # the online world's pad (a table carries its own)
+    add_sensor_options(q, geometry_only=True)  # the online world's pad (a table has its own)
     q.add_argument("--objects", default=None, help="online object set (default: paper)")
     add_objects_file_option(q)
     q.set_defaults(func=cmd_check)

@@ -87,69 +87,48 @@ def add_world_options(p: argparse.ArgumentParser, *, objects: bool = True) -> No
         choices=("paper", "authors"),
         help="pose mapping: paper (phi = q*pi/2, default) or authors (phi = q*0.3pi, pivot shift)",
     )
-    p.add_argument("--foam-stiffness", type=finite_float, default=None, help="Pa per m")
-    p.add_argument(
-        "--spread-sigma",
-        type=finite_float,
-        default=None,
-        help="Gaussian spread (m) like the paper's Gazebo plugin, e.g. 0.005",
-    )
-    p.add_argument("--quantize-bits", type=int, default=None, help="e.g. 12, like the real sensor")
     add_sensor_options(p)
 
 
-# --- sensor geometry (--taxels, --pitch): one block, applied through sensor_changes_from_args ---
-def add_sensor_options(p: argparse.ArgumentParser) -> None:
-    """``--taxels N --pitch M``: the pad's cells per side and their pitch (paper: 16, 0.005 m)."""
-    p.add_argument(
-        "--taxels",
-        type=int,
-        default=None,
-        metavar="N",
-        help="taxels per side of the pad, 2..128 (default 16: a 16 x 16 image)",
-    )
-    p.add_argument(
-        "--pitch",
-        type=finite_float,
-        default=None,
-        metavar="M",
-        help="taxel pitch in m (default 0.005); the pad is N * M wide, at most the objects' "
-        "depth (9 cm)",
+def add_sensor_options(p: argparse.ArgumentParser, *, geometry_only: bool = False) -> None:
+    """The pad's options, one per :class:`ham.world.sensor.SensorConfig` field (paper defaults):
+    ``--taxels N --pitch M`` and the foam/read-out options (``geometry_only``: only the first two)."""
+    from dataclasses import fields
+
+    from ham.cli.config_args import add_config_options
+    from ham.world.sensor import SensorConfig
+
+    group = p.add_argument_group("sensor (SensorConfig; the Myrmex pad, paper defaults)")
+    names = {f.name for f in fields(SensorConfig)}
+    add_config_options(
+        group, SensorConfig, skip=names - {"taxels", "pitch"} if geometry_only else ()
     )
 
 
 def sensor_changes_from_args(args: argparse.Namespace) -> dict:
-    """The :class:`ham.world.sensor.SensorConfig` fields ``--taxels``/``--pitch`` set."""
-    changes = {}
-    if getattr(args, "taxels", None) is not None:
-        changes["taxels"] = args.taxels
-    if getattr(args, "pitch", None) is not None:
-        changes["pitch"] = args.pitch
-    return changes
+    """The pad's geometry the user gave: ``--taxels`` / ``--pitch`` (SensorConfig fields)."""
+    return {k: getattr(args, k) for k in ("taxels", "pitch") if getattr(args, k, None) is not None}
+
+
+def sensor_from_args(args: argparse.Namespace):
+    """The :class:`ham.world.sensor.SensorConfig` of the sensor options given (defaults else)."""
+    from ham.cli.config_args import overrides
+    from ham.world.sensor import SensorConfig
+
+    return SensorConfig(**overrides(args, SensorConfig))
 
 
 # ------------------------------------------------------------------------------------------------
 
 
 def world_from_args(args: argparse.Namespace, objects: str | None = None):
-    from dataclasses import replace
 
     from ham.world.config import WorldConfig
     from ham.world.glance import PoseConfig
-    from ham.world.sensor import SensorConfig
 
     objects, record = objects_from_args(args, objects)
 
-    sensor = SensorConfig()
-    changes = {}
-    if args.foam_stiffness is not None:
-        changes["foam_stiffness"] = args.foam_stiffness
-    if args.spread_sigma is not None:
-        changes["spread_sigma"] = args.spread_sigma
-    if args.quantize_bits is not None:
-        changes["quantize_bits"] = args.quantize_bits
-    changes.update(sensor_changes_from_args(args))
-    sensor = replace(sensor, **changes)
+    sensor = sensor_from_args(args)
     mujoco = {}
     if args.sensor == "gazebo":
         if args.simulator != "mujoco":
