@@ -19,6 +19,7 @@ PAPER_PARAMETERS = 741_248
 def add_commands(subparsers) -> None:
     """Add ``train``, ``evaluate`` and ``heatmap`` to an argparse subparsers object."""
     from ham.cli.config_args import add_config_options, choices
+    from ham.learn.ap_adapter import ACTIONS
     from ham.learn.train import TrainConfig
     from ham.model.agent import HamConfig
 
@@ -41,7 +42,7 @@ def add_commands(subparsers) -> None:
                      help="simulate glances online with the fast simulator (the default)")  # fmt: skip
     src.add_argument("--env", metavar="ap_gym:ENV_ID",
                      help="train on an ap_gym active classification environment (docs/gym.md)")  # fmt: skip
-    p.add_argument("--actions", choices=("absolute", "relative"),
+    p.add_argument("--actions", choices=ACTIONS,
                    help="with --env: poses are targets (default) or movements")  # fmt: skip
     p.add_argument("--max-step-length", metavar="L",
                    help="with --env: image env step length, a number or 'teleport'")  # fmt: skip

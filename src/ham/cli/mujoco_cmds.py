@@ -16,6 +16,7 @@ from pathlib import Path
 
 from ham.cli.options import add_objects_file_option, objects_from_args
 from ham.errors import HamError
+from ham.world.sensor import READOUTS
 
 GL_HELP = (
     "MuJoCo's offscreen renderer needs an OpenGL backend: install EGL (Debian/Ubuntu: "
@@ -39,7 +40,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--objects", default=None, help="object set (default: paper; with "
                    "--objects-file: the file's objects)")  # fmt: skip
     add_objects_file_option(p)
-    p.add_argument("--sensor", default="taxels", choices=["taxels", "gazebo"], help="read-out")
+    p.add_argument("--sensor", default="taxels", choices=READOUTS, help="read-out")
     p.add_argument("--width", type=int, default=960, help="image width in pixels (64..4096)")
     p.add_argument("--height", type=int, default=720, help="image height in pixels (64..4096)")
     p.set_defaults(func=cmd_render)

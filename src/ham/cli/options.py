@@ -8,6 +8,8 @@ import shlex
 import sys
 
 from ham.errors import HamError
+from ham.world.glance import POSE_PRESETS
+from ham.world.sensor import READOUTS
 
 
 def finite_float(text: str) -> float:
@@ -77,14 +79,14 @@ def add_world_options(p: argparse.ArgumentParser, *, objects: bool = True) -> No
     p.add_argument(
         "--sensor",
         default="taxels",
-        choices=("taxels", "gazebo"),
+        choices=READOUTS,
         help="read-out: taxels (default; edges are lines) or gazebo (MuJoCo only: contact points "
         "spread by a 5 mm Gaussian, the paper's plugin: edges are blobs)",
     )
     p.add_argument(
         "--pose",
         default="paper",
-        choices=("paper", "authors"),
+        choices=POSE_PRESETS,
         help="pose mapping: paper (phi = q*pi/2, default) or authors (phi = q*0.3pi, pivot shift)",
     )
     add_sensor_options(p)

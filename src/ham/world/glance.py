@@ -47,6 +47,10 @@ AUTHORS_ZONE_WIDTHS: dict[str, float] = {
 }
 
 
+#: The pose mappings ``PoseConfig.preset`` knows: the paper's and the authors' code's.
+POSE_PRESETS: tuple[str, ...] = ("paper", "authors")
+
+
 @dataclass(frozen=True)
 class PoseConfig:
     """Mapping from the normalized action ``q`` to the metric pad pose.
@@ -84,7 +88,7 @@ class PoseConfig:
             return cls()
         if name == "authors":
             return cls(phi_max=0.3 * math.pi, pivot_offset=0.068, authors_zones=True)
-        raise HamError(f"pose preset {name!r}; accepted: paper, authors")
+        raise HamError(f"pose preset {name!r}; accepted: {', '.join(POSE_PRESETS)}")
 
     def half_width(self, obj: HapticObject) -> float:
         if self.authors_zones and obj.name in AUTHORS_ZONE_WIDTHS:

@@ -82,10 +82,9 @@ from ham.world.glance import (
     as_object_ids,
 )
 from ham.world.objects import HapticObject
-from ham.world.sensor import SensorConfig
+from ham.world.sensor import READOUTS, SensorConfig
 
 Readout = Literal["taxels", "gazebo"]
-READOUTS: tuple[str, ...] = ("taxels", "gazebo")
 FailureMode = Literal["flag", "raise"]
 
 # Status codes of one glance (``GlanceResult.info["status"]``).

@@ -36,6 +36,9 @@ from ham.errors import HamError
 #: Most cells per side: a 128 x 128 image is 16,384 values per glance (64 KB), and a 201 x 201
 #: table of one object 2.6 GB; beyond that tables and networks stop being practical.
 MAX_TAXELS = 128
+#: How a pad reads its contacts (MuJoCo): its taxels (edges are lines) or the paper's Gazebo
+#: plugin (a few contact points spread by a 5 mm Gaussian: edges are blobs).
+READOUTS: tuple[str, ...] = ("taxels", "gazebo")
 #: Stiffer foam than this is rigid within float32's resolution of z (2 N on 64 cm^2 compresses it
 #: 0.3 nm, below the ~4 nm spacing of float32 heights near 4.5 cm).
 MAX_FOAM_STIFFNESS = 1e12
