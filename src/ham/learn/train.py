@@ -95,9 +95,13 @@ class TrainConfig:
             on the information each glance gains, :mod:`ham.learn.info_loss`).
         optimizer: ``sgd`` (the paper: SGD, Nesterov momentum) or ``adam`` (at the same
             learning-rate schedule; beta_1 = momentum).
-        gamma: discount of the information reward over the glances (info learner; 1).
+        gamma: discount of the information reward over the glances (info learner; 0.5: a
+            glance is credited mostly with what it and the next few gain, docs/learners.md).
         gae_lambda: GAE lambda of the info learner's advantages (1: Monte-Carlo returns).
         entropy_coef: weight of the policy's entropy bonus (info learner; 0).
+        normalize_advantage: scale the info learner's advantages to zero mean and unit
+            deviation over the batch (default ``False``: raw advantages in nats; normalized,
+            the noise of a solved batch is blown up to unit size, docs/learners.md).
         policy_lr_scale: the location network's learning rate relative to ``lr`` (1: one rate
             for all weights). Under Adam a loss weight cannot slow a part down (its steps are
             scale-free); this can: a fast classifier, a slower policy.
@@ -129,9 +133,10 @@ class TrainConfig:
     env: ApGymConfig | None = None
     learner: str = field(default="hybrid", metadata={"choices": LEARNERS})
     optimizer: str = field(default="sgd", metadata={"choices": OPTIMIZERS})
-    gamma: float = 1.0
+    gamma: float = 0.5
     gae_lambda: float = 1.0
     entropy_coef: float = 0.0
+    normalize_advantage: bool = False
     policy_lr_scale: float = 1.0
     env_steps: int | None = None
 
@@ -507,7 +512,13 @@ def train_step(run: Run) -> HybridLoss | InfoLoss:
     objects = run.env.sample_objects()  # a fresh batch, drawn uniformly
     episode = run.agent(run.env, objects, run.policy_generator)
     if c.learner == "info":
-        loss = info_loss(episode, c.gamma, c.gae_lambda, entropy_coef=c.entropy_coef)
+        loss = info_loss(
+            episode,
+            c.gamma,
+            c.gae_lambda,
+            entropy_coef=c.entropy_coef,
+            normalize_advantage=c.normalize_advantage,
+        )
     else:
         loss = hybrid_loss(episode, c.beta, c.classification_reduction, c.reinforce_reduction)
     _check_loss(run, loss.total)
