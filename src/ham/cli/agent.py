@@ -113,6 +113,9 @@ def _config_from_args(args: argparse.Namespace):
     from ham.world.config import WorldConfig
 
     world = _world_from_args(args)
+    if args.steps is not None and args.env_steps is not None:
+        raise HamError(f"--steps {args.steps} and --env-steps {args.env_steps} both set the "
+                       "training length; give one of them")  # fmt: skip
     if args.table and args.objects is not None:
         raise HamError(f"--objects {args.objects!r} chooses the online world's objects; the table "
                        f"{args.table!r} has its own: give one of them")  # fmt: skip
@@ -215,7 +218,7 @@ def cmd_train(args: argparse.Namespace) -> int:
             raise HamError("give either --resume DIR or --out DIR, not both")
         from ham.cli.config_args import given
 
-        ignored = [flag for flag in given(args) if flag != "--steps"]
+        ignored = [flag for flag in given(args) if flag not in ("--steps", "--env-steps")]
         ignored += [
             f"--{k.replace('_', '-')}"
             for k in (
@@ -234,11 +237,13 @@ def cmd_train(args: argparse.Namespace) -> int:
         if ignored:
             raise HamError(
                 f"--resume continues the run with its own config; remove {', '.join(ignored)} "
-                "(only --steps may change)"
+                "(only --steps or --env-steps may change)"
             )
         _refuse_world_options(args)  # the run brings its own world
         out = Path(args.resume)
-        metrics = resume(out, steps=args.steps, progress=progress)
+        if args.steps is not None and args.env_steps is not None:
+            raise HamError("give --steps or --env-steps to --resume, not both")
+        metrics = resume(out, steps=args.steps, env_steps=args.env_steps, progress=progress)
     else:
         if not args.out:
             raise HamError("ham train needs --out DIR (or --resume DIR)")

@@ -16,7 +16,10 @@ control part of the HAM with different loss functions that share the achieved re
 * the critic is the baseline head: ``V(tau_{1:s-1})`` estimates the return of the glance that
   the core output ``tau_{1:s-1}`` chooses, trained by mean squared error; advantages by GAE
   (``lambda``; ``lambda = 1`` is the Monte-Carlo return minus the critic);
-* an entropy bonus keeps the policy from collapsing early (``entropy_coef``).
+* an entropy bonus keeps the policy from collapsing early (``entropy_coef``; off by default:
+  the Gaussian's entropy grows without bound in ``sigma``, docs/learners.md);
+* the advantages are raw, in nats (``normalize_advantage`` scales them per batch, which blows
+  up the noise of a solved batch).
 
 As in the hybrid loss the parts train disjoint weights: the policy's term only the location
 network (it reads the core detached), the critic's only the baseline layer, the classification
@@ -87,13 +90,14 @@ def advantages(rewards: torch.Tensor, values: torch.Tensor, gamma: float, lam: f
 
 def info_loss(
     episode: Episode,
-    gamma: float = 1.0,
+    gamma: float = 0.5,
     gae_lambda: float = 1.0,
     policy_coef: float = 1.0,
     entropy_coef: float = 0.0,
-    normalize_advantage: bool = True,
+    normalize_advantage: bool = False,
 ) -> InfoLoss:
-    """The information learner's loss of ``episode`` (see the module's docstring)."""
+    """The information learner's loss of ``episode`` (see the module's docstring); the
+    defaults are :class:`ham.learn.train.TrainConfig`'s (docs/learners.md: why)."""
     for name, v, low, high in (("gamma", gamma, 0, 1), ("gae_lambda", gae_lambda, 0, 1)):
         if not (math.isfinite(v) and low <= v <= high):
             raise HamError(f"{name} = {v!r}; accepted: {low} <= {name} <= {high}")

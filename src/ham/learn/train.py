@@ -97,9 +97,18 @@ class TrainConfig:
             on the information each glance gains, :mod:`ham.learn.info_loss`).
         optimizer: ``sgd`` (the paper: SGD, Nesterov momentum) or ``adam`` (at the same
             learning-rate schedule; beta_1 = momentum).
-        gamma: discount of the information reward over the glances (info learner; 1).
+        gamma: discount of the information reward over the glances (info learner; 0.5: a
+            glance is credited mostly with what it and the next few gain, docs/learners.md).
         gae_lambda: GAE lambda of the info learner's advantages (1: Monte-Carlo returns).
         entropy_coef: weight of the policy's entropy bonus (info learner; 0).
+        normalize_advantage: scale the info learner's advantages to zero mean and unit
+            deviation over the batch (default ``False``: raw advantages in nats; normalized,
+            the noise of a solved batch is blown up to unit size, docs/learners.md).
+        policy_lr_scale: the location network's learning rate relative to ``lr`` (1: one rate
+            for all weights). Under Adam a loss weight cannot slow a part down (its steps are
+            scale-free); this can: a fast classifier, a slower policy.
+        env_steps: a budget in environment steps (glances) instead of ``steps``: when given,
+            ``steps = ceil(env_steps / (batch_size * glances))``; ``None``: ``steps`` rules.
     """
 
     model: HamConfig = field(default_factory=HamConfig)
@@ -126,9 +135,12 @@ class TrainConfig:
     env: ApGymConfig | None = None
     learner: str = field(default="hybrid", metadata={"choices": LEARNERS})
     optimizer: str = field(default="sgd", metadata={"choices": OPTIMIZERS})
-    gamma: float = 1.0
+    gamma: float = 0.5
     gae_lambda: float = 1.0
     entropy_coef: float = 0.0
+    normalize_advantage: bool = False
+    policy_lr_scale: float = 1.0
+    env_steps: int | None = None
 
     def __post_init__(self) -> None:
         for name, kind in (("model", HamConfig), ("world", WorldConfig), ("nesterov", bool)):
@@ -140,6 +152,14 @@ class TrainConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise HamError(f"{name} = {v!r}; accepted: a finite number")
+        if self.env_steps is not None:
+            v = self.env_steps
+            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
+                raise HamError(f"env_steps = {v!r}; accepted: an integer >= 1 (or None)")
+            if isinstance(self.batch_size, int) and self.batch_size >= 1:
+                # frozen: the budget in glances defines the steps (recorded both ways)
+                per_step = self.batch_size * self.model.glances
+                object.__setattr__(self, "steps", math.ceil(v / per_step))
         for name in ("steps", "batch_size", "lr_step", "eval_every", "eval_batches", "log_every"):
             v = getattr(self, name)
             low = 0 if name == "steps" else 1
@@ -165,6 +185,9 @@ class TrainConfig:
         if not (isinstance(self.entropy_coef, (int, float)) and math.isfinite(self.entropy_coef)
                 and self.entropy_coef >= 0):  # fmt: skip
             raise HamError(f"entropy_coef = {self.entropy_coef!r}; accepted: a finite number >= 0")
+        v = self.policy_lr_scale
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise HamError(f"policy_lr_scale = {v!r}; accepted: a finite number > 0")
         check_device(self.device, available=False)  # spelling only: a saved GPU run loads on CPU
         if self.env is not None and self.table is not None:
             raise HamError(
@@ -207,6 +230,19 @@ def model_for_source(
     return replace(model, pressure_dim=dim, n_objects=n)
 
 
+def parameter_groups(agent: HapticAttentionModel, policy_lr_scale: float) -> list[dict]:
+    """The optimizer's parameter groups: one (every weight at ``lr``), or, when the location
+    network learns at its own rate, the rest and the location network (``lr_scale`` each)."""
+    if policy_lr_scale == 1.0:
+        return [{"params": list(agent.parameters()), "lr_scale": 1.0}]
+    policy = {id(p) for p in agent.location.parameters()}
+    rest = [p for p in agent.parameters() if id(p) not in policy]
+    return [
+        {"params": rest, "lr_scale": 1.0},
+        {"params": list(agent.location.parameters()), "lr_scale": policy_lr_scale},
+    ]
+
+
 def stream_seed(seed: int, stream: int) -> int:
     """Independent seeds for the generators of one run: 0 objects, 1 poses, 2 evaluation."""
     return seed * 1000 + stream
@@ -240,13 +276,14 @@ class Run:
         _check_env(config.model, env)
         torch.manual_seed(config.seed)  # the initial weights
         agent = HapticAttentionModel(config.model).to(device)
+        params = parameter_groups(agent, config.policy_lr_scale)
         if config.optimizer == "adam":
             optimizer = torch.optim.Adam(
-                agent.parameters(), lr=config.lr, betas=(config.momentum, 0.999), foreach=True
+                params, lr=config.lr, betas=(config.momentum, 0.999), foreach=True
             )
         else:
             optimizer = torch.optim.SGD(
-                agent.parameters(),
+                params,
                 lr=config.lr,
                 momentum=config.momentum,
                 nesterov=config.nesterov,
@@ -428,12 +465,21 @@ def train(config: TrainConfig, out: str | os.PathLike, *, progress: bool = True)
         run.close()
 
 
-def resume(out: str | os.PathLike, *, steps: int | None = None, progress: bool = True) -> dict:
-    """Continue the run in ``out`` from its checkpoint (to ``steps`` in all, if given)."""
+def resume(
+    out: str | os.PathLike,
+    *,
+    steps: int | None = None,
+    env_steps: int | None = None,
+    progress: bool = True,
+) -> dict:
+    """Continue the run in ``out`` from its checkpoint (to ``steps`` in all, or to the budget
+    ``env_steps`` in glances, if given)."""
     out = Path(out)
     config = TrainConfig.from_dict(read_json(out / CONFIG_FILE))
-    if steps is not None:
-        config = replace(config, steps=steps)
+    if steps is not None:  # an explicit step count replaces an env_steps budget
+        config = replace(config, steps=steps, env_steps=None)
+    elif env_steps is not None:
+        config = replace(config, env_steps=env_steps)
     run = Run.create(config)
     try:
         run.load_state_dict(load_checkpoint(out))
@@ -442,8 +488,8 @@ def resume(out: str | os.PathLike, *, steps: int | None = None, progress: bool =
                 f"--steps {config.steps}: the run is already at step {run.step}; "
                 f"accepted: >= {run.step}"
             )
-        if steps is not None:  # only once accepted: a refused --steps leaves the run as it was
-            _write_json(out / CONFIG_FILE, config.to_dict())
+        if steps is not None or env_steps is not None:  # only once accepted: a refused
+            _write_json(out / CONFIG_FILE, config.to_dict())  # budget leaves the run as it was
         return train_loop(run, out, progress)
     finally:
         run.close()
@@ -469,11 +515,17 @@ def train_step(run: Run) -> HybridLoss | InfoLoss:
     """One training step: a fresh batch, one episode, the learner's loss, one optimizer step."""
     c = run.config
     for group in run.optimizer.param_groups:
-        group["lr"] = c.learning_rate(run.step)
+        group["lr"] = c.learning_rate(run.step) * group.get("lr_scale", 1.0)
     objects = run.env.sample_objects()  # a fresh batch, drawn uniformly
     episode = run.agent(run.env, objects, run.policy_generator)
     if c.learner == "info":
-        loss = info_loss(episode, c.gamma, c.gae_lambda, entropy_coef=c.entropy_coef)
+        loss = info_loss(
+            episode,
+            c.gamma,
+            c.gae_lambda,
+            entropy_coef=c.entropy_coef,
+            normalize_advantage=c.normalize_advantage,
+        )
     else:
         loss = hybrid_loss(episode, c.beta, c.classification_reduction, c.reinforce_reduction)
     _check_loss(run, loss.total)

@@ -1,0 +1,255 @@
+"""The information learner (``--learner info``): its loss's math, what each part trains, the
+learned first glance, the env-steps budget, the CLI end to end and bit-identical resume."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+import torch
+from torch.nn import functional as F
+
+from ham.errors import HamError
+from ham.learn.environment import HapticEnv
+from ham.learn.info_loss import advantages, info_loss, information_gain
+from ham.learn.train import TrainConfig, load_run, resume, train
+from ham.model.agent import HamConfig, HapticAttentionModel
+from ham.world.config import WorldConfig
+from ham.world.source import make_source
+
+INFO = ["--learner", "info", "--optimizer", "adam", "--lr", "0.003", "--no-progress"]
+
+
+@pytest.fixture(scope="module")
+def env() -> HapticEnv:
+    source, _ = make_source(None, WorldConfig())
+    return HapticEnv(source, batch_size=8, seed=0)
+
+
+def _episode(env, glances=3, **kw):
+    torch.manual_seed(0)
+    model = HapticAttentionModel(HamConfig(glances=glances, **kw))
+    episode = model(env, env.sample_objects(), torch.Generator().manual_seed(0))
+    return model, episode
+
+
+def tiny(**kw) -> TrainConfig:
+    base = dict(
+        model=HamConfig(glances=3, first_glance="learned"),
+        steps=6,
+        batch_size=8,
+        eval_every=2,
+        eval_batches=2,
+        seed=5,
+        learner="info",
+        optimizer="adam",
+        lr=3e-3,
+    )
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+# --------------------------------------------------------------------------- the math
+def test_information_gain_telescopes_to_log_k_minus_the_last_cross_entropy():
+    g = torch.Generator().manual_seed(0)
+    s, b, k = 5, 7, 4
+    logits = torch.randn(s, b, k, generator=g, dtype=torch.float64)
+    objects = torch.randint(0, k, (b,), generator=g)
+    gain = information_gain(logits, objects)
+    assert gain.shape == (s, b)
+    ce = torch.stack([F.cross_entropy(logits[i], objects, reduction="none") for i in range(s)])
+    assert torch.allclose(gain.sum(0), math.log(k) - ce[-1])
+    assert torch.allclose(gain[0], math.log(k) - ce[0])
+    assert torch.allclose(gain[1:], ce[:-1] - ce[1:])
+    # the return of glance s with gamma = 1 is CE_{s-1} - CE_S
+    returns = gain.flip(0).cumsum(0).flip(0)
+    before = torch.cat([torch.full((1, b), math.log(k), dtype=torch.float64), ce[:-1]])
+    assert torch.allclose(returns, before - ce[-1])
+
+
+@pytest.mark.parametrize("gamma", [1.0, 0.9, 0.5])
+def test_gae_with_lambda_one_is_the_monte_carlo_return_minus_the_value(gamma):
+    g = torch.Generator().manual_seed(1)
+    rewards = torch.randn(6, 5, generator=g, dtype=torch.float64)
+    values = torch.randn(6, 5, generator=g, dtype=torch.float64)
+    adv, ret = advantages(rewards, values, gamma, 1.0)
+    mc = torch.zeros_like(rewards)
+    running = torch.zeros(5, dtype=torch.float64)
+    for t in range(5, -1, -1):
+        running = rewards[t] + gamma * running
+        mc[t] = running
+    assert torch.allclose(ret, mc)
+    assert torch.allclose(adv, mc - values)
+
+
+def test_gae_with_lambda_zero_is_the_td_error():
+    g = torch.Generator().manual_seed(2)
+    rewards = torch.randn(4, 3, generator=g, dtype=torch.float64)
+    values = torch.randn(4, 3, generator=g, dtype=torch.float64)
+    adv, _ = advantages(rewards, values, 0.8, 0.0)
+    next_values = torch.cat([values[1:], torch.zeros(1, 3, dtype=torch.float64)])
+    assert torch.allclose(adv, rewards + 0.8 * next_values - values)
+
+
+@pytest.mark.parametrize("first_glance", ["random", "learned"])
+def test_the_parts_train_disjoint_weights(env, first_glance):
+    """The policy term reaches only the location network, the critic only the baseline layer,
+    the classification neither of them (and the loss's total is their weighted sum)."""
+    model, episode = _episode(env, first_glance=first_glance)
+    loss = info_loss(episode, gamma=0.9, gae_lambda=0.95, entropy_coef=0.01)
+    groups = {
+        "location": {n for n, _ in model.named_parameters() if n.startswith("location.")},
+        "baseline": {n for n, _ in model.named_parameters() if n.startswith("baseline.")},
+    }
+    groups["rest"] = {n for n, _ in model.named_parameters()} - set().union(*groups.values())
+    expected = {
+        "policy": {"location"},
+        "entropy": {"location"},
+        "critic": {"baseline"},
+        "classification": {"rest"},
+    }
+    for part, owners in expected.items():
+        params = dict(model.named_parameters())
+        grads = torch.autograd.grad(
+            getattr(loss, part), list(params.values()), retain_graph=True, allow_unused=True
+        )
+        reached = {n for n, gr in zip(params, grads, strict=True)
+                   if gr is not None and bool(gr.abs().sum() > 0)}  # fmt: skip
+        allowed = set().union(*(groups[o] for o in owners))
+        assert reached, part
+        assert reached <= allowed, (part, sorted(reached - allowed))
+    total = loss.classification + loss.policy + loss.critic - 0.01 * loss.entropy
+    assert torch.allclose(loss.total, total)
+
+
+def test_random_policy_trains_only_the_classifier(env):
+    model, episode = _episode(env, policy="random")
+    loss = info_loss(episode)
+    assert float(loss.policy) == 0.0 and float(loss.critic) == 0.0
+    assert torch.equal(loss.total, loss.classification)
+
+
+@pytest.mark.parametrize("kw", [{"gamma": 1.5}, {"gae_lambda": -0.1}, {"gamma": float("nan")}])
+def test_info_loss_refuses_bad_discounts(env, kw):
+    _, episode = _episode(env)
+    with pytest.raises(HamError):
+        info_loss(episode, **kw)
+
+
+# --------------------------------------------------------------------------- first glance
+@pytest.mark.parametrize("first_glance", ["random", "learned"])
+def test_learned_first_glance_episode_shapes(env, first_glance):
+    _, episode = _episode(env, glances=4, first_glance=first_glance)
+    b = episode.objects.shape[0]
+    chosen = 4 if first_glance == "learned" else 3
+    assert episode.locations.shape == (4, b, 2)
+    assert episode.logits.shape == (4, b, 4) and episode.baselines.shape == (4, b)
+    assert tuple(episode.policy.batch_shape) == (chosen, b)
+    assert episode.values().shape == (chosen, b)
+    assert episode.locations[episode.chosen].shape == (chosen, b, 2)
+    if first_glance == "learned":
+        assert episode.first_baseline.shape == (b,)
+        # the first pose comes from the policy at the zero core output: one greedy pose for all
+        model, _ = _episode(env, glances=4, first_glance=first_glance)
+        greedy = model(env, episode.objects, None, greedy=True)
+        assert torch.equal(greedy.locations[0], greedy.locations[0][:1].expand(b, 2))
+    else:
+        assert episode.first_baseline is None
+
+
+# --------------------------------------------------------------------------- config
+def test_env_steps_define_the_steps():
+    c = TrainConfig(env_steps=100_000, batch_size=16, model=HamConfig(glances=10))
+    assert c.steps == 625  # ceil(100000 / 160)
+    c = TrainConfig(env_steps=1001, batch_size=10, model=HamConfig(glances=10))
+    assert c.steps == 11
+    assert TrainConfig.from_dict(json.loads(json.dumps(c.to_dict()))) == c
+    assert TrainConfig(steps=7).env_steps is None
+
+
+@pytest.mark.parametrize(
+    "kw",
+    [{"env_steps": 0}, {"env_steps": 1.5}, {"policy_lr_scale": 0.0},
+     {"policy_lr_scale": float("inf")}, {"gamma": 2.0}, {"entropy_coef": -1.0},
+     {"learner": "ppo"}, {"optimizer": "rmsprop"}],
+)  # fmt: skip
+def test_bad_info_config(kw):
+    with pytest.raises(HamError):
+        TrainConfig(**kw)
+
+
+def test_policy_lr_scale_gives_the_location_network_its_own_rate(tmp_path):
+    from ham.learn.train import Run, train_step
+
+    run = Run.create(tiny(policy_lr_scale=0.1, lr_step=1_000_000))
+    try:
+        train_step(run)
+        groups = run.optimizer.param_groups
+        assert len(groups) == 2
+        assert groups[0]["lr"] == pytest.approx(3e-3) and groups[1]["lr"] == pytest.approx(3e-4)
+        location = {id(p) for p in run.agent.location.parameters()}
+        assert {id(p) for p in groups[1]["params"]} == location
+        assert not location & {id(p) for p in groups[0]["params"]}
+    finally:
+        run.close()
+    run = Run.create(tiny())
+    try:
+        assert len(run.optimizer.param_groups) == 1
+    finally:
+        run.close()
+
+
+# --------------------------------------------------------------------------- runs
+def test_info_learner_through_the_cli(tmp_path, ham_cli):
+    out = tmp_path / "run"
+    p = ham_cli("train", *INFO, "--glances", "3", "--batch-size", "8", "--env-steps", "100",
+                "--first-glance", "learned", "--gamma", "0.5", "--entropy-coef", "0.001",
+                "--eval-every", "2", "--eval-batches", "2", "--seed", "1", "--out", str(out))  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["steps"] == 5  # ceil(100 / (8 * 3))
+    assert m["env_steps"] == 5 * 8 * 3
+    assert m["config"]["env_steps"] == 100 and m["config"]["learner"] == "info"
+    assert m["config"]["model"]["first_glance"] == "learned"
+    for key in ("average_accuracy", "env_steps_to_0.95", "env_steps_to_0.99",
+                "glances_to_0.95", "glances_to_0.99", "final_accuracy", "history"):  # fmt: skip
+        assert key in m, key
+    assert m["average_accuracy"] == pytest.approx(sum(m["accuracy_per_glance"]) / 3)
+    assert [h["step"] for h in m["history"]] == [0, 2, 4, 5]
+    assert [h["env_steps"] for h in m["history"]] == [0, 48, 96, 120]
+    for h in m["history"]:
+        assert h["average_accuracy"] == pytest.approx(sum(h["accuracy_per_glance"]) / 3)
+    reached = m["env_steps_to_0.95"]
+    hits = [h["env_steps"] for h in m["history"] if h["accuracy"] >= 0.95]
+    assert reached == (hits[0] if hits else None)
+    # help is derived from the dataclass
+    h = ham_cli("train", "--help")
+    assert "--env-steps" in h.stdout and "--policy-lr-scale" in h.stdout
+    # one training length
+    p = ham_cli("train", *INFO, "--steps", "3", "--env-steps", "100", "--out", str(tmp_path / "x"))
+    assert p.returncode == 2 and "--env-steps" in p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1 and not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize("policy_lr_scale", [1.0, 0.1])
+def test_info_learner_resumes_bit_identically(tmp_path, policy_lr_scale):
+    kw = dict(policy_lr_scale=policy_lr_scale, gamma=0.5, gae_lambda=0.9, entropy_coef=0.01)
+    full = train(tiny(steps=6, **kw), tmp_path / "full", progress=False)
+    train(tiny(steps=4, **kw), tmp_path / "half", progress=False)
+    resumed = resume(tmp_path / "half", steps=6, progress=False)
+    assert resumed == full  # every float of the history
+    a, b = load_run(tmp_path / "full"), load_run(tmp_path / "half")
+    for (n, p), (_, q) in zip(
+        a.agent.state_dict().items(), b.agent.state_dict().items(), strict=True
+    ):
+        assert torch.equal(p, q), n
+
+
+def test_resume_to_an_env_steps_budget(tmp_path):
+    full = train(tiny(env_steps=6 * 8 * 3), tmp_path / "full", progress=False)
+    assert full["steps"] == 6
+    train(tiny(env_steps=4 * 8 * 3), tmp_path / "half", progress=False)
+    resumed = resume(tmp_path / "half", env_steps=6 * 8 * 3, progress=False)
+    assert resumed["history"] == full["history"]
+    assert resumed["env_steps"] == full["env_steps"] == 6 * 8 * 3
