@@ -37,6 +37,11 @@ def test_all_writes_tables_figures_and_report(smoke_all):
     assert "torch" in report and "cores" in report
     for name in ("curves", "learned_vs_random", "per_glance", "heatmap_g3"):
         assert (out / "figures" / f"{name}.png").read_bytes()[:4] == b"\x89PNG"
+    # per-object accuracy from each run's last confusion matrix, one row per run group
+    assert "## Accuracy per object" in report
+    section = report.split("## Accuracy per object")[1].split("##")[0]
+    assert "| run | glances | box | ramp_up | convex | ramp_down |" in section
+    assert "| full-concat2 (1 seed(s)) | 3 |" in section
 
 
 def test_finished_runs_are_skipped(smoke_all, ham_cli):

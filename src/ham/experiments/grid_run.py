@@ -30,7 +30,13 @@ from ham.experiments.reproduce import (
     execute,
     mean_sem,
 )
-from ham.experiments.runs import evaluation_path, has_evaluation, is_finished, run_dir
+from ham.experiments.runs import (
+    evaluation_path,
+    has_evaluation,
+    is_finished,
+    per_object_accuracy,
+    run_dir,
+)
 
 #: Keys of a run's config that may differ between invocations without making it another run.
 _PLACE_KEYS = ("device", "table")
@@ -150,19 +156,6 @@ def _mean_lists(lists: list) -> list[float] | None:
     return [float(v) for v in np.mean(np.asarray(lists, dtype=float), axis=0)]
 
 
-def _per_object(record: dict, objects: list) -> dict | None:
-    """Per-object accuracy from an evaluation's confusion matrix (rows: the true object), if any."""
-    confusion = record.get("confusion")
-    try:
-        c = np.asarray(confusion, dtype=float)
-    except (TypeError, ValueError):
-        return None
-    if confusion is None or c.ndim != 2 or c.shape[0] != c.shape[1] or len(objects) != len(c):
-        return None
-    totals = c.sum(1)
-    return {o: float(c[i, i] / totals[i]) if totals[i] else math.nan for i, o in enumerate(objects)}
-
-
 def aggregate(root: Path, grid: Grid, jobs: list[GridJob]) -> list[dict]:
     """Per cell: best/final accuracy and the re-evaluations, mean ± s.e.m. over finished seeds."""
     cells = []
@@ -204,7 +197,7 @@ def aggregate(root: Path, grid: Grid, jobs: list[GridJob]) -> list[dict]:
             p
             for m in metrics
             if m.get("history")
-            and (p := _per_object(m["history"][-1], m.get("objects", []))) is not None
+            and (p := per_object_accuracy(m["history"][-1], m.get("objects", []))) is not None
         ]
         if per_object and all(p.keys() == per_object[0].keys() for p in per_object):
             row["per_object_accuracy"] = {o: _stat(p[o] for p in per_object) for o in per_object[0]}

@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ham.errors import HamError
-from ham.experiments.runs import is_finished, run_dir
+from ham.experiments.runs import is_finished, per_object_accuracy, run_dir
 
 if TYPE_CHECKING:
     from ham.world.config import WorldConfig
@@ -736,6 +736,9 @@ def write_outputs(
         _write_json(root / "table2.json", t2)
         summary["table2"] = t2
         sections.append(("Table 2: what & where combiners, 3 glances", md))
+    per_object = per_object_markdown(root, jobs)
+    if per_object:
+        sections.append(("Accuracy per object (last evaluation, mean over seeds)", per_object))
     figures = []
     if target in ("figures", "all"):
         figures = draw_figures(root, jobs, profile)
@@ -745,6 +748,42 @@ def write_outputs(
         render_report(target, profile, sections, summary["figures"], failures, command, executor)
     )
     return summary
+
+
+def per_object_markdown(root: Path, jobs: list[Job]) -> str | None:
+    """Per run group (variant, combiner, glances): each object's accuracy after the last glance
+    at the last evaluation (its confusion matrix), mean over the finished seeds."""
+    groups: dict[tuple, list[dict]] = {}
+    objects: list[str] | None = None
+    for j in jobs:
+        path = run_dir(root, j.key) / "metrics.json"
+        if not path.exists():
+            continue
+        m = json.loads(path.read_text())
+        if not m.get("history"):
+            continue
+        acc = per_object_accuracy(m["history"][-1], m.get("objects", []))
+        if acc is None:
+            continue
+        objects = objects or list(acc)
+        groups.setdefault((j.variant, j.combiner, j.glances), []).append(acc)
+    if not groups or objects is None:
+        return None
+    lines = ["| run | glances | " + " | ".join(objects) + " |",
+             "|---|---|" + "---|" * len(objects)]  # fmt: skip
+    for (variant, combiner, glances), accs in sorted(
+        groups.items(), key=lambda kv: (kv[0][2], kv[0][0], kv[0][1])
+    ):
+        cells = []
+        for o in objects:
+            vals = [a[o] for a in accs if o in a and not math.isnan(a[o])]
+            cells.append(f"{sum(vals) / len(vals):.3f}" if vals else "—")
+        lines.append(
+            f"| {variant}-{combiner} ({len(accs)} seed(s)) | {glances} | "
+            + " | ".join(cells)
+            + " |"
+        )
+    return "\n".join(lines)
 
 
 def _write_json(path: Path, obj) -> None:

@@ -56,3 +56,20 @@ def evaluate_final(out: Path, spec: dict) -> dict:
     tmp.write_text(json.dumps(d, indent=1) + "\n")
     os.replace(tmp, path)
     return d
+
+
+def per_object_accuracy(record: dict, objects: list) -> dict | None:
+    """Per-object accuracy from an evaluation's confusion matrix (rows: the true object), if any."""
+    import math
+
+    import numpy as np
+
+    confusion = record.get("confusion")
+    try:
+        c = np.asarray(confusion, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    if confusion is None or c.ndim != 2 or c.shape[0] != c.shape[1] or len(objects) != len(c):
+        return None
+    totals = c.sum(1)
+    return {o: float(c[i, i] / totals[i]) if totals[i] else math.nan for i, o in enumerate(objects)}
