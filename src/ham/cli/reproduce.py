@@ -114,16 +114,18 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         batch_runs=args.batch_runs,
         stop_at_perfect=args.stop_at_perfect,
     )
+    _print_summary(args, summary, [f"{n}.md" for n in ("table1", "table2") if n in summary])
+    return _failures(summary)
+
+
+def _print_summary(args: argparse.Namespace, summary: dict, files: list[str]) -> None:
     if args.json:
         json.dump(summary, sys.stdout, default=str)
         print()
-    else:
-        print(f"ran {summary['ran']} run(s), skipped {summary['skipped']} finished")
-        for name in ("table1", "table2"):
-            if name in summary:
-                print(f"wrote {args.out}/{name}.md")
-        print(f"wrote {args.out}/report.md")
-    return _failures(summary)
+        return
+    print(f"ran {summary['ran']} run(s), skipped {summary['skipped']} finished")
+    for name in [*files, "report.md"]:
+        print(f"wrote {args.out}/{name}")
 
 
 def cmd_grid(args: argparse.Namespace) -> int:
@@ -149,17 +151,11 @@ def cmd_grid(args: argparse.Namespace) -> int:
         device=args.device,
         retries=args.retries,
         progress=not args.quiet,
-        command="ham " + " ".join(sys.argv[1:]),
+        command=command_line(args),
         batch_runs=args.batch_runs,
         stop_at_perfect=args.stop_at_perfect,
     )
-    if args.json:
-        json.dump(summary, sys.stdout, default=str)
-        print()
-    else:
-        print(f"ran {summary['ran']} run(s), skipped {summary['skipped']} finished")
-        print(f"wrote {args.out}/results.json")
-        print(f"wrote {args.out}/report.md")
+    _print_summary(args, summary, ["results.json"])
     return _failures(summary)
 
 
