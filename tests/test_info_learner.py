@@ -253,3 +253,33 @@ def test_resume_to_an_env_steps_budget(tmp_path):
     resumed = resume(tmp_path / "half", env_steps=6 * 8 * 3, progress=False)
     assert resumed["history"] == full["history"]
     assert resumed["env_steps"] == full["env_steps"] == 6 * 8 * 3
+
+
+# --------------------------------------------------------------------------- exploration that costs
+def test_move_cost_lowers_each_glance_s_reward_by_the_distance_travelled(env):
+    from ham.learn.evaluation import path_lengths
+
+    _, episode = _episode(env, glances=4)
+    q = episode.locations
+    travel = (q[1:] - q[:-1]).norm(dim=-1)  # (S-1, B)
+    assert torch.allclose(path_lengths(q), travel.sum(0))
+    free = info_loss(episode, gamma=1.0)
+    costly = info_loss(episode, gamma=1.0, move_cost=0.5)
+    # the classification and the information gain do not change; the critic's targets do
+    assert torch.equal(free.classification, costly.classification)
+    assert torch.equal(free.gain, costly.gain)
+    values = episode.values().detach()
+    ret_free = advantages(free.gain[1:], values, 1.0, 1.0)[1]
+    ret_cost = advantages(free.gain[1:] - 0.5 * travel, values, 1.0, 1.0)[1]
+    assert torch.allclose(((ret_cost - episode.values()) ** 2).sum(0).mean(), costly.critic)
+    assert not torch.allclose(ret_free, ret_cost)
+    with pytest.raises(HamError, match="move_cost = -1"):
+        info_loss(episode, move_cost=-1.0)
+
+
+def test_move_cost_needs_the_info_learner_and_evaluations_report_the_path(tmp_path):
+    with pytest.raises(HamError, match="move_cost = 0.1 with learner 'hybrid'"):
+        TrainConfig(move_cost=0.1)
+    metrics = train(tiny(move_cost=0.2), tmp_path / "run", progress=False)
+    assert metrics["path_length"] is not None and metrics["path_length"] >= 0
+    assert all("path_length" in row for row in metrics["history"])

@@ -51,6 +51,9 @@ class EvalResult:
     per_object_accuracy: list[float | None] | None = None
     #: the objects' (classes') names, in class order
     objects: list[str] | None = None
+    #: mean path of an episode: the summed distance between consecutive poses ``q`` (in the
+    #: normalized action units of ``[-1, 1]^2``; the paper's "jumpy" trajectories cost this)
+    path_length: float | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -59,6 +62,13 @@ class EvalResult:
 EVAL_POLICIES: tuple[str, ...] = ("mean", "sample")
 #: Heat-map bins per axis: finer than the 201-point glance table's grid shows nothing new.
 MAX_BINS = 201
+
+
+def path_lengths(locations: torch.Tensor) -> torch.Tensor:
+    """Per episode, the summed distance between consecutive poses: ``(S, B, 2)`` -> ``(B,)``."""
+    if locations.shape[0] < 2:
+        return locations.new_zeros(locations.shape[1])
+    return (locations[1:] - locations[:-1]).norm(dim=-1).sum(0)
 
 
 def _check(batches: int, policy: str, seed: int = 0) -> None:
@@ -90,6 +100,7 @@ def evaluate(
     offsets = torch.arange(glances, device=env.device).view(-1, 1) * (k * k)
     mu_sum = torch.zeros(k, 2, device=env.device, dtype=torch.float64)
     n_obj = torch.zeros(k, device=env.device, dtype=torch.float64)
+    path = torch.zeros((), device=env.device, dtype=torch.float64)
     was_training = agent.training
     agent.eval()
     try:
@@ -98,6 +109,7 @@ def evaluate(
             episode = agent(env, objects, generator, greedy=policy == "mean")
             predicted = episode.logits.argmax(-1)  # (S, B)
             correct += (predicted == objects).sum(1)
+            path += path_lengths(episode.locations).sum().double()
             confusion += torch.bincount(
                 (offsets + objects * k + predicted).flatten(), minlength=glances * k * k
             )
@@ -125,6 +137,7 @@ def evaluate(
         confusion=confusion.tolist(),
         per_object_accuracy=per_object,
         objects=[str(o) for o in env.objects],
+        path_length=float(path / n),
     )
 
 

@@ -95,9 +95,14 @@ def info_loss(
     policy_coef: float = 1.0,
     entropy_coef: float = 0.0,
     normalize_advantage: bool = False,
+    move_cost: float = 0.0,
 ) -> InfoLoss:
     """The information learner's loss of ``episode`` (see the module's docstring); the
-    defaults are :class:`ham.learn.train.TrainConfig`'s (docs/learners.md: why)."""
+    defaults are :class:`ham.learn.train.TrainConfig`'s (docs/learners.md: why).
+
+    ``move_cost`` makes exploration cost (the paper's Future Work: "jumpy, energy-inefficient"
+    trajectories): the reward of glance ``s >= 2`` is its information gain minus ``move_cost``
+    times the distance ``||q_s - q_{s-1}||`` the pad travelled to it (normalized pose units)."""
     for name, v, low, high in (("gamma", gamma, 0, 1), ("gae_lambda", gae_lambda, 0, 1)):
         if not (math.isfinite(v) and low <= v <= high):
             raise HamError(f"{name} = {v!r}; accepted: {low} <= {name} <= {high}")
@@ -111,8 +116,15 @@ def info_loss(
     policy = episode.policy
     if policy is None or not policy.trainable:
         return InfoLoss(classification, classification, zero, zero, zero, gain)
+    if not (math.isfinite(move_cost) and move_cost >= 0):
+        raise HamError(f"move_cost = {move_cost!r}; accepted: a finite number >= 0")
     values = episode.values()  # V(tau_{1:s-1}) of the state that chose the glance q_s
-    adv, ret = advantages(gain[episode.chosen], values.detach(), gamma, gae_lambda)
+    reward = gain
+    if move_cost > 0:
+        q = episode.locations.detach()
+        travel = torch.cat([q.new_zeros(1, b), (q[1:] - q[:-1]).norm(dim=-1)])  # (S, B)
+        reward = gain - move_cost * travel
+    adv, ret = advantages(reward[episode.chosen], values.detach(), gamma, gae_lambda)
     critic = ((ret.detach() - values) ** 2).sum(0).mean()
     a = adv.detach()
     if normalize_advantage and a.numel() > 1:

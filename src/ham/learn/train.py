@@ -101,6 +101,8 @@ class TrainConfig:
             glance is credited mostly with what it and the next few gain, docs/learners.md).
         gae_lambda: GAE lambda of the info learner's advantages (1: Monte-Carlo returns).
         entropy_coef: weight of the policy's entropy bonus (info learner; 0).
+        move_cost: the info learner's cost per unit of distance between consecutive poses
+            (normalized units; 0: moving is free, the paper); evaluations report the path.
         normalize_advantage: scale the info learner's advantages to zero mean and unit
             deviation over the batch (default ``False``: raw advantages in nats; normalized,
             the noise of a solved batch is blown up to unit size, docs/learners.md).
@@ -138,6 +140,7 @@ class TrainConfig:
     gamma: float = 0.5
     gae_lambda: float = 1.0
     entropy_coef: float = 0.0
+    move_cost: float = 0.0
     normalize_advantage: bool = False
     policy_lr_scale: float = 1.0
     env_steps: int | None = None
@@ -182,6 +185,14 @@ class TrainConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and 0 <= v <= 1):
                 raise HamError(f"{name} = {v!r}; accepted: a number in [0, 1]")
+        if not (isinstance(self.move_cost, (int, float)) and not isinstance(self.move_cost, bool)
+                and math.isfinite(self.move_cost) and self.move_cost >= 0):  # fmt: skip
+            raise HamError(f"move_cost = {self.move_cost!r}; accepted: a finite number >= 0")
+        if self.move_cost > 0 and self.learner != "info":
+            raise HamError(
+                f"move_cost = {self.move_cost!r} with learner {self.learner!r}; accepted: a move "
+                "cost with --learner info (its reward is per glance)"
+            )
         if not (isinstance(self.entropy_coef, (int, float)) and math.isfinite(self.entropy_coef)
                 and self.entropy_coef >= 0):  # fmt: skip
             raise HamError(f"entropy_coef = {self.entropy_coef!r}; accepted: a finite number >= 0")
@@ -341,6 +352,7 @@ class Run:
         return {
             "env_steps": self.env_steps,
             "average_accuracy": sum(per_glance) / len(per_glance) if per_glance else None,
+            "path_length": last.get("path_length"),
             "env_steps_to_0.95": self.reached(0.95),
             "env_steps_to_0.99": self.reached(0.99),
             "glances_to_0.95": next((i + 1 for i, a in enumerate(per_glance) if a >= 0.95), None),
@@ -525,6 +537,7 @@ def train_step(run: Run) -> HybridLoss | InfoLoss:
             c.gae_lambda,
             entropy_coef=c.entropy_coef,
             normalize_advantage=c.normalize_advantage,
+            move_cost=c.move_cost,
         )
     else:
         loss = hybrid_loss(episode, c.beta, c.classification_reduction, c.reinforce_reduction)
@@ -557,6 +570,7 @@ def _evaluate(run: Run, train_loss: float | None, train_reward: float | None) ->
         "confusion": result.confusion[-1],  # after the last glance: true x predicted counts
         "env_steps": run.env_steps,
         "average_accuracy": sum(result.accuracy_per_glance) / len(result.accuracy_per_glance),
+        "path_length": result.path_length,
         "train_loss": train_loss,
         "train_reward": train_reward,
         "lr": c.learning_rate(run.step),
