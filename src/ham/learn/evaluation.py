@@ -54,6 +54,9 @@ class EvalResult:
     #: mean path of an episode: the summed distance between consecutive poses ``q`` (in the
     #: normalized action units of ``[-1, 1]^2``; the paper's "jumpy" trajectories cost this)
     path_length: float | None = None
+    #: with a learned stop (greedy, ``p > 1/2``): accuracy at the stop and mean glances used
+    stop_accuracy: float | None = None
+    mean_glances: float | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -101,6 +104,8 @@ def evaluate(
     mu_sum = torch.zeros(k, 2, device=env.device, dtype=torch.float64)
     n_obj = torch.zeros(k, device=env.device, dtype=torch.float64)
     path = torch.zeros((), device=env.device, dtype=torch.float64)
+    stop_correct = torch.zeros((), device=env.device, dtype=torch.float64)
+    stop_glances_sum = torch.zeros((), device=env.device, dtype=torch.float64)
     was_training = agent.training
     agent.eval()
     try:
@@ -110,6 +115,13 @@ def evaluate(
             predicted = episode.logits.argmax(-1)  # (S, B)
             correct += (predicted == objects).sum(1)
             path += path_lengths(episode.locations).sum().double()
+            if episode.stop_logits is not None:
+                from ham.learn.stopping import stop_glances
+
+                at, _ = stop_glances(episode.stop_logits, greedy=True)
+                answer = predicted[at - 1, torch.arange(objects.shape[0], device=env.device)]
+                stop_correct += (answer == objects).sum().double()
+                stop_glances_sum += at.sum().double()
             confusion += torch.bincount(
                 (offsets + objects * k + predicted).flatten(), minlength=glances * k * k
             )
@@ -138,6 +150,8 @@ def evaluate(
         per_object_accuracy=per_object,
         objects=[str(o) for o in env.objects],
         path_length=float(path / n),
+        stop_accuracy=float(stop_correct / n) if agent.config.stop else None,
+        mean_glances=float(stop_glances_sum / n) if agent.config.stop else None,
     )
 
 

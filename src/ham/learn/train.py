@@ -103,6 +103,8 @@ class TrainConfig:
         entropy_coef: weight of the policy's entropy bonus (info learner; 0).
         move_cost: the info learner's cost per unit of distance between consecutive poses
             (normalized units; 0: moving is free, the paper); evaluations report the path.
+        glance_cost: with a learned stop (``HamConfig.stop``), what each glance costs the stop
+            head's return (info learner; :mod:`ham.learn.stopping`).
         normalize_advantage: scale the info learner's advantages to zero mean and unit
             deviation over the batch (default ``False``: raw advantages in nats; normalized,
             the noise of a solved batch is blown up to unit size, docs/learners.md).
@@ -141,6 +143,7 @@ class TrainConfig:
     gae_lambda: float = 1.0
     entropy_coef: float = 0.0
     move_cost: float = 0.0
+    glance_cost: float = 0.0
     normalize_advantage: bool = False
     policy_lr_scale: float = 1.0
     env_steps: int | None = None
@@ -188,6 +191,18 @@ class TrainConfig:
         if not (isinstance(self.move_cost, (int, float)) and not isinstance(self.move_cost, bool)
                 and math.isfinite(self.move_cost) and self.move_cost >= 0):  # fmt: skip
             raise HamError(f"move_cost = {self.move_cost!r}; accepted: a finite number >= 0")
+        if not (isinstance(self.glance_cost, (int, float)) and not isinstance(self.glance_cost, bool)
+                and math.isfinite(self.glance_cost) and self.glance_cost >= 0):  # fmt: skip
+            raise HamError(f"glance_cost = {self.glance_cost!r}; accepted: a finite number >= 0")
+        if self.model.stop and self.learner != "info":
+            raise HamError(
+                f"a learned stop (--stop) with learner {self.learner!r}; accepted: --learner info "
+                "(its classifier answers after every glance)"
+            )
+        if self.glance_cost > 0 and not self.model.stop:
+            raise HamError(
+                f"glance_cost = {self.glance_cost!r} without a learned stop; accepted: with --stop"
+            )
         if self.move_cost > 0 and self.learner != "info":
             raise HamError(
                 f"move_cost = {self.move_cost!r} with learner {self.learner!r}; accepted: a move "
@@ -353,6 +368,8 @@ class Run:
             "env_steps": self.env_steps,
             "average_accuracy": sum(per_glance) / len(per_glance) if per_glance else None,
             "path_length": last.get("path_length"),
+            "stop_accuracy": last.get("stop_accuracy"),
+            "mean_glances": last.get("mean_glances"),
             "env_steps_to_0.95": self.reached(0.95),
             "env_steps_to_0.99": self.reached(0.99),
             "glances_to_0.95": next((i + 1 for i, a in enumerate(per_glance) if a >= 0.95), None),
@@ -539,6 +556,10 @@ def train_step(run: Run) -> HybridLoss | InfoLoss:
             normalize_advantage=c.normalize_advantage,
             move_cost=c.move_cost,
         )
+        if episode.stop_logits is not None:
+            from ham.learn.stopping import stop_loss
+
+            loss.total = loss.total + stop_loss(episode, c.glance_cost, run.policy_generator).total
     else:
         loss = hybrid_loss(episode, c.beta, c.classification_reduction, c.reinforce_reduction)
     _check_loss(run, loss.total)
@@ -571,6 +592,8 @@ def _evaluate(run: Run, train_loss: float | None, train_reward: float | None) ->
         "env_steps": run.env_steps,
         "average_accuracy": sum(result.accuracy_per_glance) / len(result.accuracy_per_glance),
         "path_length": result.path_length,
+        "stop_accuracy": result.stop_accuracy,
+        "mean_glances": result.mean_glances,
         "train_loss": train_loss,
         "train_reward": train_reward,
         "lr": c.learning_rate(run.step),

@@ -62,6 +62,9 @@ class HamConfig:
         phi_scale: the pose fed to the tactile network is ``(q_x, q_phi * phi_scale)`` (pi/2).
         bias: biases on the dense layers; ``False`` reproduces the authors' layout (biases only in
             the LSTM), with exactly their 642,432 weights.
+        stop: a learned stop (beyond the paper): a stop head reads the core output after each
+            glance and says classify-now or glance-again (:mod:`ham.learn.stopping`); the
+            episode still has at most ``glances`` glances.
         first_glance: ``random`` (paper: uniform, the location network acts from glance 2 on)
             or ``learned`` (beyond the paper: the policy also chooses the first pose, from the
             core output before any glance, zeros; its learned biases make it a learned pose).
@@ -85,6 +88,7 @@ class HamConfig:
     phi_scale: float = math.pi / 2
     bias: bool = True
     first_glance: str = field(default="random", metadata={"choices": FIRST_GLANCES})
+    stop: bool = False
 
     def __post_init__(self) -> None:
         for name in ("glances", "n_objects", "pressure_dim", "what_units", "where_units",
@@ -128,6 +132,8 @@ class Episode:
     baselines: torch.Tensor
     policy: LocationDistribution | None
     first_baseline: torch.Tensor | None = None
+    #: ``(S, B)`` the stop head's logits after each glance (``None`` without a learned stop)
+    stop_logits: torch.Tensor | None = None
 
     @property
     def chosen(self) -> slice:
@@ -178,6 +184,9 @@ class HapticAttentionModel(nn.Module):
         # the location policy (ham.model.policy); created last, as its weights always were
         self.location = make_policy(c)
         he_normal_init(self)
+        if c.stop:  # after every other part: their initial weights stay those of a run without
+            self.stop_head = nn.Linear(c.hidden_units, 1, bias=c.bias)
+            he_normal_init(self.stop_head)
 
     def step(
         self, pressure: torch.Tensor, q: torch.Tensor, state: State
@@ -201,7 +210,7 @@ class HapticAttentionModel(nn.Module):
         pose ``q`` asked for; ``Episode.locations`` holds the poses asked for (the policy's
         actions)."""
         batch = objects.shape[0]
-        locations, logits, baselines, dists = [], [], [], []
+        locations, logits, baselines, dists, stops = [], [], [], [], []
         first_baseline = None
         if self.config.first_glance == "learned" and self.config.policy != "random":
             tau0 = objects.new_zeros((batch, self.config.hidden_units), dtype=torch.float32)
@@ -219,6 +228,8 @@ class HapticAttentionModel(nn.Module):
             locations.append(q)
             logits.append(self.classifier(tau))
             baselines.append(self.baseline(tau))
+            if self.config.stop:  # reads the core detached: the stop's loss trains only its head
+                stops.append(self.stop_head(tau.detach()).squeeze(-1))
             if s == self.config.glances - 1:
                 break
             dist = self.location.distribution(tau)
@@ -231,6 +242,7 @@ class HapticAttentionModel(nn.Module):
             baselines=torch.stack(baselines),
             policy=type(dists[0]).stack(dists) if dists else None,
             first_baseline=first_baseline,
+            stop_logits=torch.stack(stops) if stops else None,
         )
 
     def replay(
