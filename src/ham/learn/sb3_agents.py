@@ -209,7 +209,10 @@ def make_env(name: str, kwargs: dict | None = None) -> gym.Env:
     env_id = name.split(":", 1)[1] if name.startswith("ap_gym:") else name
     if env_id not in gym.registry:
         raise HamError(f"environment {name!r} is not registered; e.g. ap_gym:CircleSquare-v0")
-    return ap_gym.make(env_id, **kwargs)
+    try:
+        return ap_gym.make(env_id, **kwargs)
+    except TypeError as exc:
+        raise HamError(f"environment {name!r} with {kwargs!r}: {exc}") from None
 
 
 def evaluate_agent(model, env: SupervisedPrediction, episodes: int, seed: int) -> dict:
@@ -241,8 +244,7 @@ def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dic
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         raise HamError(f"output directory {str(out)!r} exists and is not empty")
-    out.mkdir(parents=True, exist_ok=True)
-    _write_json(out / "config.json", asdict(config))
+    # The environment first: a bad id or keyword fails before anything is written.
     probe = SupervisedPrediction(make_env(config.env, config.env_kwargs))
     head = PredictionHead(probe.observation_space.shape[0], probe.n_classes, seed=config.seed)
     probe.close()
@@ -261,8 +263,11 @@ def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dic
             "MlpPolicy", venv, seed=config.seed, device=config.device, verbose=0,
             **config.algo_kwargs,
         )  # fmt: skip
-    except TypeError as exc:
-        raise HamError(f"algo_kwargs {config.algo_kwargs!r} for {config.algo}: {exc}") from None
+    except (TypeError, ValueError, AssertionError) as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise HamError(f"algo_kwargs {config.algo_kwargs!r} for {config.algo}: {msg}") from None
+    out.mkdir(parents=True, exist_ok=True)
+    _write_json(out / "config.json", asdict(config))
     history: list[dict] = []
     started = time.time()
 
