@@ -12,7 +12,13 @@ pytest.importorskip("stable_baselines3")
 pytest.importorskip("ap_gym")
 
 from ham.errors import HamError  # noqa: E402
-from ham.learn.sb3_agents import Sb3Config, SupervisedPrediction, make_env, train_sb3  # noqa: E402
+from ham.learn.sb3_agents import (  # noqa: E402
+    Sb3Config,
+    SupervisedPrediction,
+    evaluate_agent,
+    make_env,
+    train_sb3,
+)
 
 
 def test_wrapper_shows_the_history_and_predicts_from_the_head():
@@ -24,6 +30,25 @@ def test_wrapper_shows_the_history_and_predicts_from_the_head():
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
     assert np.any(obs[d : 2 * d]) and isinstance(info["correct"], bool)
     assert np.isfinite(reward) and env.head.size == 1
+
+
+def test_evaluation_leaves_the_head_alone():
+    """Evaluation episodes repeat with their seeds: a head that learned from them could memorize
+    them (pose -> object) and score above the Bayes bound."""
+    import torch
+
+    env = SupervisedPrediction(make_env("ham/HapticGlanceAP-v0", {"glances": 2}))
+    env.head.batch = 8
+
+    class RandomGlances:
+        def predict(self, obs, deterministic=True):
+            return env.action_space.sample(), None
+
+    before = [p.detach().clone() for p in env.head.parameters()]
+    m = evaluate_agent(RandomGlances(), env, 40, seed=0)
+    assert len(m["accuracy_per_glance"]) == 2 and env.learning
+    assert env.head.size == 0 and env.steps == 0
+    assert all(torch.equal(a, b) for a, b in zip(before, env.head.parameters(), strict=True))
 
 
 def test_the_same_wrapper_serves_ap_gym():

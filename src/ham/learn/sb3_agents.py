@@ -109,6 +109,9 @@ class SupervisedPrediction(gym.Wrapper):
         self.action_space = space["action"]
         self.head = head or PredictionHead(self.observation_space.shape[0], self.n_classes)
         self.learn_every = learn_every
+        # False while evaluating: the head neither stores nor learns from evaluation episodes
+        # (they repeat with their seeds, so it could memorize them: pose -> object).
+        self.learning = True
         self.t = 0
         self.steps = 0
         self.history = np.zeros(self.observation_space.shape, np.float32)
@@ -135,12 +138,13 @@ class SupervisedPrediction(gym.Wrapper):
             {"action": np.asarray(action, np.float32), "prediction": logits}
         )
         target = int(info["prediction"]["target"])
-        self.head.remember(seen, target)
         self.last_correct.append(bool(logits.argmax() == target))
         info = dict(info, correct=self.last_correct[-1])
-        self.steps += 1
-        if self.steps % self.learn_every == 0:
-            self.head.learn()
+        if self.learning:
+            self.head.remember(seen, target)
+            self.steps += 1
+            if self.steps % self.learn_every == 0:
+                self.head.learn()
         self.t += 1
         return self._record(obs), float(reward), terminated, truncated, info
 
@@ -216,8 +220,10 @@ def make_env(name: str, kwargs: dict | None = None) -> gym.Env:
 
 
 def evaluate_agent(model, env: SupervisedPrediction, episodes: int, seed: int) -> dict:
-    """Deterministic glances; the head's accuracy after each glance, averaged over episodes."""
+    """Deterministic glances; the head's accuracy after each glance, averaged over episodes.
+    The head does not learn from them (``env.learning`` is off meanwhile)."""
     per_step = np.zeros(env.horizon)
+    learning, env.learning = env.learning, False
     for e in range(episodes):
         obs, _ = env.reset(seed=seed + e)
         done = False
@@ -226,6 +232,7 @@ def evaluate_agent(model, env: SupervisedPrediction, episodes: int, seed: int) -
             obs, _, terminated, truncated, _ = env.step(action)
             done = terminated or truncated
         per_step[: len(env.last_correct)] += env.last_correct
+    env.learning = learning
     acc = per_step / episodes
     return {
         "accuracy_per_glance": acc.tolist(),
