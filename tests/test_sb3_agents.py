@@ -12,7 +12,13 @@ pytest.importorskip("stable_baselines3")
 pytest.importorskip("ap_gym")
 
 from ham.errors import HamError  # noqa: E402
-from ham.learn.sb3_agents import Sb3Config, SupervisedPrediction, make_env, train_sb3  # noqa: E402
+from ham.learn.sb3_agents import (  # noqa: E402
+    Sb3Config,
+    SupervisedPrediction,
+    evaluate_agent,
+    make_env,
+    train_sb3,
+)
 
 
 def test_wrapper_shows_the_history_and_predicts_from_the_head():
@@ -24,6 +30,25 @@ def test_wrapper_shows_the_history_and_predicts_from_the_head():
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
     assert np.any(obs[d : 2 * d]) and isinstance(info["correct"], bool)
     assert np.isfinite(reward) and env.head.size == 1
+
+
+def test_evaluation_leaves_the_head_alone():
+    """Evaluation episodes repeat with their seeds: a head that learned from them could memorize
+    them (pose -> object) and score above the Bayes bound."""
+    import torch
+
+    env = SupervisedPrediction(make_env("ham/HapticGlanceAP-v0", {"glances": 2}))
+    env.head.batch = 8
+
+    class RandomGlances:
+        def predict(self, obs, deterministic=True):
+            return env.action_space.sample(), None
+
+    before = [p.detach().clone() for p in env.head.parameters()]
+    m = evaluate_agent(RandomGlances(), env, 40, seed=0)
+    assert len(m["accuracy_per_glance"]) == 2 and env.learning
+    assert env.head.size == 0 and env.steps == 0
+    assert all(torch.equal(a, b) for a, b in zip(before, env.head.parameters(), strict=True))
 
 
 def test_the_same_wrapper_serves_ap_gym():
@@ -62,3 +87,49 @@ def test_bad_configs():
         Sb3Config(env_steps=0)
     with pytest.raises(HamError, match="not registered"):
         make_env("ap_gym:NoSuchEnv-v0")
+
+
+def test_cli_trains_ppo_on_a_table_and_refuses_to_overwrite(tmp_path, ham_cli):
+    table = tmp_path / "paper5.h5"
+    r = ham_cli("table", "build", "--grid", "5", "--quiet", "--out", str(table))
+    assert r.returncode == 0, r.stderr
+    out = tmp_path / "ppo"
+    args = ["sb3", "--algo", "ppo", "--glances", "2", "--table", str(table), "--env-steps", "128",
+            "--eval-every", "64", "--eval-episodes", "8", "--seed", "3", "--json",
+            "--algo-kwargs", '{"n_steps": 64, "batch_size": 32, "n_epochs": 1}']  # fmt: skip
+    r = ham_cli(*args, "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    printed = json.loads(r.stdout)
+    saved = json.loads((out / "metrics.json").read_text())
+    assert printed["env_steps"] == saved["env_steps"] == 128 and printed["algo"] == "ppo"
+    assert printed["final_accuracy"] == saved["final_accuracy"]
+    assert len(saved["accuracy_per_glance"]) == 2
+    config = json.loads((out / "config.json").read_text())
+    assert config["env_kwargs"] == {"glances": 2, "table": str(table)} and config["seed"] == 3
+    r = ham_cli(*args, "--out", str(out))
+    assert r.returncode == 2 and r.stderr.strip().endswith(
+        "accepted: a path that does not exist yet"
+    )
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--algo", "dqn"], "invalid choice: 'dqn'"),
+        (["--algo", "ppo", "--env-steps", "0"], "--env-steps 0; accepted: an integer >= 1"),
+        (["--algo", "sac", "--env", "ap_gym:NoSuchEnv-v0"], "'ap_gym:NoSuchEnv-v0' is not registered"),
+        (["--algo", "ppo", "--env", "ap_gym:CircleSquare-v0", "--glances", "3"],
+         "--glances applies to ham/ environments"),
+        (["--algo", "ppo", "--table", "no.h5"], "glance table 'no.h5' does not exist"),
+        (["--algo", "ppo", "--glances", "0"], "--glances 0; accepted: an integer >= 1"),
+        (["--algo", "ppo", "--algo-kwargs", "[1]"], "accepted: a JSON object"),
+        (["--algo", "ppo", "--algo-kwargs", "{x"], "not JSON"),
+        (["--algo", "ppo", "--algo-kwargs", '{"nope": 1}'], "unexpected keyword argument 'nope'"),
+    ],
+)  # fmt: skip
+def test_cli_refuses_bad_inputs_in_one_line_and_writes_nothing(tmp_path, ham_cli, args, message):
+    r = ham_cli("sb3", *args, "--out", str(tmp_path / "run"), cwd=tmp_path)
+    assert r.returncode == 2 and message in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
+    assert not (tmp_path / "run").exists()

@@ -1,5 +1,6 @@
 """``ham baselines``: exact accuracies of reference policies on a glance table
-(:mod:`ham.learn.planners`): how far from optimal is a learned policy?"""
+(:mod:`ham.learn.planners`): how far from optimal is a learned policy? ``ham sb3``: the learned
+baselines, Stable-Baselines3 agents (:mod:`ham.learn.sb3_agents`)."""
 
 from __future__ import annotations
 
@@ -32,6 +33,7 @@ def add_commands(subparsers) -> None:
                    help="images closer than this (L2, normalized) are equal (default 1e-6)")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=cmd_baselines)
+    add_sb3_command(subparsers)
 
 
 def cmd_baselines(args: argparse.Namespace) -> int:
@@ -72,4 +74,103 @@ def cmd_baselines(args: argparse.Namespace) -> int:
         print(f"| {g} | {a:.4f} |")
     if "expected_glances_to_identify" in result:
         print(f"expected glances to identify: {result['expected_glances_to_identify']:.3f}")
+    return 0
+
+
+# --------------------------------------------------------------------------- sb3
+def add_sb3_command(subparsers) -> None:
+    from ham.learn.sb3_agents import ALGOS, Sb3Config
+
+    d = Sb3Config()
+    p = subparsers.add_parser(
+        "sb3",
+        help="train a Stable-Baselines3 agent (ppo, sac, crossq) as a learned baseline",
+        description="Train an off-the-shelf agent on an active classification environment: the "
+        "SB3 agent picks the glance, a supervised MLP head predicts (ham.learn.sb3_agents). "
+        "Writes OUT/metrics.json (env_steps, final_accuracy, average_accuracy, "
+        "accuracy_per_glance, history), config.json, model.zip and head.pt.",
+    )
+    p.add_argument("--algo", required=True, choices=ALGOS, help="ppo, sac or crossq (sb3-contrib)")
+    p.add_argument("--env", default="ham/HapticGlanceAP-v0", metavar="ID",
+                   help="ham/HapticGlanceAP-v0 (default) or ap_gym:ENV_ID")  # fmt: skip
+    p.add_argument("--glances", type=int, metavar="G",
+                   help="glances per episode (ham/ envs only; the env's default otherwise)")  # fmt: skip
+    p.add_argument("--table", metavar="FILE",
+                   help="glance table (HDF5) for ham/ envs; default: simulate online")  # fmt: skip
+    p.add_argument("--env-steps", type=int, default=d.env_steps, metavar="N",
+                   help=f"environment steps (glances) to train for (default {d.env_steps})")  # fmt: skip
+    p.add_argument("--seed", type=int, default=d.seed, help=f"seed (default {d.seed})")
+    p.add_argument(
+        "--n-envs", type=int, default=d.n_envs, help=f"parallel envs (default {d.n_envs})"
+    )
+    p.add_argument("--eval-every", type=int, default=d.eval_every, metavar="N",
+                   help=f"env steps between evaluations (default {d.eval_every})")  # fmt: skip
+    p.add_argument("--eval-episodes", type=int, default=d.eval_episodes, metavar="N",
+                   help=f"episodes per evaluation (default {d.eval_episodes})")  # fmt: skip
+    p.add_argument("--algo-kwargs", default="{}", metavar="JSON",
+                   help='SB3 algorithm keyword arguments, e.g. \'{"n_steps": 256}\'')  # fmt: skip
+    p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory (must not exist)")
+    p.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    p.set_defaults(func=cmd_sb3)
+
+
+def _json_object(flag: str, text: str) -> dict:
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise HamError(f"{flag} {text!r}: not JSON ({exc.msg}); accepted: a JSON object") from None
+    if not isinstance(value, dict):
+        raise HamError(f"{flag} {text!r}; accepted: a JSON object such as '{{\"n_steps\": 64}}'")
+    return value
+
+
+def cmd_sb3(args: argparse.Namespace) -> int:
+    import importlib.util
+
+    from ham.learn.sb3_agents import Sb3Config, train_sb3
+
+    for mod, pkg in (("stable_baselines3", "stable-baselines3"), ("sb3_contrib", "sb3-contrib")):
+        if (mod == "stable_baselines3" or args.algo == "crossq") and not importlib.util.find_spec(
+            mod
+        ):
+            raise HamError(f"--algo {args.algo} needs {pkg}, which is not installed")
+    if Path(args.out).exists():
+        raise HamError(f"--out {args.out!r} exists; accepted: a path that does not exist yet")
+    for flag, v in (("--env-steps", args.env_steps), ("--threads", args.threads)):
+        if v < 1:
+            raise HamError(f"{flag} {v}; accepted: an integer >= 1")
+    ours = not args.env.startswith("ap_gym:")
+    env_kwargs: dict = {}
+    if args.glances is not None:
+        if not ours:
+            raise HamError(f"--glances applies to ham/ environments, not to {args.env!r}")
+        if args.glances < 1:
+            raise HamError(f"--glances {args.glances}; accepted: an integer >= 1")
+        env_kwargs["glances"] = args.glances
+    if args.table is not None:
+        if not ours:
+            raise HamError(f"--table applies to ham/ environments, not to {args.env!r}")
+        if not Path(args.table).is_file():
+            raise HamError(f"glance table {args.table!r} does not exist")
+        env_kwargs["table"] = args.table
+    config = Sb3Config(
+        algo=args.algo, env=args.env, env_kwargs=env_kwargs, env_steps=args.env_steps,
+        n_envs=args.n_envs, seed=args.seed, eval_episodes=args.eval_episodes,
+        eval_every=args.eval_every, algo_kwargs=_json_object("--algo-kwargs", args.algo_kwargs),
+    )  # fmt: skip
+    import torch
+
+    torch.set_num_threads(args.threads)
+    metrics = train_sb3(config, args.out)
+    if args.json:
+        json.dump({k: v for k, v in metrics.items() if k != "history"}, sys.stdout)
+        sys.stdout.write("\n")
+        return 0
+    per = " ".join(f"{a:.3f}" for a in metrics["accuracy_per_glance"])
+    print(
+        f"{args.algo} on {args.env}: {metrics['env_steps']} env steps, final accuracy "
+        f"{metrics['final_accuracy']:.3f}, averaged {metrics['average_accuracy']:.3f} "
+        f"(per glance: {per}); wrote {args.out}"
+    )
     return 0

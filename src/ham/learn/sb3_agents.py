@@ -109,6 +109,9 @@ class SupervisedPrediction(gym.Wrapper):
         self.action_space = space["action"]
         self.head = head or PredictionHead(self.observation_space.shape[0], self.n_classes)
         self.learn_every = learn_every
+        # False while evaluating: the head neither stores nor learns from evaluation episodes
+        # (they repeat with their seeds, so it could memorize them: pose -> object).
+        self.learning = True
         self.t = 0
         self.steps = 0
         self.history = np.zeros(self.observation_space.shape, np.float32)
@@ -135,12 +138,13 @@ class SupervisedPrediction(gym.Wrapper):
             {"action": np.asarray(action, np.float32), "prediction": logits}
         )
         target = int(info["prediction"]["target"])
-        self.head.remember(seen, target)
         self.last_correct.append(bool(logits.argmax() == target))
         info = dict(info, correct=self.last_correct[-1])
-        self.steps += 1
-        if self.steps % self.learn_every == 0:
-            self.head.learn()
+        if self.learning:
+            self.head.remember(seen, target)
+            self.steps += 1
+            if self.steps % self.learn_every == 0:
+                self.head.learn()
         self.t += 1
         return self._record(obs), float(reward), terminated, truncated, info
 
@@ -209,12 +213,17 @@ def make_env(name: str, kwargs: dict | None = None) -> gym.Env:
     env_id = name.split(":", 1)[1] if name.startswith("ap_gym:") else name
     if env_id not in gym.registry:
         raise HamError(f"environment {name!r} is not registered; e.g. ap_gym:CircleSquare-v0")
-    return ap_gym.make(env_id, **kwargs)
+    try:
+        return ap_gym.make(env_id, **kwargs)
+    except TypeError as exc:
+        raise HamError(f"environment {name!r} with {kwargs!r}: {exc}") from None
 
 
 def evaluate_agent(model, env: SupervisedPrediction, episodes: int, seed: int) -> dict:
-    """Deterministic glances; the head's accuracy after each glance, averaged over episodes."""
+    """Deterministic glances; the head's accuracy after each glance, averaged over episodes.
+    The head does not learn from them (``env.learning`` is off meanwhile)."""
     per_step = np.zeros(env.horizon)
+    learning, env.learning = env.learning, False
     for e in range(episodes):
         obs, _ = env.reset(seed=seed + e)
         done = False
@@ -223,6 +232,7 @@ def evaluate_agent(model, env: SupervisedPrediction, episodes: int, seed: int) -
             obs, _, terminated, truncated, _ = env.step(action)
             done = terminated or truncated
         per_step[: len(env.last_correct)] += env.last_correct
+    env.learning = learning
     acc = per_step / episodes
     return {
         "accuracy_per_glance": acc.tolist(),
@@ -241,8 +251,7 @@ def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dic
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         raise HamError(f"output directory {str(out)!r} exists and is not empty")
-    out.mkdir(parents=True, exist_ok=True)
-    _write_json(out / "config.json", asdict(config))
+    # The environment first: a bad id or keyword fails before anything is written.
     probe = SupervisedPrediction(make_env(config.env, config.env_kwargs))
     head = PredictionHead(probe.observation_space.shape[0], probe.n_classes, seed=config.seed)
     probe.close()
@@ -261,8 +270,11 @@ def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dic
             "MlpPolicy", venv, seed=config.seed, device=config.device, verbose=0,
             **config.algo_kwargs,
         )  # fmt: skip
-    except TypeError as exc:
-        raise HamError(f"algo_kwargs {config.algo_kwargs!r} for {config.algo}: {exc}") from None
+    except (TypeError, ValueError, AssertionError) as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise HamError(f"algo_kwargs {config.algo_kwargs!r} for {config.algo}: {msg}") from None
+    out.mkdir(parents=True, exist_ok=True)
+    _write_json(out / "config.json", asdict(config))
     history: list[dict] = []
     started = time.time()
 
