@@ -35,17 +35,25 @@ class GlanceSource(Protocol):
         ...
 
 
-class OnlineSource:
+class _Source:
+    """What every source tells about its glances: the objects, the pad's ``N``, a description."""
+
+    def __init__(self, objects: list, taxels: int, description: str) -> None:
+        self.objects = list(objects)
+        self.n_objects = len(self.objects)
+        self.taxels = int(taxels)
+        self.pressure_dim = self.taxels**2
+        self.description = description
+
+
+class OnlineSource(_Source):
     """Glances simulated on demand by a simulator (``FastSimulator``: CPU or CUDA, no grid)."""
 
     def __init__(self, simulator) -> None:
         self.simulator = simulator
-        self.objects = [o.name for o in simulator.objects]
-        self.n_objects = len(self.objects)
         sensor = getattr(simulator, "sensor", None) or SensorConfig()
-        self.taxels = sensor.taxels
-        self.pressure_dim = sensor.pressure_dim
-        self.description = f"the online {simulator.name} simulator"
+        objects = [o.name for o in simulator.objects]
+        super().__init__(objects, sensor.taxels, f"the online {simulator.name} simulator")
 
     def lookup(
         self, object_ids: torch.Tensor, q_x: torch.Tensor, q_phi: torch.Tensor
@@ -53,16 +61,12 @@ class OnlineSource:
         return self.simulator.glance(object_ids, q_x, q_phi).pressure
 
 
-class TableSource:
+class TableSource(_Source):
     """Glances looked up in a :class:`ham.world.table.GlanceTable`: the closest grid point (the paper)."""
 
     def __init__(self, table) -> None:
         self.table = table
-        self.objects = list(table.objects)
-        self.n_objects = len(self.objects)
-        self.taxels = table.taxels
-        self.pressure_dim = table.pressure_dim
-        self.description = f"glance table {table.info.path!r}"
+        super().__init__(table.objects, table.taxels, f"glance table {table.info.path!r}")
 
     def lookup(
         self, object_ids: torch.Tensor, q_x: torch.Tensor, q_phi: torch.Tensor
