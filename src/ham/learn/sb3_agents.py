@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -34,14 +33,13 @@ import torch
 from torch import nn
 
 from ham.errors import HamError, check_choices
+from ham.world.files import atomic_write
 
 ALGOS: tuple[str, ...] = ("ppo", "sac", "crossq")
 
 
 def _write_json(path: Path, obj: Any) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1) + "\n")
-    os.replace(tmp, path)
+    atomic_write(path, lambda tmp: tmp.write_text(json.dumps(obj, indent=1) + "\n"), what="metrics")
 
 
 class PredictionHead(nn.Module):
@@ -298,7 +296,6 @@ def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dic
         "seconds": time.time() - started,
     }
     model.save(out / "model.zip")
-    torch.save(head.state_dict(), out / "head.pt.tmp")
-    os.replace(out / "head.pt.tmp", out / "head.pt")
+    atomic_write(out / "head.pt", lambda tmp: torch.save(head.state_dict(), tmp), what="checkpoint")
     _write_json(out / "metrics.json", metrics)
     return metrics
