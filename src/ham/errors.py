@@ -25,9 +25,9 @@ def check_known_fields(cls, d: dict, what: str) -> None:
     typo or a file from another version, refused with the accepted names."""
     import dataclasses
 
-    if not isinstance(d, dict):
-        raise HamError(f"{what} {d!r}; accepted: a mapping of field names to values")
     known = [f.name for f in dataclasses.fields(cls)]
-    unknown = sorted(set(d) - set(known))
+    if not isinstance(d, dict):
+        raise HamError(f"{what} = {d!r}; accepted: a dict with keys {', '.join(known)}")
+    unknown = sorted(str(k) for k in d if k not in known)
     if unknown:
         raise HamError(f"{what} has unknown fields {unknown}; accepted: {', '.join(known)}")

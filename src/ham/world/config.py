@@ -12,9 +12,9 @@ Third parties add a simulator with :func:`register_simulator`.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 
-from ham.errors import HamError
+from ham.errors import HamError, check_known_fields
 from ham.world import objects as _objects
 from ham.world.glance import FastSimulator, GlanceConfig, PoseConfig, Simulator
 from ham.world.objects import HapticObject
@@ -82,7 +82,7 @@ class WorldConfig:
     def from_dict(cls, d: dict) -> WorldConfig:
         """The world saved by :meth:`to_dict`; unknown keys and wrong types are refused by name;
         registers its recorded objects file's objects."""
-        _check_keys("world", d, [f.name for f in fields(cls)])
+        check_known_fields(cls, d, "world")
         parts = {}
         for name, kind in (
             ("sensor", SensorConfig),
@@ -90,7 +90,7 @@ class WorldConfig:
             ("glance", GlanceConfig),
         ):
             sub = d.get(name, {})
-            _check_keys(f"world {name}", sub, [f.name for f in fields(kind)])
+            check_known_fields(kind, sub, f"world {name}")
             try:
                 parts[name] = kind(**sub)
             except TypeError as exc:  # e.g. a string where a number belongs
@@ -107,14 +107,6 @@ class WorldConfig:
         )
         world.register_objects()
         return world
-
-
-def _check_keys(what: str, d, accepted: list[str]) -> None:
-    if not isinstance(d, dict):
-        raise HamError(f"{what} = {d!r}; accepted: a dict with keys {', '.join(accepted)}")
-    unknown = sorted(str(k) for k in d if k not in accepted)
-    if unknown:
-        raise HamError(f"{what} has unknown keys {unknown}; accepted: {', '.join(accepted)}")
 
 
 SimulatorFactory = Callable[..., Simulator]
