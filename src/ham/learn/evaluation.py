@@ -32,6 +32,7 @@ import torch
 
 from ham.errors import HamError
 from ham.learn.environment import HapticEnv
+from ham.learn.stopping import stop_glances
 from ham.model.agent import HapticAttentionModel
 
 
@@ -116,8 +117,6 @@ def evaluate(
             correct += (predicted == objects).sum(1)
             path += path_lengths(episode.locations).sum().double()
             if episode.stop_logits is not None:
-                from ham.learn.stopping import stop_glances
-
                 at, _ = stop_glances(episode.stop_logits, greedy=True)
                 answer = predicted[at - 1, torch.arange(objects.shape[0], device=env.device)]
                 stop_correct += (answer == objects).sum().double()

@@ -41,6 +41,7 @@ from ham.learn.environment import HapticEnv
 from ham.learn.evaluation import EVAL_POLICIES, evaluate
 from ham.learn.hybrid_loss import REDUCTIONS, HybridLoss, hybrid_loss
 from ham.learn.info_loss import InfoLoss, info_loss
+from ham.learn.stopping import stop_loss
 from ham.model.agent import HamConfig, HapticAttentionModel, count_parameters
 from ham.world.config import WorldConfig
 from ham.world.devices import check_device
@@ -557,8 +558,6 @@ def train_step(run: Run) -> HybridLoss | InfoLoss:
             move_cost=c.move_cost,
         )
         if episode.stop_logits is not None:
-            from ham.learn.stopping import stop_loss
-
             loss.total = loss.total + stop_loss(episode, c.glance_cost, run.policy_generator).total
     else:
         loss = hybrid_loss(episode, c.beta, c.classification_reduction, c.reinforce_reduction)
