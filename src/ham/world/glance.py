@@ -201,6 +201,12 @@ def check_pad(sensor: SensorConfig, glance: GlanceConfig, objects: list[HapticOb
       ``force_threshold / (foam_stiffness * size^2) < foam_thickness`` (a pad of at least 4.1 mm
       at the defaults), else every glance would end on the rigid pad, blocked.
     """
+    flat2d = [o.name for o in objects if o.varies_in_y]
+    if flat2d:
+        raise HamError(
+            f"object {flat2d[0]!r} varies in y (a height field); the paper's glance model takes "
+            "objects extruded along y only; accepted: the paper's objects, profiles and polylines"
+        )
     depth = min(o.depth for o in objects)
     if sensor.size > depth * (1 + 1e-9):
         narrow = min(objects, key=lambda o: o.depth)

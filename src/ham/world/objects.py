@@ -59,6 +59,10 @@ MAX_HEIGHT = BLOCK_SIZE
 PROFILE_SAMPLES = 4097
 
 HeightFn = Callable[[np.ndarray], np.ndarray]
+#: A vectorized surface ``h(x, y)`` (metres) over two arrays of the same shape (local frame).
+SurfaceFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
+#: Samples per side of a surface ``h(x, y)`` checked by :meth:`HapticObject.from_surface`.
+SURFACE_SAMPLES = 513
 
 # A name is one token: usable in comma lists, HDF5 paths and file names, and never an id.
 _NAME = re.compile(r"[^\W\d][\w.+-]*")
@@ -102,6 +106,11 @@ class HapticObject:
         vertices: exact profile vertices ``(N, 2)`` as ``(x, z)`` when the profile is piecewise
             linear; ``None`` for curved profiles, which are sampled by :meth:`outline`.
         description: one line for ``ham objects``.
+        surface_fn: ``h(x, y)`` for an object whose top varies in y too (the paper's next world:
+            :meth:`from_surface`, :meth:`from_height_field`); ``None`` for the paper's objects,
+            whose ``profile`` is extruded along y. For such an object ``profile`` is the section
+            at ``y = 0``, and only glance models of the extended glance may touch it
+            (:attr:`varies_in_y`).
     """
 
     name: str
@@ -111,6 +120,7 @@ class HapticObject:
     height: float = BLOCK_HEIGHT
     vertices: np.ndarray | None = field(default=None, repr=False)
     description: str = ""
+    surface_fn: SurfaceFn | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         check_name(self.name)
@@ -128,6 +138,35 @@ class HapticObject:
             raise HamError(
                 f"object {self.name!r}: description {self.description!r}; accepted: one line of text"
             )
+
+    @property
+    def varies_in_y(self) -> bool:
+        """Whether the top varies in y (a height field), not a profile extruded along y."""
+        return self.surface_fn is not None
+
+    def surface(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Surface height (m) at local ``(x, y)`` (arrays of one shape): the top on the base
+        ``[-width/2, width/2] x [-depth/2, depth/2]``, 0 (the table) beside it. For the paper's
+        objects this is ``profile(x)`` for every y on the block."""
+        x, y = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
+        hw, hd = 0.5 * self.width, 0.5 * self.depth
+        inside = (np.abs(x) <= hw) & (np.abs(y) <= hd)
+        xc = np.clip(x, -hw, hw).reshape(-1)
+        if self.surface_fn is None:
+            h = np.asarray(self.profile(xc), dtype=np.float64)
+        else:
+            yc = np.clip(y, -hd, hd).reshape(-1)
+            h = np.asarray(self.surface_fn(xc, yc), dtype=np.float64)
+        return np.where(inside, h.reshape(x.shape), 0.0)
+
+    def height_field(self, nx: int = 257, ny: int | None = None) -> np.ndarray:
+        """The top sampled on ``ny x nx`` points spanning the base, edges included: array
+        ``(ny, nx)``, row ``j`` at ``y = -depth/2 + j * depth / (ny - 1)``."""
+        ny = nx if ny is None else ny
+        xs = np.linspace(-0.5 * self.width, 0.5 * self.width, nx)
+        ys = np.linspace(-0.5 * self.depth, 0.5 * self.depth, ny)
+        gx, gy = np.meshgrid(xs, ys)
+        return self.surface(gx, gy)
 
     def height_at(self, x: np.ndarray) -> np.ndarray:
         """Surface height (m) at local positions ``x``: the profile on the block, 0 (table) beside it."""
@@ -231,6 +270,93 @@ class HapticObject:
         )
 
     @classmethod
+    def from_surface(
+        cls,
+        name: str,
+        surface: SurfaceFn,
+        *,
+        width: float = BLOCK_SIZE,
+        depth: float = BLOCK_SIZE,
+        description: str = "",
+    ) -> HapticObject:
+        """An object whose top is the vectorized height field ``h(x, y)`` (metres, local frame).
+
+        ``surface`` takes two arrays of one shape and returns their heights, an array of that
+        shape. It is checked on :data:`SURFACE_SAMPLES` x :data:`SURFACE_SAMPLES` points across
+        the base: finite, in ``[0, MAX_HEIGHT]``, not 0 everywhere.
+        """
+        check_name(name)
+        if not callable(surface):
+            raise HamError(f"object {name!r}: surface {surface!r} is not a function of (x, y)")
+        width = _check_size(name, "width", width)
+        depth = _check_size(name, "depth", depth)
+        xs = np.linspace(-0.5 * width, 0.5 * width, SURFACE_SAMPLES)
+        ys = np.linspace(-0.5 * depth, 0.5 * depth, SURFACE_SAMPLES)
+        gx, gy = (g.reshape(-1) for g in np.meshgrid(xs, ys))
+        try:
+            hs = np.asarray(surface(gx.copy(), gy.copy()), dtype=np.float64)
+        except Exception as exc:  # noqa: BLE001 - the user's function: any failure is bad input
+            raise HamError(
+                f"object {name!r}: surface h(x, y) failed on arrays of shape {gx.shape}: "
+                f"{type(exc).__name__}: {_one_line(exc)}"
+            ) from None
+        if hs.shape != gx.shape:
+            raise HamError(
+                f"object {name!r}: surface h(x, y) returned shape {hs.shape} for x, y of shape "
+                f"{gx.shape}; accepted: a vectorized function returning one height per (x, y)"
+            )
+        _check_heights(name, gx, hs, gy)
+
+        def section(x: np.ndarray) -> np.ndarray:
+            return surface(x, np.zeros_like(x))
+
+        return cls(name, section, width, depth, float(hs.max()), None, description, surface)
+
+    @classmethod
+    def from_height_field(
+        cls,
+        name: str,
+        heights: Sequence[Sequence[float]] | np.ndarray,
+        *,
+        width: float = BLOCK_SIZE,
+        depth: float = BLOCK_SIZE,
+        description: str = "",
+    ) -> HapticObject:
+        """An object from heights (m) on an even ``(ny, nx)`` grid spanning the base (row ``j``
+        at ``y = -depth/2 + j * depth / (ny - 1)``), bilinear between samples."""
+        check_name(name)
+        try:
+            hs = np.asarray(heights, dtype=np.float64)
+        except (TypeError, ValueError):
+            hs = None
+        if hs is None or hs.ndim != 2 or min(hs.shape) < 2:
+            got = "not numbers" if hs is None else f"shape {hs.shape}"
+            raise HamError(
+                f"object {name!r}: height field must be a 2-D array (ny, nx) of heights (m) "
+                f"with ny, nx >= 2, got {got}"
+            )
+        width = _check_size(name, "width", width)
+        depth = _check_size(name, "depth", depth)
+        ny, nx = hs.shape
+        xs = np.linspace(-0.5 * width, 0.5 * width, nx)
+        ys = np.linspace(-0.5 * depth, 0.5 * depth, ny)
+        gx, gy = np.meshgrid(xs, ys)
+        _check_heights(name, gx.reshape(-1), hs.reshape(-1), gy.reshape(-1))
+        table = hs.copy()
+
+        def surface(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+            tx = np.clip((np.asarray(x) + 0.5 * width) / width * (nx - 1), 0, nx - 1)
+            ty = np.clip((np.asarray(y) + 0.5 * depth) / depth * (ny - 1), 0, ny - 1)
+            i = np.minimum(tx.astype(np.int64), nx - 2)
+            j = np.minimum(ty.astype(np.int64), ny - 2)
+            wx, wy = tx - i, ty - j
+            top = table[j, i] * (1 - wx) + table[j, i + 1] * wx
+            bottom = table[j + 1, i] * (1 - wx) + table[j + 1, i + 1] * wx
+            return top * (1 - wy) + bottom * wy
+
+        return cls.from_surface(name, surface, width=width, depth=depth, description=description)
+
+    @classmethod
     def from_heightmap(
         cls,
         name: str,
@@ -253,7 +379,7 @@ class HapticObject:
         return cls.from_polyline(name, np.stack([xs, hs], 1), depth=depth, description=description)
 
 
-def _check_heights(name: str, xs: np.ndarray, hs: np.ndarray) -> None:
+def _check_heights(name: str, xs: np.ndarray, hs: np.ndarray, ys: np.ndarray | None = None) -> None:
     """Heights inside the block: finite, ``0 <= h <= MAX_HEIGHT``, and not all 0 (no block)."""
     rule = f"accepted: finite heights in [0, {MAX_HEIGHT}] m"
     for bad, what in (
@@ -263,9 +389,8 @@ def _check_heights(name: str, xs: np.ndarray, hs: np.ndarray) -> None:
     ):
         if np.any(bad):
             i = int(np.argmax(bad))
-            raise HamError(
-                f"object {name!r}: height {hs[i]:.6g} at x = {xs[i]:.6g} m {what}; {rule}"
-            )
+            at = f"x = {xs[i]:.6g}" + ("" if ys is None else f", y = {ys[i]:.6g}")
+            raise HamError(f"object {name!r}: height {hs[i]:.6g} at {at} m {what}; {rule}")
     if not np.any(hs > 0):
         raise HamError(f"object {name!r}: every height is 0 (no block); {rule}, not all 0")
 
