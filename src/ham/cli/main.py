@@ -42,36 +42,91 @@ _COMMAND_MODULES = (
 
 
 # --------------------------------------------------------------------------- objects
+def _object_from_file(args: argparse.Namespace):
+    """The one object of ``--image`` or ``--mesh`` (registered in this process only)."""
+    from ham.world import objects
+
+    if args.set is not None:
+        raise HamError("--set with --image/--mesh; accepted: one of them (the file is the set)")
+    if not args.name:
+        raise HamError("--image/--mesh needs --name NAME for the object")
+    if args.image:
+        obj = objects.HapticObject.from_image(
+            args.name, args.image, width=args.width, depth=args.depth, height=args.height,
+            description=f"from image {Path(args.image).name}",
+        )  # fmt: skip
+    else:
+        obj = objects.HapticObject.from_mesh(
+            args.name, args.mesh, scale=args.scale, pitch=args.pitch,
+            description=f"from mesh {Path(args.mesh).name}",
+        )  # fmt: skip
+    objects.register(obj)
+    return [obj]
+
+
 def cmd_objects(args: argparse.Namespace) -> int:
     from ham.world import objects
 
     if args.out:
         check_output(args.out, PNG)
+    if args.export:
+        check_output(args.export, (".json",), what="--export")
+    if args.image and args.mesh:
+        raise HamError("--image and --mesh; accepted: one of them")
     load_objects_file_arg(args)
-    objs = objects.resolve_set(args.set)
+    if args.image or args.mesh:
+        objs = _object_from_file(args)
+        spec = objs[0].name
+    else:
+        spec = "all" if args.set is None else args.set
+        objs = objects.resolve_set(spec)
+    member = objects.set_membership()
     rows = [
         {
             "id": objects.object_id(o.name),
             "name": o.name,
             "width": o.width,
+            "depth": o.depth,
             "height": o.height,
+            "varies_in_y": o.varies_in_y,
+            "sets": member.get(o.name, []),
             "description": o.description,
             "origin": objects.origin(o.name),
         }
         for o in objs
     ]
+    splits = objects.splits_of(spec)
     if args.out:
-        from ham.world.drawing import draw_objects
+        from ham.world.drawing import draw_objects, draw_objects_3d
 
-        draw_objects(objs, args.out)
+        view = args.view
+        if view == "auto":
+            view = "3d" if any(o.varies_in_y for o in objs) else "side"
+        if view == "3d":
+            draw_objects_3d(objs, args.out, title=f"Objects {spec}: top h(x, y) (cm)")
+        else:
+            draw_objects(objs, args.out)
+    if args.export:
+        objects.write_objects_file(objs, args.export, samples=args.samples)
     if args.json:
         print_json(rows)
     else:
         for r in rows:
             mark = "" if r["origin"] == "built-in" else f" [{r['origin']}]"
-            print(f"{r['id']:>3}  {r['name']:<13} {r['description']}{mark}")
-        if args.out:
-            print(f"wrote {args.out}")
+            size = f"{r['width'] * 100:g} x {r['depth'] * 100:g} cm"
+            print(
+                f"{r['id']:>3}  {r['name']:<13} {size:<11} h {r['height'] * 100:4.2f} cm  "
+                f"{r['description']}{mark}"
+            )
+        for split, names in splits.items():
+            print(f"split {split}: {len(names)} objects: {', '.join(names)}")
+        if splits:
+            print(
+                "(object i of each split is an instance of class i: train on one, score on the other)"
+            )
+        for what, path in (("wrote", args.out), ("wrote", args.export)):
+            if path:
+                print(f"{what} {path}")
     return 0
 
 
@@ -245,10 +300,32 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"ham {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
-    p = sub.add_parser("objects", help="list the objects (and draw their profiles)")
-    p.add_argument("--set", default="all", help="paper, mhsb, all (default) or names/ids")
+    p = sub.add_parser("objects", help="list the objects (and draw them)")
+    p.add_argument(
+        "--set",
+        help="paper, mhsb, curvature2d, composite, composite:train, composite:test, "
+        "all (default) or names/ids",
+    )
     p.add_argument("--json", action="store_true")
-    p.add_argument("--out", help="PNG of the side profiles")
+    p.add_argument("--out", help="PNG: side profiles, or shaded 3-D tops (see --view)")
+    p.add_argument(
+        "--view", choices=("auto", "side", "3d"), default="auto",
+        help="picture: side profiles or 3-D tops (auto: 3-D when an object varies in y)",
+    )  # fmt: skip
+    p.add_argument("--image", help="one object from a grey-scale PNG (needs --name)")
+    p.add_argument("--mesh", help="one object from the top of an STL/OBJ/PLY mesh (needs --name)")
+    p.add_argument("--name", help="the --image/--mesh object's name")
+    p.add_argument("--width", type=finite_float, default=0.09, help="--image: x extent (m)")
+    p.add_argument("--depth", type=finite_float, default=0.09, help="--image: y extent (m)")
+    p.add_argument("--height", type=finite_float, default=0.045, help="--image: white's height (m)")
+    p.add_argument("--scale", type=finite_float, default=1.0, help="--mesh: metres per mesh unit")
+    p.add_argument("--pitch", type=finite_float, default=0.0005, help="--mesh: sample step (m)")
+    p.add_argument(
+        "--export", help="write the objects as a self-contained JSON objects file (height_field)"
+    )
+    p.add_argument(
+        "--samples", type=int, default=129, help="--export: samples along the longer side"
+    )
     add_objects_file_option(p)
     p.set_defaults(func=cmd_objects)
 
