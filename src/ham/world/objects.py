@@ -21,7 +21,14 @@ The default set ``paper`` holds the paper's four objects in the paper's order:
 ====  ===========  ============================================================
 
 Four MHSB-like shapes (ids 4..7) ship for experiments beyond the paper: ``ridge``,
-``trough``, ``step`` and ``double_ridge``. Users add their own with :func:`register`
+``trough``, ``step`` and ``double_ridge``. The paper's next world adds objects whose top varies in
+x and y (height fields, :meth:`HapticObject.from_surface`): the set ``curvature2d`` (ids 8..16:
+flats of two heights, cylinders along x and y, dome, saddle, bowl, pyramid, cone) and the set
+``composite`` (ids 17..28; 16 x 16 cm bases whose four 8 x 8 cm slots carry an edge, a flat, a
+bump and a dimple in 12 arrangements) with its splits ``composite:train`` (= ``composite``) and
+``composite:test`` (ids 29..40: the same arrangements built with other geometry; object i of each
+split is arrangement i). Height fields also come from grey-scale images
+(:meth:`HapticObject.from_image`) and the tops of triangle meshes (:meth:`HapticObject.from_mesh`). Users add their own with :func:`register`
 and the constructors :meth:`HapticObject.from_function`, :meth:`HapticObject.from_polyline`
 and :meth:`HapticObject.from_heightmap`, in their own program or in an *objects file*
 (``--objects-file FILE`` on the command line, :func:`load_objects_file`): a self-contained Python
@@ -524,7 +531,8 @@ def _grey_levels(name: str, what: str, pixels: np.ndarray) -> np.ndarray:
     if np.any(bad):
         i = np.unravel_index(int(np.argmax(bad)), pixels.shape)
         raise HamError(
-            f"object {name!r}: {what} grey level {pixels[i]!r} at row {i[0]}, column {i[1]}; {rule}"
+            f"object {name!r}: {what} grey level {float(pixels[i]):.6g} at row {i[0]}, "
+            f"column {i[1]}; {rule}"
         )
     return pixels
 
