@@ -136,6 +136,7 @@ def cmd_glance(args: argparse.Namespace) -> int:
 
     from ham.world import objects
     from ham.world.config import make_simulator
+    from ham.world.glance import POSE_DIMS
 
     if args.out:
         check_output(args.out, PNG)
@@ -144,11 +145,17 @@ def cmd_glance(args: argparse.Namespace) -> int:
     if args.objects is not None and obj not in world.resolve_objects():
         raise HamError(f"--object {args.object!r} is not in --objects {args.objects!r}")
     world = replace(world, objects=obj.name)
+    # A y or phi_y given takes the extended glance, whatever --pose-dims says.
+    asked = {"y": args.y != 0, "phi_y": args.phi_y != 0}
+    dims = [d for d in POSE_DIMS if d in world.pose_dims or asked.get(d, False)]
+    world = replace(world, pose_dims=tuple(dims))
     sim = make_simulator(world)
-    result = sim.glance([0], [args.x], [args.phi])
+    extra = {"q_y": [args.y], "q_phi_y": [args.phi_y]} if world.extended else {}
+    result = sim.glance([0], [args.x], [args.phi], **extra)
     data = result.to_json(0)
     data.update(object=obj.name, object_id=objects.object_id(obj.name), simulator=sim.name)
     data["q"] = [args.x, args.phi]
+    data.update(q_y=args.y, q_phi_y=args.phi_y, pose_dims=list(world.pose_dims))
     if args.out:
         from ham.world.drawing import draw_glance
 
@@ -156,11 +163,21 @@ def cmd_glance(args: argparse.Namespace) -> int:
     if args.json:
         print_json(data)
     else:
-        print(
-            f"{obj.name} at q = ({args.x:+.3f}, {args.phi:+.3f}) -> x = {data['x'] * 100:.2f} cm, "
-            f"phi = {math.degrees(data['phi']):.1f} deg: force {data['force']:.3f} N, "
-            f"z {data['z'] * 100:.3f} cm, contact {data['contact']}, blocked {data['blocked']}"
-        )
+        if world.extended:
+            print(
+                f"{obj.name} at q = (x {args.x:+.3f}, y {args.y:+.3f}, phi {args.phi:+.3f}, "
+                f"phi_y {args.phi_y:+.3f}) -> x = {data['x'] * 100:.2f} cm, "
+                f"y = {data['y'] * 100:.2f} cm, phi = {math.degrees(data['phi']):.1f} deg, "
+                f"phi_y = {math.degrees(data['phi_y']):.1f} deg: force {data['force']:.3f} N, "
+                f"height {data['height'] * 100:.3f} cm, contact {data['contact']}, "
+                f"blocked {data['blocked']}"
+            )
+        else:
+            print(
+                f"{obj.name} at q = ({args.x:+.3f}, {args.phi:+.3f}) -> x = {data['x'] * 100:.2f} "
+                f"cm, phi = {math.degrees(data['phi']):.1f} deg: force {data['force']:.3f} N, "
+                f"z {data['z'] * 100:.3f} cm, contact {data['contact']}, blocked {data['blocked']}"
+            )
         if args.out:
             print(f"wrote {args.out}")
     return 0
@@ -337,7 +354,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--phi", type=finite_float, required=True, help="normalized angle q_phi in [-1, 1]"
     )
-    p.add_argument("--json", action="store_true", help="print the result as JSON (raw pressure)")
+    p.add_argument(
+        "--y",
+        type=finite_float,
+        default=0.0,
+        help="normalized position q_y in [-1, 1] (default 0; not 0: the extended glance)",
+    )
+    p.add_argument(
+        "--phi-y",
+        type=finite_float,
+        default=0.0,
+        help="normalized tilt about x, q_phi_y in [-1, 1] (default 0; not 0: the extended glance)",
+    )
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="print the result as JSON (raw pressure; height, y, phi_y)",
+    )
     p.add_argument("--out", help="PNG: the pad over the profile and its N x N image")
     add_world_options(p)
     p.set_defaults(func=cmd_glance)
