@@ -191,7 +191,7 @@ def test_bad_glance_input_is_named(sim, call, match):
     "key, match",
     [
         ("nope", "unknown object 'nope'"),
-        (42, "unknown object id 42"),
+        (420, "unknown object id 420"),
         ("99", "unknown object id 99"),
     ],
 )
