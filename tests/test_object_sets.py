@@ -315,6 +315,8 @@ def test_cli_lists_and_draws_the_sets(tmp_path):
         (["--mesh", "nothere.stl", "--name", "a_t"], "'nothere.stl' does not exist"),
         (["--set", "paper", "--export", "p.toml"], "--export 'p.toml' ends in '.toml'"),
         (["--set", "dome", "--export", "d.json", "--samples", "1"], "samples = 1"),
+        (["--set", "paper", "--width", "0.05"], "--width applies only with --image"),
+        (["--set", "paper", "--samples", "9"], "--samples applies only with --export"),
     ],
 )
 def test_cli_bad_inputs(tmp_path, args, match):

@@ -51,15 +51,21 @@ def _object_from_file(args: argparse.Namespace):
     if not args.name:
         raise HamError("--image/--mesh needs --name NAME for the object")
     if args.image:
+        size = {k: getattr(args, k) for k in ("width", "depth", "height")}
         obj = objects.HapticObject.from_image(
-            args.name, args.image, width=args.width, depth=args.depth, height=args.height,
+            args.name,
+            args.image,
             description=f"from image {Path(args.image).name}",
-        )  # fmt: skip
+            **{k: v for k, v in size.items() if v is not None},
+        )
     else:
+        grid = {k: getattr(args, k) for k in ("scale", "pitch")}
         obj = objects.HapticObject.from_mesh(
-            args.name, args.mesh, scale=args.scale, pitch=args.pitch,
+            args.name,
+            args.mesh,
             description=f"from mesh {Path(args.mesh).name}",
-        )  # fmt: skip
+            **{k: v for k, v in grid.items() if v is not None},
+        )
     objects.register(obj)
     return [obj]
 
@@ -73,6 +79,17 @@ def cmd_objects(args: argparse.Namespace) -> int:
         check_output(args.export, (".json",), what="--export")
     if args.image and args.mesh:
         raise HamError("--image and --mesh; accepted: one of them")
+    for flag, needs, given in (
+        ("--name", "--image or --mesh", args.image or args.mesh),
+        ("--width", "--image", args.image),
+        ("--depth", "--image", args.image),
+        ("--height", "--image", args.image),
+        ("--scale", "--mesh", args.mesh),
+        ("--pitch", "--mesh", args.mesh),
+        ("--samples", "--export", args.export),
+    ):
+        if getattr(args, flag[2:]) is not None and not given:
+            raise HamError(f"{flag} applies only with {needs}; accepted: {needs} {flag} ...")
     load_objects_file_arg(args)
     if args.image or args.mesh:
         objs = _object_from_file(args)
@@ -107,7 +124,8 @@ def cmd_objects(args: argparse.Namespace) -> int:
         else:
             draw_objects(objs, args.out)
     if args.export:
-        objects.write_objects_file(objs, args.export, samples=args.samples)
+        samples = 129 if args.samples is None else args.samples
+        objects.write_objects_file(objs, args.export, samples=samples)
     if args.json:
         print_json(rows)
     else:
@@ -332,17 +350,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--image", help="one object from a grey-scale PNG (needs --name)")
     p.add_argument("--mesh", help="one object from the top of an STL/OBJ/PLY mesh (needs --name)")
     p.add_argument("--name", help="the --image/--mesh object's name")
-    p.add_argument("--width", type=finite_float, default=0.09, help="--image: x extent (m)")
-    p.add_argument("--depth", type=finite_float, default=0.09, help="--image: y extent (m)")
-    p.add_argument("--height", type=finite_float, default=0.045, help="--image: white's height (m)")
-    p.add_argument("--scale", type=finite_float, default=1.0, help="--mesh: metres per mesh unit")
-    p.add_argument("--pitch", type=finite_float, default=0.0005, help="--mesh: sample step (m)")
+    p.add_argument("--width", type=finite_float, help="--image: x extent (m; 0.09)")
+    p.add_argument("--depth", type=finite_float, help="--image: y extent (m; 0.09)")
+    p.add_argument("--height", type=finite_float, help="--image: white's height (m; 0.045)")
+    p.add_argument("--scale", type=finite_float, help="--mesh: metres per mesh unit (1)")
+    p.add_argument("--pitch", type=finite_float, help="--mesh: sample step (m; 0.0005)")
     p.add_argument(
         "--export", help="write the objects as a self-contained JSON objects file (height_field)"
     )
-    p.add_argument(
-        "--samples", type=int, default=129, help="--export: samples along the longer side"
-    )
+    p.add_argument("--samples", type=int, help="--export: samples along the longer side (129)")
     add_objects_file_option(p)
     p.set_defaults(func=cmd_objects)
 

@@ -44,11 +44,12 @@ def draw_objects(objs: list[HapticObject], out: str | os.PathLike) -> Path:
     fig, axes = plt.subplots(rows, cols, figsize=(3.0 * cols, 2.3 * rows), squeeze=False)
     from ham.world.objects import object_id
 
+    reach = max(6.0, 50 * max(o.width for o in objs) + 1.5)  # cm: 6 for the 9 cm blocks
     for ax, obj in zip(axes.flat, objs, strict=False):
         ax.axhline(0, color="0.4", lw=2)
         _solid(ax, obj)
         ax.set_title(f"{object_id(obj.name)}: {obj.name}", fontsize=10)
-        ax.set_xlim(-6, 6)
+        ax.set_xlim(-reach, reach)
         ax.set_ylim(-0.5, 6)
         ax.set_aspect("equal")
         ax.set_xlabel("x (cm)")

@@ -497,10 +497,8 @@ def _read_png(name: str, path: Path) -> np.ndarray:
         raise HamError(
             f"object {name!r}: cannot read image {str(path)!r} as a PNG: {_one_line(exc)}"
         ) from None
-    pixels = np.asarray(pixels, dtype=np.float64)
-    if pixels.dtype.kind == "f" and pixels.size and pixels.max() > 1.0:  # pragma: no cover
-        pixels = pixels / 255.0
-    return pixels
+    # matplotlib reads every PNG (8- or 16-bit, grey or colour) as floats in [0, 1]
+    return np.asarray(pixels, dtype=np.float64)
 
 
 def _grey_levels(name: str, what: str, pixels: np.ndarray) -> np.ndarray:
