@@ -119,3 +119,14 @@ def test_stop_configs_and_metrics(tmp_path):
     assert load_run(tmp_path / "run").config.stop_learner == "value"
     with pytest.raises(HamError, match="stop_learner"):
         TrainConfig(learner="info", model=HamConfig(stop=True), stop_learner="guess")
+
+
+def test_the_hindsight_stop_takes_the_best_later_payoff_as_the_value_of_continuing():
+    # the head goes on at glance 2 in both episodes: "value" credits glance 1 with W_2 = g_3,
+    # "hindsight" with the best later payoff max(g_2, g_3)
+    episode = _hand_episode([[-1.0, -1.0], [-1.0, -1.0], [0.0, 0.0]])
+    d = episode.stop_logits.detach()[:2]
+    for learner, first in (("value", [-0.1 - 0.7, -0.1 - 0.7]), ("hindsight", [-0.9, -0.8])):
+        target = torch.tensor([first, [0.1, -0.9]])
+        loss = stop_loss(episode, 0.1, learner=learner)
+        assert torch.allclose(loss.total, ((d - target) ** 2).mean()), learner

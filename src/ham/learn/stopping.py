@@ -17,6 +17,11 @@ Two ways to train the stop head (``TrainConfig.stop_learner``):
   ``W_s = g_s`` if the greedy head stops at ``s`` (``d_s > 0``) else ``W_{s+1}``, the target
   of ``d_s`` is ``g_s - W_{s+1}`` for ``s < S``: ``L_stop = mean_{s < S, b} (d_s - (g_s -
   W_{s+1}))^2``. Every glance gets its own counterfactual, no sampling, no shared baseline.
+* ``hindsight``: the same regression with the best later payoff as the value of continuing,
+  ``W_{s+1} = max_{t > s} g_t``. Training samples its poses, evaluation takes the mean poses,
+  whose later glances are better than the samples': the greedy continuation of ``value`` is
+  that of the sampling policy and undervalues going on (docs/learners.md); the best later
+  payoff is an upper bound on any policy's continuation.
 * ``reinforce`` (the first version): the decisions are sampled and trained by REINFORCE on ``R``
   with the batch's mean return as baseline, ``L_stop = -mean_b (R - mean R) * sum_{s <= min(T,
   S-1)} log P(decision_s)``: one noisy return credits all decisions of an episode.
@@ -39,7 +44,7 @@ from ham.errors import HamError
 from ham.model.agent import Episode
 
 #: How the stop head is trained (``TrainConfig.stop_learner``).
-STOP_LEARNERS: tuple[str, ...] = ("value", "reinforce")
+STOP_LEARNERS: tuple[str, ...] = ("value", "hindsight", "reinforce")
 
 
 @dataclass
@@ -89,8 +94,8 @@ def stop_loss(
         raise HamError("the model has no stop head; accepted: HamConfig(stop=True) (--stop)")
     if not (math.isfinite(glance_cost) and glance_cost >= 0):
         raise HamError(f"glance_cost = {glance_cost!r}; accepted: a finite number >= 0")
-    if learner == "value":
-        return _value_stop_loss(episode, glance_cost)
+    if learner in ("value", "hindsight"):
+        return _value_stop_loss(episode, glance_cost, hindsight=learner == "hindsight")
     if learner != "reinforce":
         raise HamError(f"stop learner {learner!r}; accepted: one of {', '.join(STOP_LEARNERS)}")
     logits = episode.stop_logits  # (S, B)
@@ -108,7 +113,7 @@ def stop_loss(
     return StopLoss(total, stop_at, ret)
 
 
-def _value_stop_loss(episode: Episode, glance_cost: float) -> StopLoss:
+def _value_stop_loss(episode: Episode, glance_cost: float, hindsight: bool = False) -> StopLoss:
     """Least-squares regression of classify-now minus continue (module docstring)."""
     d = episode.stop_logits  # (S, B)
     s = d.shape[0]
@@ -118,7 +123,7 @@ def _value_stop_loss(episode: Episode, glance_cost: float) -> StopLoss:
     w = g[-1]  # W_S: the last glance always stops
     for t in range(s - 2, -1, -1):
         target[t] = g[t] - w
-        w = torch.where(greedy[t], g[t], w)
+        w = torch.maximum(g[t], w) if hindsight else torch.where(greedy[t], g[t], w)
     total = ((d[:-1] - target[:-1]) ** 2).mean() if s > 1 else d.sum() * 0
     stop_at, _ = stop_glances(d, greedy=True)
     idx = torch.arange(d.shape[1], device=d.device)
