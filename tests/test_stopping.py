@@ -62,9 +62,9 @@ def test_the_value_stop_regresses_classify_now_minus_continue_by_backward_induct
 
 def test_the_stop_head_reads_the_classifier_s_confidence():
     logits = torch.tensor([[0.0, 0.0, 0.0, 0.0], [50.0, 0.0, 0.0, 0.0]])
-    x = StopHead.confidence(logits, 2, 10)
-    assert torch.allclose(x[0], torch.tensor([0.25, 0.0, 0.2]), atol=1e-6)  # uniform: unsure
-    assert torch.allclose(x[1], torch.tensor([1.0, 1.0, 0.2]), atol=1e-6)  # certain
+    x = StopHead.confidence(logits)
+    assert torch.allclose(x[0], torch.tensor([0.25, 0.0]), atol=1e-6)  # uniform: unsure
+    assert torch.allclose(x[1], torch.tensor([1.0, 1.0]), atol=1e-6)  # certain
 
 
 @pytest.mark.parametrize("stop_input", ["confidence", "core"])

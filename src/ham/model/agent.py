@@ -68,9 +68,9 @@ class HamConfig:
             glance and says classify-now or glance-again (:mod:`ham.learn.stopping`); the
             episode still has at most ``glances`` glances.
         stop_input: what the stop head reads: ``confidence`` (a small MLP on the classifier's
-            confidence after the glance, its largest probability and ``1 - H / log K``, and the
-            share ``s / S`` of glances used; :class:`StopHead`) or ``core`` (a linear layer on
-            the core output ``tau_{1:s}``, the first version).
+            confidence after the glance, its largest probability and ``1 - H / log K``;
+            :class:`StopHead`) or ``core`` (a linear layer on the core output ``tau_{1:s}``,
+            the first version).
         first_glance: ``random`` (paper: uniform, the location network acts from glance 2 on)
             or ``learned`` (beyond the paper: the policy also chooses the first pose, from the
             core output before any glance, zeros; its learned biases make it a learned pose).
@@ -166,29 +166,32 @@ def he_normal_init(module: nn.Module) -> None:
 
 
 class StopHead(nn.Module):
-    """The learned stop's head on the classifier's confidence: ``(max_k pi_k, 1 - H(pi) /
-    log K, s / S) -> 16 ReLU units -> logit``. All inputs are detached: its loss trains only it.
+    """The learned stop's head on the classifier's confidence after a glance: ``(max_k pi_k,
+    1 - H(pi) / log K) -> 16 ReLU units -> logit``. Its inputs are detached: its loss trains only
+    it.
 
-    Why not the core output: whether to stop is a question of how sure the classifier is, a
-    nonlinear function of ``tau`` that a linear head on 256 units learns slowly (docs/learners.md)."""
+    Why the confidence, and only it: whether to stop is a question of how sure the classifier
+    is, a nonlinear function of ``tau`` that a linear head on 256 units learns slowly; and the
+    confidence means the same under the sampled poses of training and the mean poses of
+    evaluation, where the glance index does not (a head that also read ``s / S`` learned to stop
+    at a fixed glance; docs/learners.md)."""
 
-    features = 3
+    features = 2
 
     def __init__(self, hidden: int = 16) -> None:
         super().__init__()
         self.net = nn.Sequential(nn.Linear(self.features, hidden), nn.ReLU(), nn.Linear(hidden, 1))
 
     @staticmethod
-    def confidence(logits: torch.Tensor, glance: int, glances: int) -> torch.Tensor:
-        """``(B, 3)`` the head's input after glance ``glance`` (1-based) of ``glances``."""
+    def confidence(logits: torch.Tensor) -> torch.Tensor:
+        """``(B, 2)`` the head's input: the classifier's largest probability and certainty."""
         logp = torch.log_softmax(logits.detach(), -1)
         p = logp.exp()
         certainty = 1 + (p * logp).sum(-1) / math.log(logits.shape[-1])
-        used = torch.full_like(certainty, glance / glances)
-        return torch.stack([p.max(-1).values, certainty, used], -1)
+        return torch.stack([p.max(-1).values, certainty], -1)
 
-    def forward(self, logits: torch.Tensor, glance: int, glances: int) -> torch.Tensor:
-        return self.net(self.confidence(logits, glance, glances)).squeeze(-1)
+    def forward(self, logits: torch.Tensor) -> torch.Tensor:
+        return self.net(self.confidence(logits)).squeeze(-1)
 
 
 def count_parameters(module: nn.Module) -> int:
@@ -270,7 +273,7 @@ class HapticAttentionModel(nn.Module):
                 if self.config.stop_input == "core":
                     stops.append(self.stop_head(tau.detach()).squeeze(-1))
                 else:
-                    stops.append(self.stop_head(logits[-1], s + 1, self.config.glances))
+                    stops.append(self.stop_head(logits[-1]))
             if s == self.config.glances - 1:
                 break
             dist = self.location.distribution(tau)
