@@ -264,7 +264,7 @@ def test_move_cost_lowers_each_glance_s_reward_by_the_distance_travelled(env):
     travel = (q[1:] - q[:-1]).norm(dim=-1)  # (S-1, B)
     assert torch.allclose(path_lengths(q), travel.sum(0))
     free = info_loss(episode, gamma=1.0)
-    costly = info_loss(episode, gamma=1.0, move_cost=0.5)
+    costly = info_loss(episode, gamma=1.0, move_cost=0.5, move_cost_on="reward")
     # the classification and the information gain do not change; the critic's targets do
     assert torch.equal(free.classification, costly.classification)
     assert torch.equal(free.gain, costly.gain)
@@ -280,7 +280,7 @@ def test_move_cost_lowers_each_glance_s_reward_by_the_distance_travelled(env):
 def test_move_cost_needs_the_info_learner_and_evaluations_report_the_path(tmp_path):
     with pytest.raises(HamError, match="move_cost = 0.1 with learner 'hybrid'"):
         TrainConfig(move_cost=0.1)
-    metrics = train(tiny(move_cost=0.2), tmp_path / "run", progress=False)
+    metrics = train(tiny(move_cost=0.2, move_cost_on="reward"), tmp_path / "run", progress=False)
     assert metrics["path_length"] is not None and metrics["path_length"] >= 0
     assert all("path_length" in row for row in metrics["history"])
 

@@ -38,7 +38,7 @@ from ham.errors import HamError
 from ham.model.agent import Episode
 
 #: Where the move cost acts (``TrainConfig.move_cost_on``; :func:`info_loss`).
-MOVE_COSTS: tuple[str, ...] = ("reward", "mean")
+MOVE_COSTS: tuple[str, ...] = ("mean", "reward")
 
 
 @dataclass
@@ -99,16 +99,16 @@ def info_loss(
     entropy_coef: float = 0.0,
     normalize_advantage: bool = False,
     move_cost: float = 0.0,
-    move_cost_on: str = "reward",
+    move_cost_on: str = "mean",
 ) -> InfoLoss:
     """The information learner's loss of ``episode`` (see the module's docstring); the
     defaults are :class:`ham.learn.train.TrainConfig`'s (docs/learners.md: why).
 
     ``move_cost`` makes exploration cost (the paper's Future Work: "jumpy, energy-inefficient"
-    trajectories), where ``move_cost_on`` says (:data:`MOVE_COSTS`): ``reward``: the reward of
-    glance ``s >= 2`` is its information gain minus ``move_cost`` times the distance
-    ``||q_s - q_{s-1}||`` the pad travelled to it (normalized pose units); ``mean``: the loss
-    gains :func:`mean_travel_penalty` instead."""
+    trajectories), where ``move_cost_on`` says (:data:`MOVE_COSTS`): ``mean`` (default): the
+    loss gains :func:`mean_travel_penalty`; ``reward`` (the first version): the reward of glance
+    ``s >= 2`` is its information gain minus ``move_cost`` times the distance ``||q_s -
+    q_{s-1}||`` the pad travelled to it (normalized pose units)."""
     for name, v, low, high in (("gamma", gamma, 0, 1), ("gae_lambda", gae_lambda, 0, 1)):
         if not (math.isfinite(v) and low <= v <= high):
             raise HamError(f"{name} = {v!r}; accepted: {low} <= {name} <= {high}")

@@ -105,8 +105,9 @@ class TrainConfig:
         move_cost: the info learner's cost per unit of distance between consecutive poses
             (normalized units; 0: moving is free, the paper); evaluations report the path.
         move_cost_on: where the move cost acts (:func:`ham.learn.info_loss.info_loss`):
-            ``reward`` (in the policy's REINFORCE reward) or ``mean`` (a differentiable penalty
-            on the distance from the pad's pose to the policy's mean next pose).
+            ``mean`` (a differentiable penalty on the distance from the pad's pose to the
+            policy's mean next pose; halves the path, docs/learners.md) or ``reward`` (in the
+            policy's REINFORCE reward, the first version).
         glance_cost: with a learned stop (``HamConfig.stop``), what each glance costs the stop
             head's return (info learner; :mod:`ham.learn.stopping`).
         stop_learner: how the stop head learns (:mod:`ham.learn.stopping`): ``value`` (a
@@ -149,7 +150,7 @@ class TrainConfig:
     gae_lambda: float = 1.0
     entropy_coef: float = 0.0
     move_cost: float = 0.0
-    move_cost_on: str = field(default="reward", metadata={"choices": MOVE_COSTS})
+    move_cost_on: str = field(default="mean", metadata={"choices": MOVE_COSTS})
     glance_cost: float = 0.0
     stop_learner: str = field(default="value", metadata={"choices": STOP_LEARNERS})
     normalize_advantage: bool = False
