@@ -111,7 +111,8 @@ class TrainConfig:
         glance_cost: with a learned stop (``HamConfig.stop``), what each glance costs the stop
             head's return (info learner; :mod:`ham.learn.stopping`).
         stop_learner: how the stop head learns (:mod:`ham.learn.stopping`): ``value`` (a
-            regression of the reward difference classify-now vs continue) or ``reinforce``.
+            regression of the reward difference classify-now vs continue), ``hindsight`` (the
+            same with the best later payoff as the value of continuing) or ``reinforce``.
         normalize_advantage: scale the info learner's advantages to zero mean and unit
             deviation over the batch (default ``False``: raw advantages in nats; normalized,
             the noise of a solved batch is blown up to unit size, docs/learners.md).
