@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 
@@ -60,11 +62,12 @@ def test_the_value_stop_regresses_classify_now_minus_continue_by_backward_induct
         stop_loss(episode, 0.1, learner="guess")
 
 
-def test_the_stop_head_reads_the_classifier_s_confidence():
-    logits = torch.tensor([[0.0, 0.0, 0.0, 0.0], [50.0, 0.0, 0.0, 0.0]])
+def test_the_stop_head_reads_the_classifier_s_confidence_in_nats():
+    logits = torch.tensor([[0.0, 0.0, 0.0, 0.0], [math.log(297.0), 0.0, 0.0, 0.0], [1e4, 0, 0, 0]])
     x = StopHead.confidence(logits)
-    assert torch.allclose(x[0], torch.tensor([0.25, 0.0]), atol=1e-6)  # uniform: unsure
-    assert torch.allclose(x[1], torch.tensor([1.0, 1.0]), atol=1e-6)  # certain
+    assert torch.allclose(x[0], torch.tensor([-math.log(0.75), math.log(4)]))  # uniform: unsure
+    assert torch.allclose(x[1, 0], torch.tensor(-math.log(0.01)))  # 1 - max pi = 3 / 300
+    assert x[2].tolist() == [StopHead.cap, 0.0]  # certain beyond float32: capped, finite
 
 
 @pytest.mark.parametrize("stop_input", ["confidence", "core"])

@@ -68,7 +68,7 @@ class HamConfig:
             glance and says classify-now or glance-again (:mod:`ham.learn.stopping`); the
             episode still has at most ``glances`` glances.
         stop_input: what the stop head reads: ``confidence`` (a small MLP on the classifier's
-            confidence after the glance, its largest probability and ``1 - H / log K``;
+            confidence after the glance, ``-log(1 - max pi)`` and the entropy;
             :class:`StopHead`) or ``core`` (a linear layer on the core output ``tau_{1:s}``,
             the first version).
         first_glance: ``random`` (paper: uniform, the location network acts from glance 2 on)
@@ -166,29 +166,34 @@ def he_normal_init(module: nn.Module) -> None:
 
 
 class StopHead(nn.Module):
-    """The learned stop's head on the classifier's confidence after a glance: ``(max_k pi_k,
-    1 - H(pi) / log K) -> 16 ReLU units -> logit``. Its inputs are detached: its loss trains only
-    it.
+    """The learned stop's head on the classifier's confidence after a glance: ``(-log(1 -
+    max_k pi_k), H(pi)) -> 16 ReLU units -> logit``. Its inputs are detached: its loss trains
+    only it.
 
     Why the confidence, and only it: whether to stop is a question of how sure the classifier
     is, a nonlinear function of ``tau`` that a linear head on 256 units learns slowly; and the
     confidence means the same under the sampled poses of training and the mean poses of
     evaluation, where the glance index does not (a head that also read ``s / S`` learned to stop
-    at a fixed glance; docs/learners.md)."""
+    at a fixed glance). Why logarithms: "sure" (``1 - max pi = 0.01``) and "unsure" (0.25) lie
+    0.24 apart in probabilities but 3.2 nats apart here (docs/learners.md)."""
 
     features = 2
+    #: the first input's ceiling (nats): a float32 classifier can be "sure" to 1e-30
+    cap = 30.0
 
     def __init__(self, hidden: int = 16) -> None:
         super().__init__()
         self.net = nn.Sequential(nn.Linear(self.features, hidden), nn.ReLU(), nn.Linear(hidden, 1))
 
-    @staticmethod
-    def confidence(logits: torch.Tensor) -> torch.Tensor:
-        """``(B, 2)`` the head's input: the classifier's largest probability and certainty."""
+    @classmethod
+    def confidence(cls, logits: torch.Tensor) -> torch.Tensor:
+        """``(B, 2)`` the head's input: ``-log(1 - max_k pi_k)`` and the entropy ``H(pi)``
+        (nats) of the classifier's output."""
         logp = torch.log_softmax(logits.detach(), -1)
-        p = logp.exp()
-        certainty = 1 + (p * logp).sum(-1) / math.log(logits.shape[-1])
-        return torch.stack([p.max(-1).values, certainty], -1)
+        top = logp.argmax(-1, keepdim=True)
+        rest = logp.scatter(-1, top, float("-inf")).logsumexp(-1)  # log(1 - max pi), stable
+        entropy = -(logp.exp() * logp).sum(-1)
+        return torch.stack([(-rest).clamp(max=cls.cap), entropy], -1)
 
     def forward(self, logits: torch.Tensor) -> torch.Tensor:
         return self.net(self.confidence(logits)).squeeze(-1)
