@@ -1,13 +1,14 @@
 """A learned stop: after each glance the agent says classify-now or glance-again.
 
-The stop head (``HamConfig.stop``) reads the core output after glance ``s`` and gives
-``p_s = sigmoid(w . tau_{1:s})``, the probability to stop there; at glance ``S`` (the most
-allowed) it stops anyway. An episode that stops at glance ``T`` is answered by the classifier's
+The stop head (``HamConfig.stop``) gives a logit ``d_s`` after glance ``s``: stop there when
+``d_s > 0`` (``p_s = sigmoid(d_s)`` when sampled); at glance ``S`` (the most allowed) it stops
+anyway. It reads the classifier's confidence (``HamConfig.stop_input = "confidence"``,
+:class:`ham.model.agent.StopHead`) or the core output (``"core"``, the first version). An episode that stops at glance ``T`` is answered by the classifier's
 output after glance ``T`` and pays ``glance_cost`` per glance:
 
 ``R = 1[argmax pi(. | tau_{1:T}) = o] - glance_cost * T``
 
-Two ways to train the stop head (``TrainConfig.stop_learner``):
+Three ways to train the stop head (``TrainConfig.stop_learner``):
 
 * ``value`` (default): the head's logit ``d_s`` is a regression of the actual reward difference
   classify-now vs continue, by backward induction over the played episode as in Longstaff and
