@@ -264,7 +264,7 @@ def test_move_cost_lowers_each_glance_s_reward_by_the_distance_travelled(env):
     travel = (q[1:] - q[:-1]).norm(dim=-1)  # (S-1, B)
     assert torch.allclose(path_lengths(q), travel.sum(0))
     free = info_loss(episode, gamma=1.0)
-    costly = info_loss(episode, gamma=1.0, move_cost=0.5)
+    costly = info_loss(episode, gamma=1.0, move_cost=0.5, move_cost_on="reward")
     # the classification and the information gain do not change; the critic's targets do
     assert torch.equal(free.classification, costly.classification)
     assert torch.equal(free.gain, costly.gain)
@@ -280,6 +280,34 @@ def test_move_cost_lowers_each_glance_s_reward_by_the_distance_travelled(env):
 def test_move_cost_needs_the_info_learner_and_evaluations_report_the_path(tmp_path):
     with pytest.raises(HamError, match="move_cost = 0.1 with learner 'hybrid'"):
         TrainConfig(move_cost=0.1)
-    metrics = train(tiny(move_cost=0.2), tmp_path / "run", progress=False)
+    metrics = train(tiny(move_cost=0.2, move_cost_on="reward"), tmp_path / "run", progress=False)
     assert metrics["path_length"] is not None and metrics["path_length"] >= 0
     assert all("path_length" in row for row in metrics["history"])
+
+
+@pytest.mark.parametrize("first_glance", ["random", "learned"])
+def test_the_mean_move_cost_pulls_each_mean_pose_towards_the_previous_pose(env, first_glance):
+    from ham.learn.info_loss import mean_travel_penalty
+
+    model, episode = _episode(env, glances=4, first_glance=first_glance)
+    mu = episode.policy.mu[-3:]  # the means of glances 2..4
+    hand = 0.5 * (mu - episode.locations[:-1]).norm(dim=-1).sum(0).mean()
+    assert torch.allclose(mean_travel_penalty(episode, 0.5), hand)
+    free = info_loss(episode, gamma=1.0)
+    costly = info_loss(episode, gamma=1.0, move_cost=0.5, move_cost_on="mean")
+    # the reward (and so the critic and the policy's REINFORCE term) is that of a free move
+    assert torch.equal(free.critic, costly.critic) and torch.equal(free.policy, costly.policy)
+    assert torch.allclose(costly.total - free.total, hand)
+    model.zero_grad()
+    mean_travel_penalty(episode, 0.5).backward()
+    trained = {n for n, p in model.named_parameters() if p.grad is not None and p.grad.abs().sum()}
+    assert trained and all(n.startswith("location.") for n in trained)
+    with pytest.raises(HamError, match="move_cost_on = 'path'"):
+        info_loss(episode, move_cost=0.5, move_cost_on="path")
+
+
+def test_a_run_trains_with_the_mean_move_cost_and_refuses_an_unknown_one(tmp_path):
+    with pytest.raises(HamError, match="move_cost_on"):
+        tiny(move_cost=0.2, move_cost_on="path")
+    metrics = train(tiny(move_cost=0.2, move_cost_on="mean"), tmp_path / "run", progress=False)
+    assert metrics["path_length"] is not None and metrics["path_length"] >= 0

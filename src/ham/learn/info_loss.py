@@ -37,6 +37,9 @@ from torch.nn import functional as F
 from ham.errors import HamError
 from ham.model.agent import Episode
 
+#: Where the move cost acts (``TrainConfig.move_cost_on``; :func:`info_loss`).
+MOVE_COSTS: tuple[str, ...] = ("mean", "reward")
+
 
 @dataclass
 class InfoLoss:
@@ -96,13 +99,16 @@ def info_loss(
     entropy_coef: float = 0.0,
     normalize_advantage: bool = False,
     move_cost: float = 0.0,
+    move_cost_on: str = "mean",
 ) -> InfoLoss:
     """The information learner's loss of ``episode`` (see the module's docstring); the
     defaults are :class:`ham.learn.train.TrainConfig`'s (docs/learners.md: why).
 
     ``move_cost`` makes exploration cost (the paper's Future Work: "jumpy, energy-inefficient"
-    trajectories): the reward of glance ``s >= 2`` is its information gain minus ``move_cost``
-    times the distance ``||q_s - q_{s-1}||`` the pad travelled to it (normalized pose units)."""
+    trajectories), where ``move_cost_on`` says (:data:`MOVE_COSTS`): ``mean`` (default): the
+    loss gains :func:`mean_travel_penalty`; ``reward`` (the first version): the reward of glance
+    ``s >= 2`` is its information gain minus ``move_cost`` times the distance ``||q_s -
+    q_{s-1}||`` the pad travelled to it (normalized pose units)."""
     for name, v, low, high in (("gamma", gamma, 0, 1), ("gae_lambda", gae_lambda, 0, 1)):
         if not (math.isfinite(v) and low <= v <= high):
             raise HamError(f"{name} = {v!r}; accepted: {low} <= {name} <= {high}")
@@ -118,9 +124,11 @@ def info_loss(
         return InfoLoss(classification, classification, zero, zero, zero, gain)
     if not (math.isfinite(move_cost) and move_cost >= 0):
         raise HamError(f"move_cost = {move_cost!r}; accepted: a finite number >= 0")
+    if move_cost_on not in MOVE_COSTS:
+        raise HamError(f"move_cost_on = {move_cost_on!r}; accepted: {', '.join(MOVE_COSTS)}")
     values = episode.values()  # V(tau_{1:s-1}) of the state that chose the glance q_s
     reward = gain
-    if move_cost > 0:
+    if move_cost > 0 and move_cost_on == "reward":
         q = episode.locations.detach()
         travel = torch.cat([q.new_zeros(1, b), (q[1:] - q[:-1]).norm(dim=-1)])  # (S, B)
         reward = gain - move_cost * travel
@@ -133,4 +141,28 @@ def info_loss(
     policy_term = -(a * log_p).sum(0).mean()
     entropy = policy.entropy().sum(0).mean()
     total = classification + policy_coef * policy_term + critic - entropy_coef * entropy
+    if move_cost > 0 and move_cost_on == "mean":
+        total = total + mean_travel_penalty(episode, move_cost)
     return InfoLoss(total, classification, policy_term, critic, entropy, gain)
+
+
+def mean_travel_penalty(episode: Episode, move_cost: float) -> torch.Tensor:
+    """``move_cost * mean_b sum_{s >= 2} ||mu_s - q_{s-1}||``: the distance from the pose the pad
+    is at to the policy's *mean* next pose, a differentiable penalty on the location network.
+
+    Why beside (instead of) the cost in the reward: there its gradient reaches the mean only
+    through REINFORCE on the sampled poses, whose travel is mostly the policy's own spread; here
+    it pulls each mean pose towards where the pad is, directly, and evaluations take the means
+    (docs/learners.md). The previous pose is detached: the penalty trains only the policy."""
+    mu = getattr(episode.policy, "mu", None)
+    if mu is None:
+        raise HamError(
+            f"move_cost_on = 'mean' with a {type(episode.policy).__name__} policy; accepted: a "
+            "policy with a mean pose (--policy learned)"
+        )
+    s = episode.locations.shape[0]
+    if s < 2:
+        return mu.sum() * 0
+    step = mu[-(s - 1) :] - episode.locations[:-1].detach()  # glances 2..S from their previous
+    # sqrt(. + eps): the norm's gradient is finite when the mean sits on the previous pose
+    return move_cost * (step.pow(2).sum(-1) + 1e-12).sqrt().sum(0).mean()

@@ -40,8 +40,8 @@ from ham.learn.ap_adapter import ApGymConfig, ApGymGlanceEnv
 from ham.learn.environment import HapticEnv
 from ham.learn.evaluation import EVAL_POLICIES, evaluate
 from ham.learn.hybrid_loss import REDUCTIONS, HybridLoss, hybrid_loss
-from ham.learn.info_loss import InfoLoss, info_loss
-from ham.learn.stopping import stop_loss
+from ham.learn.info_loss import MOVE_COSTS, InfoLoss, info_loss
+from ham.learn.stopping import STOP_LEARNERS, stop_loss
 from ham.model.agent import HamConfig, HapticAttentionModel, count_parameters
 from ham.world.config import WorldConfig
 from ham.world.devices import check_device
@@ -104,8 +104,15 @@ class TrainConfig:
         entropy_coef: weight of the policy's entropy bonus (info learner; 0).
         move_cost: the info learner's cost per unit of distance between consecutive poses
             (normalized units; 0: moving is free, the paper); evaluations report the path.
+        move_cost_on: where the move cost acts (:func:`ham.learn.info_loss.info_loss`):
+            ``mean`` (a differentiable penalty on the distance from the pad's pose to the
+            policy's mean next pose; halves the path, docs/learners.md) or ``reward`` (in the
+            policy's REINFORCE reward, the first version).
         glance_cost: with a learned stop (``HamConfig.stop``), what each glance costs the stop
             head's return (info learner; :mod:`ham.learn.stopping`).
+        stop_learner: how the stop head learns (:mod:`ham.learn.stopping`): ``value`` (a
+            regression of the reward difference classify-now vs continue), ``hindsight`` (the
+            same with the best later payoff as the value of continuing) or ``reinforce``.
         normalize_advantage: scale the info learner's advantages to zero mean and unit
             deviation over the batch (default ``False``: raw advantages in nats; normalized,
             the noise of a solved batch is blown up to unit size, docs/learners.md).
@@ -144,7 +151,9 @@ class TrainConfig:
     gae_lambda: float = 1.0
     entropy_coef: float = 0.0
     move_cost: float = 0.0
+    move_cost_on: str = field(default="mean", metadata={"choices": MOVE_COSTS})
     glance_cost: float = 0.0
+    stop_learner: str = field(default="value", metadata={"choices": STOP_LEARNERS})
     normalize_advantage: bool = False
     policy_lr_scale: float = 1.0
     env_steps: int | None = None
@@ -556,9 +565,13 @@ def train_step(run: Run) -> HybridLoss | InfoLoss:
             entropy_coef=c.entropy_coef,
             normalize_advantage=c.normalize_advantage,
             move_cost=c.move_cost,
+            move_cost_on=c.move_cost_on,
         )
         if episode.stop_logits is not None:
-            loss.total = loss.total + stop_loss(episode, c.glance_cost, run.policy_generator).total
+            loss.total = (
+                loss.total
+                + stop_loss(episode, c.glance_cost, run.policy_generator, c.stop_learner).total
+            )
     else:
         loss = hybrid_loss(episode, c.beta, c.classification_reduction, c.reinforce_reduction)
     _check_loss(run, loss.total)
