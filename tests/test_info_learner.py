@@ -344,6 +344,8 @@ def test_the_clip_stops_the_policy_gradient_beyond_it(env):
         (dict(clip=0.0), "clip = 0.0"),
         (dict(epochs=2, learner="hybrid"), "epochs = 2 with learner 'hybrid'"),
         (dict(epochs=2, model=HamConfig(stop=True)), "epochs = 2 with a learned stop"),
+        (dict(epochs=2, policy_epochs=3), "policy_epochs = 3"),
+        (dict(epochs=2, policy_epochs=0), "policy_epochs = 0"),
     ],
 )
 def test_bad_epochs(kw, match):
@@ -360,6 +362,18 @@ def test_epochs_take_that_many_optimizer_steps_per_batch(tmp_path):
         state = run.optimizer.state_dict()["state"]
         assert {int(s["step"]) for s in state.values()} == {epochs} and run.step == 1
         run.close()
+    # policy_epochs: the location network steps on the first pass only, the rest on all three
+    run = Run.create(tiny(epochs=3, policy_epochs=1))
+    train_step(run)
+    policy = {id(p) for p in run.agent.location.parameters()}
+    steps = {
+        id(p): int(run.optimizer.state[p]["step"])
+        for p in run.agent.parameters()
+        if p in run.optimizer.state
+    }
+    assert {steps[i] for i in policy} == {1}
+    assert {v for i, v in steps.items() if i not in policy} == {3}
+    run.close()
     out = train(tiny(epochs=3, steps=4), tmp_path / "e3", progress=False)
     assert out["steps"] == 4 and out["config"]["epochs"] == 3
 

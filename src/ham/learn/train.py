@@ -119,6 +119,9 @@ class TrainConfig:
             one step on the clipped (PPO) policy loss (:func:`ham.learn.info_loss.clipped_info_loss`):
             more updates per environment step.
         clip: PPO's clip of the probability ratio, ``1 +- clip`` (with ``epochs > 1``; 0.2).
+        policy_epochs: of the ``epochs`` passes, how many train the location policy (the first
+            ones; ``None``: all). The others train the classifier and the critic only: more
+            classifier updates without moving the policy further from the batch's.
     """
 
     model: HamConfig = field(default_factory=HamConfig)
@@ -155,6 +158,7 @@ class TrainConfig:
     env_steps: int | None = None
     epochs: int = 1
     clip: float = 0.2
+    policy_epochs: int | None = None
 
     def __post_init__(self) -> None:
         for name, kind in (("model", HamConfig), ("world", WorldConfig), ("nesterov", bool)):
@@ -241,6 +245,12 @@ class TrainConfig:
             raise HamError(
                 f"epochs = {self.epochs} with learner {self.learner!r}; accepted: epochs > 1 with "
                 "--learner info"
+            )
+        v = self.policy_epochs
+        if v is not None and not (isinstance(v, int) and not isinstance(v, bool)
+                                  and 1 <= v <= self.epochs):  # fmt: skip
+            raise HamError(
+                f"policy_epochs = {v!r}; accepted: an integer in [1, epochs = {self.epochs}]"
             )
         if self.epochs > 1 and self.model.stop:
             raise HamError(f"epochs = {self.epochs} with a learned stop; accepted: epochs = 1")
@@ -660,9 +670,12 @@ def train_step_epochs(run: Run) -> InfoLoss:
         played = run.agent(recorder, objects, run.policy_generator)
     targets = info_targets(played, c.gamma, c.gae_lambda, c.move_cost)
     pressures, where = torch.stack(recorder.pressures), torch.stack(recorder.where)
-    for _ in range(c.epochs):
+    policy_epochs = c.epochs if c.policy_epochs is None else c.policy_epochs
+    for epoch in range(c.epochs):
         episode = replay_episode(run.agent, played, pressures, where)
         loss = clipped_info_loss(episode, targets, c.clip, c.entropy_coef)
+        if epoch >= policy_epochs:  # the classifier and the critic only
+            loss.total = loss.classification + loss.critic
         _check_loss(run, loss.total)
         run.optimizer.zero_grad(set_to_none=True)
         loss.total.backward()
