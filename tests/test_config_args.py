@@ -45,7 +45,7 @@ def test_choices_come_from_the_config():
         for f in dataclasses.fields(cls):
             if "choices" in f.metadata:
                 assert tuple(actions[f.name].choices) == tuple(f.metadata["choices"])
-    assert choices(HamConfig, "core") == ("lstm", "mlp")
+    assert choices(HamConfig, "core") == ("lstm", "mlp", "transformer")
     with pytest.raises(HamError, match="no field 'nope'"):
         choices(HamConfig, "nope")
 

@@ -312,7 +312,7 @@ def test_ap_gym_config_round_trip_and_bad_values(ap_gym):
     with pytest.raises(HamError, match="exclude each other"):
         TrainConfig(table="t.h5", env=ApGymConfig(CS15))
     with pytest.raises(HamError, match="unknown fields"):
-        ApGymConfig.from_dict({"env": CS15, "glimpse": 5})
+        ApGymConfig.from_dict({"env": CS15, "glimpse_size": 5})
 
 
 def test_ap_gym_resume_gives_the_same_numbers(ap_gym, tmp_path):

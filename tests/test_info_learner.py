@@ -311,3 +311,125 @@ def test_a_run_trains_with_the_mean_move_cost_and_refuses_an_unknown_one(tmp_pat
         tiny(move_cost=0.2, move_cost_on="path")
     metrics = train(tiny(move_cost=0.2, move_cost_on="mean"), tmp_path / "run", progress=False)
     assert metrics["path_length"] is not None and metrics["path_length"] >= 0
+
+
+# --------------------------------------------------------------------------- several epochs (PPO)
+@pytest.mark.parametrize("first_glance", ["random", "learned"])
+def test_replay_gives_the_played_episode_and_the_first_pass_gradient_of_info_loss(
+    env, first_glance
+):
+    """The network replayed on a batch's recorded glances gives the played episode's numbers,
+    and the clipped loss's first pass (ratio 1) the gradient of :func:`info_loss`."""
+    from ham.learn.info_loss import clipped_info_loss, info_targets
+    from ham.learn.train import GlanceRecorder, replay_episode
+
+    torch.manual_seed(0)
+    model = HapticAttentionModel(HamConfig(glances=4, first_glance=first_glance))
+    recorder = GlanceRecorder(env)
+    played = model(recorder, env.sample_objects(), torch.Generator().manual_seed(0))
+    again = replay_episode(
+        model, played, torch.stack(recorder.pressures), torch.stack(recorder.where)
+    )
+    assert torch.allclose(again.logits, played.logits, atol=1e-6)
+    assert torch.allclose(again.policy.mu, played.policy.mu, atol=1e-6)
+    assert again.policy.mu.shape == played.policy.mu.shape
+
+    def grads(loss):
+        model.zero_grad()
+        loss.backward(retain_graph=True)
+        return [None if p.grad is None else p.grad.clone() for p in model.parameters()]
+
+    reference = grads(info_loss(played, 0.7, 0.9, entropy_coef=0.01).total)
+    targets = info_targets(played, 0.7, 0.9)
+    first = grads(clipped_info_loss(again, targets, 0.2, entropy_coef=0.01).total)
+    for a, b in zip(reference, first, strict=True):
+        assert (a is None) == (b is None)
+        if a is not None:
+            assert torch.allclose(a, b, atol=1e-5)
+
+
+def test_the_clip_stops_the_policy_gradient_beyond_it(env):
+    """With every ratio pushed past ``1 + clip`` on positive advantages, the policy term has no
+    gradient left; within the clip it has."""
+    from ham.learn.info_loss import InfoTargets, clipped_info_loss, info_targets
+
+    model, episode = _episode(env, glances=3)
+    t = info_targets(episode)
+    pos = t.advantage.abs() + 0.1
+    far = InfoTargets(t.old_log_prob - 1.0, pos, t.target)  # ratio = e > 1.2
+    near = InfoTargets(t.old_log_prob, pos, t.target)
+    for targets, moves in ((far, False), (near, True)):
+        model.zero_grad()
+        clipped_info_loss(episode, targets, clip=0.2).policy.backward(retain_graph=True)
+        grad = model.location.mu.weight.grad
+        assert (grad is not None and bool(grad.abs().sum() > 0)) == moves
+
+
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        (dict(epochs=0), "epochs = 0"),
+        (dict(clip=0.0), "clip = 0.0"),
+        (dict(epochs=2, learner="hybrid"), "epochs = 2 with learner 'hybrid'"),
+        (dict(epochs=2, model=HamConfig(stop=True)), "epochs = 2 with a learned stop"),
+        (dict(epochs=2, policy_epochs=3), "policy_epochs = 3"),
+        (dict(epochs=2, policy_epochs=0), "policy_epochs = 0"),
+    ],
+)
+def test_bad_epochs(kw, match):
+    with pytest.raises(HamError, match=match):
+        tiny(**kw)
+
+
+def test_epochs_take_that_many_optimizer_steps_per_batch(tmp_path):
+    from ham.learn.train import Run, train_step
+
+    for epochs in (1, 3):
+        run = Run.create(tiny(epochs=epochs))
+        train_step(run)
+        state = run.optimizer.state_dict()["state"]
+        assert {int(s["step"]) for s in state.values()} == {epochs} and run.step == 1
+        run.close()
+    # policy_epochs: the location network steps on the first pass only, the rest on all three
+    run = Run.create(tiny(epochs=3, policy_epochs=1))
+    train_step(run)
+    policy = {id(p) for p in run.agent.location.parameters()}
+    steps = {
+        id(p): int(run.optimizer.state[p]["step"])
+        for p in run.agent.parameters()
+        if p in run.optimizer.state
+    }
+    assert {steps[i] for i in policy} == {1}
+    assert {v for i, v in steps.items() if i not in policy} == {3}
+    run.close()
+    out = train(tiny(epochs=3, steps=4), tmp_path / "e3", progress=False)
+    assert out["steps"] == 4 and out["config"]["epochs"] == 3
+
+
+# --------------------------------------------------------------------------- the centered glimpse
+def test_centered_glimpse_is_the_glimpse_minus_its_mean_and_the_mean(tmp_path, ham_cli):
+    pytest.importorskip("ap_gym", exc_type=ImportError)
+    from ham.learn.ap_adapter import CENTER_GAIN, ApGymConfig, ApGymGlanceEnv
+    from ham.learn.train import fit_to_ap_gym
+
+    cs = "ap_gym:CircleSquare-v0"
+    flat = ApGymGlanceEnv(cs, 4, actions="relative", seed=1)
+    centered = ApGymGlanceEnv(cs, 4, actions="relative", seed=1, glimpse="centered")
+    assert (flat.pressure_dim, centered.pressure_dim) == (25, 26)
+    q = torch.full((4, 2), 0.5)
+    for env in (flat, centered):
+        env.sample_objects()
+    for _ in range(2):
+        raw, x = flat.glance(None, q), centered.glance(None, q)
+        mean = raw.mean(-1, keepdim=True)
+        assert torch.allclose(x, torch.cat([(raw - mean) * CENTER_GAIN, mean], -1), atol=1e-6)
+    flat.close()
+    centered.close()
+    with pytest.raises(HamError, match="normalization = 'l2' with a centered glimpse"):
+        ApGymGlanceEnv(cs, 4, normalization="l2", glimpse="centered")
+    with pytest.raises(HamError, match="glimpse = 'round'"):
+        ApGymConfig(cs, glimpse="round")
+    config = fit_to_ap_gym(TrainConfig(), ApGymConfig(cs, actions="relative", glimpse="centered"))
+    assert config.model.pressure_dim == 26
+    p = ham_cli("train", "--glimpse", "centered", "--steps", "1", "--out", str(tmp_path / "x"))
+    assert p.returncode == 2 and "--glimpse apply only with --env" in p.stderr

@@ -19,7 +19,7 @@ PAPER_PARAMETERS = 741_248
 def add_commands(subparsers) -> None:
     """Add ``train``, ``evaluate`` and ``heatmap`` to an argparse subparsers object."""
     from ham.cli.config_args import add_config_options, choices
-    from ham.learn.ap_adapter import ACTIONS
+    from ham.learn.ap_adapter import ACTIONS, GLIMPSES
     from ham.learn.train import TrainConfig
     from ham.model.agent import HamConfig
 
@@ -46,6 +46,9 @@ def add_commands(subparsers) -> None:
                    help="with --env: poses are targets (default) or movements")  # fmt: skip
     p.add_argument("--max-step-length", metavar="L",
                    help="with --env: image env step length, a number or 'teleport'")  # fmt: skip
+    p.add_argument("--glimpse", choices=GLIMPSES,
+                   help="with --env: the glimpse as is (flat, default) or minus its mean "
+                   "(centered; with --normalization none)")  # fmt: skip
     p.add_argument("--eval-env", metavar="ap_gym:ENV_ID",
                    help="with --env: evaluation environment (default: the training one)")  # fmt: skip
     p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
@@ -142,7 +145,7 @@ def _config_from_args(args: argparse.Namespace):
     table = str(Path(args.table).resolve()) if args.table else None
     config = TrainConfig(model=model, table=table, world=world, **overrides(args, TrainConfig))
     if not args.env:
-        stray = [f"--{k.replace('_', '-')}" for k in ("actions", "max_step_length", "eval_env")
+        stray = [f"--{k.replace('_', '-')}" for k in ("actions", "max_step_length", "eval_env", "glimpse")
                  if getattr(args, k) is not None]  # fmt: skip
         if stray:
             raise HamError(f"{', '.join(stray)} apply only with --env ap_gym:ENV_ID")
@@ -156,6 +159,7 @@ def _config_from_args(args: argparse.Namespace):
             eval_env=args.eval_env,
             actions=args.actions or "absolute",
             max_step_length=parse_max_step_length(args.max_step_length),
+            glimpse=args.glimpse or "flat",
         )
         config = fit_to_ap_gym(config, env)
     return config
@@ -227,6 +231,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                 "actions",
                 "max_step_length",
                 "eval_env",
+                "glimpse",
                 "taxels",
                 "pitch",
                 "objects",

@@ -61,6 +61,13 @@ from ham.world.devices import check_device
 
 ACTIONS: tuple[str, ...] = ("relative", "absolute")
 NORMALIZATIONS: tuple[str, ...] = ("none", "l2", "l1")
+#: How a glimpse becomes the tactile network's input: ``flat`` (the glimpse's values, normalized
+#: as the run says) or ``centered`` (the glimpse minus its mean, times :data:`CENTER_GAIN`, and
+#: the mean itself as one more value; docs/learners.md: why).
+GLIMPSES: tuple[str, ...] = ("flat", "centered")
+#: The gain of a centered glimpse: CircleSquare's object edge (a step of 0.1 on its brightness
+#: gradient) becomes a step of about 1, the scale of the network's initial weights.
+CENTER_GAIN = 10.0
 #: ``max_step_length`` with which one step reaches any position of ``[-1, 1]^2``.
 TELEPORT_STEP = 2.0 * math.sqrt(2.0)
 GLIMPSE_KEYS: tuple[str, ...] = ("glimpse",)
@@ -143,6 +150,9 @@ class ApGymConfig:
         actions: ``absolute`` (the HAM's pose is a target) or ``relative`` (a movement).
         max_step_length: override of the image environment's step length (``None``: as
             registered; :data:`TELEPORT_STEP` reaches any target in one step).
+        glimpse: ``flat`` (the glimpse's values, normalized as the run says) or ``centered``
+            (the glimpse minus its mean, times :data:`CENTER_GAIN`, then its mean: ``G*G*C + 1``
+            values; needs the run's normalization ``none``).
 
     The glimpse's normalization is the run's (``TrainConfig.normalization``), its batch size and
     seeds too. Registration is checked when the environment is made, not here.
@@ -152,6 +162,7 @@ class ApGymConfig:
     eval_env: str | None = None
     actions: str = "absolute"
     max_step_length: float | None = None
+    glimpse: str = "flat"
 
     def __post_init__(self) -> None:
         for name in ("env", "eval_env"):
@@ -160,6 +171,8 @@ class ApGymConfig:
                 raise HamError(f"{name} = {v!r}; accepted: ap_gym:ENV_ID")
         if self.actions not in ACTIONS:
             raise HamError(f"actions = {self.actions!r}; accepted: {', '.join(ACTIONS)}")
+        if self.glimpse not in GLIMPSES:
+            raise HamError(f"glimpse = {self.glimpse!r}; accepted: {', '.join(GLIMPSES)}")
         v = self.max_step_length
         if v is not None and not (
             isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
@@ -193,6 +206,8 @@ class ApGymGlanceEnv:
         max_step_length: override of the image environments' step length (``None``: as
             registered, 0.2); :data:`TELEPORT_STEP` reaches any target in one step.
         normalization: of the flattened glimpse: ``none`` (default), ``l2`` or ``l1``.
+        glimpse: ``flat`` or ``centered`` (:data:`GLIMPSES`; ``centered`` needs normalization
+            ``none``).
         seed: seeds the training environment's images and first glimpses (batch ``k`` is reset
             with :func:`batch_seed` ``(seed, k)``).
         eval_env_id: environment of the evaluation (default ``env_id``; e.g. a ``-test`` split).
@@ -214,6 +229,7 @@ class ApGymGlanceEnv:
         eval_seed: int = 12345,
         device: str | torch.device = "cpu",
         env_kwargs: dict | None = None,
+        glimpse: str = "flat",
     ) -> None:
         if not (
             isinstance(batch_size, int) and not isinstance(batch_size, bool) and batch_size >= 1
@@ -224,6 +240,13 @@ class ApGymGlanceEnv:
         if normalization not in NORMALIZATIONS:
             raise HamError(
                 f"normalization = {normalization!r}; accepted: {', '.join(NORMALIZATIONS)}"
+            )
+        if glimpse not in GLIMPSES:
+            raise HamError(f"glimpse = {glimpse!r}; accepted: {', '.join(GLIMPSES)}")
+        if glimpse == "centered" and normalization != "none":
+            raise HamError(
+                f"normalization = {normalization!r} with a centered glimpse; accepted: none "
+                "(the centered glimpse keeps its mean brightness as an input)"
             )
         if max_step_length is not None and not (
             isinstance(max_step_length, (int, float))
@@ -236,6 +259,7 @@ class ApGymGlanceEnv:
         self.batch_size = batch_size
         self.actions = actions
         self.normalization = normalization
+        self.glimpse = glimpse
         self.seed = int(seed)
         self.eval_seed = int(eval_seed)
         self.device = check_device(device)
@@ -253,7 +277,7 @@ class ApGymGlanceEnv:
         )
         glimpse_space = env.single_observation_space[self.glimpse_key]
         self.glimpse_shape = tuple(int(s) for s in glimpse_space.shape)
-        self.pressure_dim = int(np.prod(self.glimpse_shape))
+        self.pressure_dim = int(np.prod(self.glimpse_shape)) + (1 if glimpse == "centered" else 0)
         target_space = env.single_prediction_target_space
         n = getattr(target_space, "n", None)
         if n is None and hasattr(target_space, "spaces"):  # a -sparse variant: {target, weight}
@@ -398,6 +422,9 @@ class ApGymGlanceEnv:
         if self.normalization != "none":
             norm = x.norm(p=2 if self.normalization == "l2" else 1, dim=-1, keepdim=True)
             x = torch.where(norm > 0, x / norm.clamp_min(torch.finfo(x.dtype).tiny), 0.0)
+        if self.glimpse == "centered":
+            mean = x.mean(-1, keepdim=True)
+            x = torch.cat([(x - mean) * CENTER_GAIN, mean], dim=-1)
         return x
 
     @property
@@ -415,6 +442,7 @@ class ApGymGlanceEnv:
             "actions": self.actions,
             "max_step_length": self.max_step_length,
             "normalization": self.normalization,
+            "glimpse": self.glimpse,
             "eval_seed": self.eval_seed,
             "glimpse_shape": list(self.glimpse_shape),
             "pressure_dim": self.pressure_dim,
@@ -460,6 +488,7 @@ def make_ap_env(
         eval_env_id=config.eval_env,
         eval_seed=eval_seed,
         device=device,
+        glimpse=config.glimpse,
     )
 
 
@@ -467,7 +496,7 @@ def sized_model(config: ApGymConfig, model: HamConfig, phi_scale: float = 1.0) -
     """``model`` sized for the environment: its glimpse (``pressure_dim``) and classes
     (``n_objects``), with ``phi_scale`` (1: both coordinates are positions, unscaled); a
     :class:`HamError` when its episodes are too short for the glances."""
-    probe = make_ap_env(config, 1)
+    probe = make_ap_env(config, 1, normalization="none")  # the size does not depend on it
     try:
         probe.check_glances(model.glances)
         return dataclasses.replace(

@@ -91,6 +91,15 @@ def advantages(rewards: torch.Tensor, values: torch.Tensor, gamma: float, lam: f
     return adv, adv + values
 
 
+def _reward(episode: Episode, gain: torch.Tensor, move_cost: float) -> torch.Tensor:
+    """The information gain of each glance ``(S, B)``, less ``move_cost`` times its travel."""
+    if move_cost == 0:
+        return gain
+    q = episode.locations.detach()
+    travel = torch.cat([q.new_zeros(1, q.shape[1]), (q[1:] - q[:-1]).norm(dim=-1)])  # (S, B)
+    return gain - move_cost * travel
+
+
 def info_loss(
     episode: Episode,
     gamma: float = 0.5,
@@ -127,11 +136,7 @@ def info_loss(
     if move_cost_on not in MOVE_COSTS:
         raise HamError(f"move_cost_on = {move_cost_on!r}; accepted: {', '.join(MOVE_COSTS)}")
     values = episode.values()  # V(tau_{1:s-1}) of the state that chose the glance q_s
-    reward = gain
-    if move_cost > 0 and move_cost_on == "reward":
-        q = episode.locations.detach()
-        travel = torch.cat([q.new_zeros(1, b), (q[1:] - q[:-1]).norm(dim=-1)])  # (S, B)
-        reward = gain - move_cost * travel
+    reward = _reward(episode, gain, move_cost if move_cost_on == "reward" else 0.0)
     adv, ret = advantages(reward[episode.chosen], values.detach(), gamma, gae_lambda)
     critic = ((ret.detach() - values) ** 2).sum(0).mean()
     a = adv.detach()
@@ -166,3 +171,68 @@ def mean_travel_penalty(episode: Episode, move_cost: float) -> torch.Tensor:
     step = mu[-(s - 1) :] - episode.locations[:-1].detach()  # glances 2..S from their previous
     # sqrt(. + eps): the norm's gradient is finite when the mean sits on the previous pose
     return move_cost * (step.pow(2).sum(-1) + 1e-12).sqrt().sum(0).mean()
+
+
+# --------------------------------------------------------------------------- several epochs
+@dataclass
+class InfoTargets:
+    """What the epochs over one batch hold fixed (PPO): computed once, from the episode as
+    played. ``old_log_prob``, ``advantage`` and ``target`` are ``(S', B)`` over the policy's
+    glances (``None`` when no trainable policy chose them)."""
+
+    old_log_prob: torch.Tensor | None
+    advantage: torch.Tensor | None
+    target: torch.Tensor | None
+
+
+def info_targets(
+    episode: Episode, gamma: float = 0.5, gae_lambda: float = 1.0, move_cost: float = 0.0
+) -> InfoTargets:
+    """The played ``episode``'s log-probabilities of its poses, its advantages and the critic's
+    targets (GAE on the information reward, as :func:`info_loss`), all detached."""
+    for name, v in (("gamma", gamma), ("gae_lambda", gae_lambda)):
+        if not (math.isfinite(v) and 0 <= v <= 1):
+            raise HamError(f"{name} = {v!r}; accepted: 0 <= {name} <= 1")
+    if not (math.isfinite(move_cost) and move_cost >= 0):
+        raise HamError(f"move_cost = {move_cost!r}; accepted: a finite number >= 0")
+    policy = episode.policy
+    if policy is None or not policy.trainable:
+        return InfoTargets(None, None, None)
+    with torch.no_grad():
+        gain = information_gain(episode.logits, episode.objects)
+        reward = _reward(episode, gain, move_cost)
+        adv, ret = advantages(reward[episode.chosen], episode.values(), gamma, gae_lambda)
+        log_p = policy.log_prob(episode.locations[episode.chosen])
+    return InfoTargets(log_p.detach(), adv.detach(), ret.detach())
+
+
+def clipped_info_loss(
+    episode: Episode, targets: InfoTargets, clip: float = 0.2, entropy_coef: float = 0.0
+) -> InfoLoss:
+    """The information learner's loss for one more pass over a batch already played (the
+    network replayed on its recorded glances, :func:`ham.learn.train.replay_episode`): the
+    classification after every glance as in :func:`info_loss`; the policy term PPO's clipped
+    surrogate ``-min(rho A, clip(rho, 1 - clip, 1 + clip) A)``, ``rho = pi(q) / pi_old(q)``,
+    summed over the glances, a mean over the batch; the critic's MSE to the fixed targets.
+    On the first pass (``rho = 1``) its gradient is :func:`info_loss`'s."""
+    if not (math.isfinite(clip) and clip > 0):
+        raise HamError(f"clip = {clip!r}; accepted: a finite number > 0")
+    objects = episode.objects
+    s, b, k = episode.logits.shape
+    classification = (
+        F.cross_entropy(episode.logits.reshape(s * b, k), objects.repeat(s), reduction="mean") * s
+    )
+    gain = information_gain(episode.logits, objects)
+    zero = episode.logits.new_zeros(())
+    policy = episode.policy
+    if targets.advantage is None or policy is None or not policy.trainable:
+        return InfoLoss(classification, classification, zero, zero, zero, gain)
+    values = episode.values()
+    critic = ((targets.target - values) ** 2).sum(0).mean()
+    ratio = torch.exp(policy.log_prob(episode.locations[episode.chosen]) - targets.old_log_prob)
+    a = targets.advantage
+    surrogate = torch.minimum(ratio * a, ratio.clamp(1 - clip, 1 + clip) * a)
+    policy_term = -surrogate.sum(0).mean()
+    entropy = policy.entropy().sum(0).mean()
+    total = classification + policy_term + critic - entropy_coef * entropy
+    return InfoLoss(total, classification, policy_term, critic, entropy, gain)

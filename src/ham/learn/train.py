@@ -40,9 +40,16 @@ from ham.learn.ap_adapter import ApGymConfig, ApGymGlanceEnv
 from ham.learn.environment import HapticEnv
 from ham.learn.evaluation import EVAL_POLICIES, evaluate
 from ham.learn.hybrid_loss import REDUCTIONS, HybridLoss, hybrid_loss
-from ham.learn.info_loss import MOVE_COSTS, InfoLoss, info_loss
+from ham.learn.info_loss import (
+    MOVE_COSTS,
+    InfoLoss,
+    clipped_info_loss,
+    info_loss,
+    info_targets,
+    mean_travel_penalty,
+)
 from ham.learn.stopping import STOP_LEARNERS, stop_loss
-from ham.model.agent import HamConfig, HapticAttentionModel, count_parameters
+from ham.model.agent import Episode, HamConfig, HapticAttentionModel, count_parameters
 from ham.world.config import WorldConfig
 from ham.world.devices import check_device
 from ham.world.files import check_output_dir
@@ -121,6 +128,14 @@ class TrainConfig:
             scale-free); this can: a fast classifier, a slower policy.
         env_steps: a budget in environment steps (glances) instead of ``steps``: when given,
             ``steps = ceil(env_steps / (batch_size * glances))``; ``None``: ``steps`` rules.
+        epochs: optimizer steps per batch (info learner; 1: one, as the paper). With more, the
+            batch is played once and its recorded glances replayed ``epochs`` times, each pass
+            one step on the clipped (PPO) policy loss (:func:`ham.learn.info_loss.clipped_info_loss`):
+            more updates per environment step.
+        clip: PPO's clip of the probability ratio, ``1 +- clip`` (with ``epochs > 1``; 0.2).
+        policy_epochs: of the ``epochs`` passes, how many train the location policy (the first
+            ones; ``None``: all). The others train the classifier and the critic only: more
+            classifier updates without moving the policy further from the batch's.
     """
 
     model: HamConfig = field(default_factory=HamConfig)
@@ -157,6 +172,9 @@ class TrainConfig:
     normalize_advantage: bool = False
     policy_lr_scale: float = 1.0
     env_steps: int | None = None
+    epochs: int = 1
+    clip: float = 0.2
+    policy_epochs: int | None = None
 
     def __post_init__(self) -> None:
         for name, kind in (("model", HamConfig), ("world", WorldConfig), ("nesterov", bool)):
@@ -224,11 +242,34 @@ class TrainConfig:
         v = self.policy_lr_scale
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
             raise HamError(f"policy_lr_scale = {v!r}; accepted: a finite number > 0")
+        self._check_epochs()
         check_device(self.device, available=False)  # spelling only: a saved GPU run loads on CPU
         if self.env is not None and self.table is not None:
             raise HamError(
                 f"table {self.table!r} and env {self.env.env!r} exclude each other; give one"
             )
+
+    def _check_epochs(self) -> None:
+        if not (isinstance(self.epochs, int) and not isinstance(self.epochs, bool)
+                and self.epochs >= 1):  # fmt: skip
+            raise HamError(f"epochs = {self.epochs!r}; accepted: an integer >= 1")
+        v = self.clip
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                and v > 0):  # fmt: skip
+            raise HamError(f"clip = {v!r}; accepted: a finite number > 0")
+        if self.epochs > 1 and self.learner != "info":
+            raise HamError(
+                f"epochs = {self.epochs} with learner {self.learner!r}; accepted: epochs > 1 with "
+                "--learner info"
+            )
+        v = self.policy_epochs
+        if v is not None and not (isinstance(v, int) and not isinstance(v, bool)
+                                  and 1 <= v <= self.epochs):  # fmt: skip
+            raise HamError(
+                f"policy_epochs = {v!r}; accepted: an integer in [1, epochs = {self.epochs}]"
+            )
+        if self.epochs > 1 and self.model.stop:
+            raise HamError(f"epochs = {self.epochs} with a learned stop; accepted: epochs = 1")
 
     def learning_rate(self, step: int) -> float:
         """``alpha_t = max(alpha_min, alpha_0 * delta_alpha^(t / T))`` (section "Training")."""
@@ -551,10 +592,13 @@ def _check_weights(run: Run) -> None:
 
 
 def train_step(run: Run) -> HybridLoss | InfoLoss:
-    """One training step: a fresh batch, one episode, the learner's loss, one optimizer step."""
+    """One training step: a fresh batch, one episode, the learner's loss, one optimizer step
+    (or ``epochs`` of them over the batch's recorded glances, :func:`train_step_epochs`)."""
     c = run.config
     for group in run.optimizer.param_groups:
         group["lr"] = c.learning_rate(run.step) * group.get("lr_scale", 1.0)
+    if c.epochs > 1:
+        return train_step_epochs(run)
     objects = run.env.sample_objects()  # a fresh batch, drawn uniformly
     episode = run.agent(run.env, objects, run.policy_generator)
     if c.learner == "info":
@@ -578,6 +622,87 @@ def train_step(run: Run) -> HybridLoss | InfoLoss:
     run.optimizer.zero_grad(set_to_none=True)
     loss.total.backward()
     run.optimizer.step()
+    run.step += 1
+    _check_weights(run)
+    return loss
+
+
+class GlanceRecorder:
+    """An environment that passes every glance through and keeps it: the pressures ``(B, D)``
+    and the where-inputs ``(B, 2)`` the network read (the sensor's observed location where the
+    environment reports one, else the pose asked for), so a batch can be replayed."""
+
+    def __init__(self, env) -> None:
+        self.env = env
+        self.pressures: list[torch.Tensor] = []
+        self.where: list[torch.Tensor] = []
+
+    def glance(self, objects: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+        pressure = self.env.glance(objects, q)
+        where = getattr(self.env, "observed_location", None)
+        self.pressures.append(pressure)
+        self.where.append(q if where is None else where)
+        return pressure
+
+    @property
+    def observed_location(self) -> torch.Tensor:
+        return self.where[-1]
+
+
+def replay_episode(
+    agent: HapticAttentionModel, played: Episode, pressures: torch.Tensor, where: torch.Tensor
+) -> Episode:
+    """The episode ``played`` again, through the network as it is now: the recorded glances
+    ``pressures`` ``(S, B, D)`` at ``where`` ``(S, B, 2)``, the same poses, no environment."""
+    batch, glances = pressures.shape[1], pressures.shape[0]
+    dists, logits, baselines = [], [], []
+    first_baseline = None
+    if played.first_baseline is not None:  # the learned first glance, chosen from tau_0 = 0
+        tau0 = pressures.new_zeros(batch, agent.config.hidden_units)
+        dists.append(agent.location.distribution(tau0))
+        first_baseline = agent.baseline(tau0)
+    state = agent.core.initial_state(batch, pressures)
+    for s in range(glances):
+        tau, state = agent.step(pressures[s], where[s], state)
+        logits.append(agent.classifier(tau))
+        baselines.append(agent.baseline(tau))
+        if s < glances - 1:
+            dists.append(agent.location.distribution(tau))
+    return Episode(
+        objects=played.objects,
+        locations=played.locations,
+        logits=torch.stack(logits),
+        baselines=torch.stack(baselines),
+        policy=type(dists[0]).stack(dists) if dists else None,
+        first_baseline=first_baseline,
+    )
+
+
+def train_step_epochs(run: Run) -> InfoLoss:
+    """One training step of ``epochs`` optimizer steps (info learner, PPO-style): play a fresh
+    batch once without gradients, recording its glances; fix its log-probabilities, advantages
+    and critic targets (:func:`ham.learn.info_loss.info_targets`); then ``epochs`` times replay
+    the network on the recorded glances and step on :func:`clipped_info_loss`."""
+    c = run.config
+    objects = run.env.sample_objects()
+    recorder = GlanceRecorder(run.env)
+    with torch.no_grad():
+        played = run.agent(recorder, objects, run.policy_generator)
+    on_reward = c.move_cost if c.move_cost_on == "reward" else 0.0
+    targets = info_targets(played, c.gamma, c.gae_lambda, on_reward)
+    pressures, where = torch.stack(recorder.pressures), torch.stack(recorder.where)
+    policy_epochs = c.epochs if c.policy_epochs is None else c.policy_epochs
+    for epoch in range(c.epochs):
+        episode = replay_episode(run.agent, played, pressures, where)
+        loss = clipped_info_loss(episode, targets, c.clip, c.entropy_coef)
+        if c.move_cost > 0 and c.move_cost_on == "mean":
+            loss.total = loss.total + mean_travel_penalty(episode, c.move_cost)
+        if epoch >= policy_epochs:  # the classifier and the critic only
+            loss.total = loss.classification + loss.critic
+        _check_loss(run, loss.total)
+        run.optimizer.zero_grad(set_to_none=True)
+        loss.total.backward()
+        run.optimizer.step()
     run.step += 1
     _check_weights(run)
     return loss

@@ -52,7 +52,11 @@ class HamConfig:
         combiner: what & where combiner: concat2 (paper), concat1, add, mul.
         combine_units: width of the layers after a concatenation (256, the authors' code; the
             paper's table says 64 for "linear layers", see :mod:`ham.model.tactile_net`).
-        core: ``lstm`` (paper) or ``mlp`` (the ablation).
+        core: ``lstm`` (paper), ``mlp`` (the ablation) or ``transformer`` (beyond the paper:
+            causal self-attention over the glances so far, :class:`ham.model.core.TransformerCore`).
+        transformer_layers: layers of the transformer core (2).
+        transformer_heads: attention heads of the transformer core (4; they divide
+            ``hidden_units``).
         hidden_units: core width (256).
         lstm_activation: ``tanh`` (paper, standard LSTM) or ``relu`` (authors' code).
         truncate_bptt: detach the core state between glances (authors' code) instead of full
@@ -85,6 +89,8 @@ class HamConfig:
     combine_units: int = 256
     core: str = field(default="lstm", metadata={"choices": CORES})
     hidden_units: int = 256
+    transformer_layers: int = 2
+    transformer_heads: int = 4
     lstm_activation: str = field(default="tanh", metadata={"choices": ACTIVATIONS})
     forget_bias: float = 1.0
     truncate_bptt: bool = False
@@ -99,7 +105,8 @@ class HamConfig:
 
     def __post_init__(self) -> None:
         for name in ("glances", "n_objects", "pressure_dim", "what_units", "where_units",
-                     "combine_units", "hidden_units"):  # fmt: skip
+                     "combine_units", "hidden_units", "transformer_layers",
+                     "transformer_heads"):  # fmt: skip
             v = getattr(self, name)
             if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
                 raise HamError(f"{name} = {v!r}; accepted: an integer >= 1")
@@ -221,6 +228,8 @@ class HapticAttentionModel(nn.Module):
             truncate_bptt=c.truncate_bptt,
             forget_bias=c.forget_bias,
             bias=c.bias,
+            layers=c.transformer_layers,
+            heads=c.transformer_heads,
         )
         self.classifier = Classifier(c.hidden_units, c.n_objects, c.bias)
         self.baseline = Baseline(c.hidden_units, c.bias)
