@@ -94,27 +94,132 @@ def check_batchable(config: TrainConfig) -> None:
         )
 
 
-class _Linear(torch.autograd.Function):
-    """``y = x W^T + b`` for N runs at once: ``x (N, B, in)``, ``W (N, out, in)``, ``b (N, out)``.
+def _keep_freed_memory() -> None:
+    """Ask glibc to keep freed memory for reuse (mmap threshold 32 MiB, trim at 512 MiB).
 
-    By hand rather than through :func:`torch.vmap` of ``nn.Linear``: the weight gradient comes
-    out as one ``bmm`` in ``W``'s own layout (vmap's is transposed, then copied: on the CPU that
-    copy and the slower transposed product cost as much as the batching saves)."""
+    By default a freed block of more than 128 KiB, or memory at the top of the heap, goes back
+    to the operating system, and the next step's tensors of the same size fault every page back
+    in: tens of thousands of page faults per batched step (several ms per run-step on this
+    CPU). Process-wide and idempotent; a no-op where the C library is not glibc."""
+    global _MALLOPT_DONE
+    if _MALLOPT_DONE:
+        return
+    _MALLOPT_DONE = True
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6")
+        libc.mallopt(-3, 32 << 20)  # M_MMAP_THRESHOLD (glibc's largest)
+        libc.mallopt(-1, 512 << 20)  # M_TRIM_THRESHOLD
+    except (OSError, AttributeError):
+        pass
+
+
+_MALLOPT_DONE = False
+
+
+def _onednn_ok(x: torch.Tensor, weight: torch.Tensor) -> bool:
+    """Whether a layer's products go to oneDNN one run at a time (see :class:`_Layer`)."""
+    return (
+        _LINEAR_ONEDNN is not None
+        and x.device.type == "cpu"
+        and x.dtype == torch.float32
+        and min(weight.shape[1:]) >= _ONEDNN_MIN
+    )
+
+
+# oneDNN's fp32 linear; None where this torch lacks it (then every product is a bmm)
+_LINEAR_ONEDNN = getattr(getattr(torch.ops, "mkldnn", None), "_linear_pointwise", None)
+if _LINEAR_ONEDNN is not None and not torch.backends.mkldnn.is_available():
+    _LINEAR_ONEDNN = None
+_ONEDNN_MIN = 16  # narrower layers (poses in, heads out): one bmm beats N small calls
+
+
+def _mm_nt(a: torch.Tensor, b: torch.Tensor, bias: torch.Tensor | None = None) -> torch.Tensor:
+    """``a[k] @ b[k]^T (+ bias[k])`` for every run ``k``: ``a (N, M, K)``, ``b (N, P, K)``,
+    either possibly a transposed view (never copied: a transposing copy costs more than the
+    product).
+
+    On the CPU in fp32, one oneDNN product per run: on this project's CPU (AMD, where MKL's
+    sgemm runs its AVX2 kernels) oneDNN's AVX-512 kernels are twice as fast, and MKL's batched
+    ``bmm`` is no faster than a loop of single products (docs/agent.md#batched-runs). Elsewhere
+    (CUDA: one launch for all runs) one ``bmm``/``baddbmm``."""
+    if _onednn_ok(a, b):
+        return torch.stack(
+            [
+                _LINEAR_ONEDNN(a[k], b[k], None if bias is None else bias[k], "none", [], "")
+                for k in range(a.shape[0])
+            ]
+        )
+    bt = b.transpose(1, 2)
+    return torch.bmm(a, bt) if bias is None else torch.baddbmm(bias.unsqueeze(1), a, bt)
+
+
+class _Layer:
+    """One dense layer of N runs: ``y = x W^T + b``, ``x (N, B, in)``, ``W (N, out, in)``.
+
+    Its weight gradient is deferred: each application (one per glance) copies its input, and
+    its output gradient in the backward pass, into the layer's record buffers, and
+    :meth:`grads` turns one step's records into one product per run (``W``'s gradient over
+    every glance at once, ``G * B`` rows deep) instead of one product and one accumulation per
+    glance. The buffers live as long as the layer (the group's stacked weights): fresh
+    buffers every step cost more in page faults than the copies."""
+
+    def __init__(self, weight: torch.Tensor, bias: torch.Tensor | None, capacity: int) -> None:
+        self.weight, self.bias = weight, bias
+        self.capacity = capacity  # applications per step (the glances)
+        self.xbuf: torch.Tensor | None = None  # (N, capacity * B, in)
+        self.gbuf: torch.Tensor | None = None  # (N, capacity * B, out)
+        self.rows = 0
+        self.applied = 0
+        self.filled: set[int] = set()
+
+    def begin(self) -> None:
+        self.applied = 0
+        self.filled = set()
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        slot = self.applied
+        self.applied += 1
+        if self.xbuf is None or slot >= self.capacity or x.shape[1] != self.rows:
+            if self.xbuf is not None:  # more applications than glances: a layout this
+                raise HamError(f"batched layer applied {slot + 1} times in a step")  # misses
+            self.rows = x.shape[1]
+            n, out = self.weight.shape[0], self.weight.shape[1]
+            self.xbuf = x.new_empty(n, self.capacity * self.rows, x.shape[2])
+            self.gbuf = x.new_empty(n, self.capacity * self.rows, out)
+        with torch.no_grad():
+            self.xbuf[:, slot * self.rows : (slot + 1) * self.rows].copy_(x)
+        return _LayerFn.apply(x, self.weight, self.bias, self, slot)
+
+    def grads(self) -> tuple[torch.Tensor, torch.Tensor | None] | None:
+        """The weight and bias gradients of the step (``None``: the layer took no part)."""
+        if not self.filled:
+            return None
+        r = self.rows
+        for slot in set(range(self.applied)) - self.filled:  # an output the loss never read
+            self.gbuf[:, slot * r : (slot + 1) * r].zero_()
+        x, g = self.xbuf[:, : self.applied * r], self.gbuf[:, : self.applied * r]
+        gw = _mm_nt(g.transpose(1, 2), x.transpose(1, 2))
+        return gw, None if self.bias is None else g.sum(1)
+
+
+class _LayerFn(torch.autograd.Function):
+    """The autograd node of one :class:`_Layer` application: the input gradient now, the
+    weight gradient recorded for :meth:`_Layer.grads` (so ``W`` and ``b`` get none here)."""
 
     @staticmethod
-    def forward(ctx, x, weight, bias):
-        ctx.save_for_backward(x, weight)
-        ctx.has_bias = bias is not None
-        wt = weight.transpose(1, 2)
-        return torch.bmm(x, wt) if bias is None else torch.baddbmm(bias.unsqueeze(1), x, wt)
+    def forward(ctx, x, weight, bias, layer, slot):
+        ctx.layer, ctx.slot = layer, slot
+        return _mm_nt(x, weight, bias)
 
     @staticmethod
     def backward(ctx, grad):
-        x, weight = ctx.saved_tensors
-        gx = torch.bmm(grad, weight) if ctx.needs_input_grad[0] else None
-        gw = torch.bmm(grad.transpose(1, 2), x) if ctx.needs_input_grad[1] else None
-        gb = grad.sum(1) if ctx.has_bias and ctx.needs_input_grad[2] else None
-        return gx, gw, gb
+        layer, slot, r = ctx.layer, ctx.slot, ctx.layer.rows
+        layer.gbuf[:, slot * r : (slot + 1) * r].copy_(grad)
+        layer.filled.add(slot)
+        gx = _mm_nt(grad, layer.weight.transpose(1, 2)) if ctx.needs_input_grad[0] else None
+        return gx, None, None, None, None
 
 
 class _StackedHam:
@@ -125,12 +230,37 @@ class _StackedHam:
     def __init__(self, config: HamConfig) -> None:
         self.c = config
         self.used: set[str] = set()  # the weights read: checked against the model's once
+        self.layers: dict[str, _Layer] = {}
+
+    def begin(self, p: dict) -> None:
+        """A new step of the weights ``p``: the layers' records start over (new layers when
+        the stack changed: a run left the group)."""
+        if p is not getattr(self, "_p", None):
+            self._p, self.layers = p, {}
+        for layer in self.layers.values():
+            layer.begin()
+
+    def grads(self) -> dict[str, torch.Tensor]:
+        """The step's weight gradients by parameter name, after the backward pass."""
+        out = {}
+        for name, layer in self.layers.items():
+            g = layer.grads()
+            if g is not None:
+                out[name + ".weight"] = g[0]
+                if g[1] is not None:
+                    out[name + ".bias"] = g[1]
+        return out
 
     def _lin(self, p: dict, name: str, x: torch.Tensor) -> torch.Tensor:
-        self.used.add(name + ".weight")
-        if name + ".bias" in p:
-            self.used.add(name + ".bias")
-        return _Linear.apply(x, p[name + ".weight"], p.get(name + ".bias"))
+        layer = self.layers.get(name)
+        if layer is None:
+            self.used.add(name + ".weight")
+            if name + ".bias" in p:
+                self.used.add(name + ".bias")
+            layer = self.layers[name] = _Layer(
+                p[name + ".weight"], p.get(name + ".bias"), self.c.glances
+            )
+        return layer(x)
 
     def glance(self, p: dict, pressure, q, state, with_policy: bool):
         c = self.c
@@ -188,32 +318,90 @@ class BatchedRuns:
         self.active = [
             i for i in range(len(self.runs)) if not self._done(i) and i not in self.stopped
         ]
+        _keep_freed_memory()
         self._template = self.runs[0].agent  # its config and initial state only
         self._net = _StackedHam(self._template.config)
         self._names = [n for n, _ in self.runs[0].agent.named_parameters()]
+        self._params = [dict(r.agent.named_parameters()) for r in self.runs]
+        # SGD (the paper's) is stepped for all runs at once; Adam by each run's own optimizer
+        self._sgd = self.runs[0].config.optimizer == "sgd"
+        scale = {id(p): g.get("lr_scale", 1.0)
+                 for g in self.runs[0].optimizer.param_groups for p in g["params"]}  # fmt: skip
+        self._lr_scale = {n: scale[id(p)] for n, p in self._params[0].items()}
         self._checked = False
         if self.active:
             self._stack()
 
     # ------------------------------------------------------------------ stacked weights
     def _stack(self) -> None:
-        """Stack the active runs' weights and make each run's parameters views of the stack."""
+        """Stack the active runs' weights (and SGD momentum buffers) and make each run's
+        parameters (and its optimizer's buffers) views of the stack: the run's own optimizer
+        state and checkpoint stay as ``ham train`` writes them."""
         self.stacked: dict[str, torch.Tensor] = {}
-        params = [dict(self.runs[i].agent.named_parameters()) for i in self.active]
+        self.buffers: dict[str, torch.Tensor] = {}
+        params = [self._params[i] for i in self.active]
         for name in self._names:
             big = torch.stack([p[name].detach() for p in params])
             for k, p in enumerate(params):
                 p[name].data = big[k]
             self.stacked[name] = big.detach().requires_grad_()
+            if self._sgd:
+                states = [self.runs[i].optimizer.state[self._params[i][name]]
+                          for i in self.active]  # fmt: skip
+                if any("momentum_buffer" in st for st in states):
+                    # a run without one yet starts from zeros: 0 * m + g is exactly the
+                    # optimizer's first buffer (a copy of g)
+                    self._new_buffer(name, [st.get("momentum_buffer") for st in states])
+
+    def _new_buffer(self, name: str, bufs: list[torch.Tensor | None]) -> torch.Tensor:
+        big = torch.stack([torch.zeros_like(self.stacked[name][0]) if b is None else b.detach()
+                           for b in bufs])  # fmt: skip
+        for k, i in enumerate(self.active):
+            self.runs[i].optimizer.state[self._params[i][name]]["momentum_buffer"] = big[k]
+        self.buffers[name] = big
+        return big
 
     def _drop(self, gone: list[int]) -> None:
         """Take runs out of the group (finished, diverged, stopped); the others go on."""
         self.active = [i for i in self.active if i not in gone]
-        for i in gone:  # its own compact copy of the weights, apart from the stack
+        for i in gone:  # its own compact copy of the weights and buffers, apart from the stack
             for p in self.runs[i].agent.parameters():
                 p.data = p.data.clone()
+            for st in self.runs[i].optimizer.state.values():
+                if "momentum_buffer" in st:
+                    st["momentum_buffer"] = st["momentum_buffer"].clone()
         if self.active:
             self._stack()
+
+    def _sgd_step(self, runs: list[Run], stepping: list[int], grads: dict) -> None:
+        """``torch.optim.SGD``'s (foreach) update of every stepping run in one pass over the
+        stacked tensors: the same operations in the same order, so the same numbers given the
+        same gradients. Runs at one learning rate (the usual case: one schedule, one step) are
+        updated as one tensor; others, and a group some of whose runs diverged, run by run."""
+        c = runs[0].config
+        m = c.momentum
+        by_lr: dict[float, list[int]] = {}
+        for k in stepping:
+            by_lr.setdefault(c.learning_rate(runs[k].step), []).append(k)
+        if len(by_lr) == 1 and len(stepping) == len(runs):
+            parts = [(slice(None), next(iter(by_lr)))]
+        else:
+            parts = [(k, lr) for lr, ks in by_lr.items() for k in ks]
+        with torch.no_grad():
+            for name, g in grads.items():
+                p, scale = self.stacked[name], self._lr_scale[name]
+                buf = None
+                if m != 0:
+                    buf = self.buffers.get(name)
+                    if buf is None:
+                        buf = self._new_buffer(name, [None] * len(runs))
+                for idx, lr in parts:
+                    d = g[idx]
+                    if buf is not None:
+                        b = buf[idx]
+                        b.mul_(m).add_(d)
+                        d = d.add(b, alpha=m) if c.nesterov else b
+                    p[idx].add_(d, alpha=-(lr * scale))
 
     def _done(self, i: int) -> bool:
         return self.runs[i].step >= self.runs[i].config.steps
@@ -290,10 +478,11 @@ class BatchedRuns:
         the runs that stepped; a run whose loss or
         weights are not finite leaves the group with its error recorded."""
         runs = [self.runs[i] for i in self.active]
-        for r in runs:
+        for r in runs:  # as train_step: the run's optimizer (its checkpoint) holds its rates
             for group in r.optimizer.param_groups:
-                group["lr"] = r.config.learning_rate(r.step)
+                group["lr"] = r.config.learning_rate(r.step) * group.get("lr_scale", 1.0)
         objects = torch.stack([r.env.sample_objects() for r in runs])
+        self._net.begin(self.stacked)
         totals, rewards, *parts = self._losses(objects, *self._forward(objects))
         if not self._checked:  # a weight the stacked layers skip would silently never train
             unused = set(self._names) - self._net.used
@@ -313,19 +502,21 @@ class BatchedRuns:
                     self.results[self.active[k]] = str(exc)
                 failed.append(self.active[k])
         mask = torch.tensor(finite, device=totals.device)
-        for v in self.stacked.values():
-            v.grad = None
         torch.where(mask, totals, torch.zeros_like(totals)).sum().backward()
-        for k, r in enumerate(runs):
-            if not finite[k]:
-                continue
-            for name, p in r.agent.named_parameters():
-                grad = self.stacked[name].grad  # None: unused (one glance: the location heads)
-                p.grad = None if grad is None else grad[k]
-            r.optimizer.step()
-            for p in r.agent.parameters():
-                p.grad = None
-            r.step += 1
+        grads = self._net.grads()  # None of a layer unused (one glance: the location heads)
+        stepping = [k for k in range(len(runs)) if finite[k]]
+        if self._sgd:
+            self._sgd_step(runs, stepping, grads)
+        else:
+            for k in stepping:
+                r, params = runs[k], self._params[self.active[k]]
+                for name, p in params.items():
+                    p.grad = grads[name][k] if name in grads else None
+                r.optimizer.step()
+                for p in params.values():
+                    p.grad = None
+        for k in stepping:
+            runs[k].step += 1
         # the weights of all runs in one reduction (one sync on a GPU), as _check_weights does
         with torch.no_grad():
             sums = torch.stack([v.reshape(len(runs), -1).sum(1) for v in self.stacked.values()])
@@ -444,6 +635,12 @@ class BatchedRuns:
         would save the whole stack)."""
         state = self.runs[i].state_dict()
         state["model"] = {k: v.clone() for k, v in state["model"].items()}
+        # (a copy: state_dict() shares the optimizer's own per-parameter dicts)
+        state["optimizer"] = dict(state["optimizer"])
+        state["optimizer"]["state"] = {
+            k: {n: v.clone() if n == "momentum_buffer" else v for n, v in st.items()}
+            for k, st in state["optimizer"]["state"].items()
+        }
         _write_atomic(self.outs[i] / CHECKPOINT_FILE, lambda p: torch.save(state, p))
         _write_json(self.outs[i] / METRICS_FILE, self.metrics(i))
 
