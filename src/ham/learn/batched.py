@@ -54,7 +54,7 @@ from ham.learn.train import (
     stream_seed,
 )
 from ham.model.agent import Episode, HamConfig
-from ham.model.location_net import uniform_locations
+from ham.model.location_net import truncated_normal, uniform_locations
 from ham.model.policy import TruncatedGaussian, Uniform
 from ham.world.source import check_model_fits, make_source
 
@@ -116,6 +116,7 @@ def _keep_freed_memory() -> None:
 
 
 _MALLOPT_DONE = False
+_FUSED_SGD = getattr(torch, "_fused_sgd_", None)
 
 
 def _onednn_ok(a: torch.Tensor, b: torch.Tensor) -> bool:
@@ -425,10 +426,12 @@ class BatchedRuns:
             self._stack()
 
     def _sgd_step(self, runs: list[Run], stepping: list[int], grads: dict) -> None:
-        """``torch.optim.SGD``'s (foreach) update of every stepping run in one pass over the
-        stacked tensors: the same operations in the same order, so the same numbers given the
-        same gradients. Runs at one learning rate (the usual case: one schedule, one step) are
-        updated as one tensor; others, and a group some of whose runs diverged, run by run."""
+        """``torch.optim.SGD``'s update (Nesterov momentum, no dampening or weight decay) of
+        every stepping run over the stacked tensors: one fused pass per learning rate (PyTorch's
+        ``_fused_sgd_``: the foreach optimizer's numbers to the last bit of the momentum
+        buffer) instead of N optimizers looping over their parameters. Runs at one learning
+        rate (the usual case: one schedule, one step) are updated as whole stacked tensors;
+        others, and a group some of whose runs diverged, run by run."""
         c = runs[0].config
         m = c.momentum
         by_lr: dict[float, list[int]] = {}
@@ -438,21 +441,30 @@ class BatchedRuns:
             parts = [(slice(None), next(iter(by_lr)))]
         else:
             parts = [(k, lr) for lr, ks in by_lr.items() for k in ks]
+        by_scale: dict[float, list[str]] = {}
+        for name in grads:
+            by_scale.setdefault(self._lr_scale[name], []).append(name)
+            if m != 0 and name not in self.buffers:
+                self._new_buffer(name, [None] * len(runs))
         with torch.no_grad():
-            for name, g in grads.items():
-                p, scale = self.stacked[name], self._lr_scale[name]
-                buf = None
-                if m != 0:
-                    buf = self.buffers.get(name)
-                    if buf is None:
-                        buf = self._new_buffer(name, [None] * len(runs))
+            for scale, names in by_scale.items():
                 for idx, lr in parts:
-                    d = g[idx]
-                    if buf is not None:
-                        b = buf[idx]
-                        b.mul_(m).add_(d)
-                        d = d.add(b, alpha=m) if c.nesterov else b
-                    p[idx].add_(d, alpha=-(lr * scale))
+                    ps = [self.stacked[n][idx] for n in names]
+                    gs = [grads[n][idx] for n in names]
+                    if m == 0:  # the optimizer keeps no buffers
+                        torch._foreach_add_(ps, gs, alpha=-(lr * scale))
+                    elif _FUSED_SGD is not None:
+                        # zero-initialized buffers: 0 * m + g is exactly the first buffer
+                        _FUSED_SGD(ps, gs, [self.buffers[n][idx] for n in names],
+                                   weight_decay=0.0, momentum=m, lr=lr * scale, dampening=0.0,
+                                   nesterov=c.nesterov, maximize=False,
+                                   is_first_step=False)  # fmt: skip
+                    else:  # torch.optim.SGD's foreach steps
+                        bs = [self.buffers[n][idx] for n in names]
+                        torch._foreach_mul_(bs, m)
+                        torch._foreach_add_(bs, gs)
+                        ds = torch._foreach_add(gs, bs, alpha=m) if c.nesterov else bs
+                        torch._foreach_add_(ps, ds, alpha=-(lr * scale))
 
     def _done(self, i: int) -> bool:
         return self.runs[i].step >= self.runs[i].config.steps
@@ -486,11 +498,16 @@ class BatchedRuns:
             if dist:
                 mus.append(dist[0])
                 sigmas.append(dist[1])
-                qs = [TruncatedGaussian(dist[0][k], dist[1][k]).sample(r.policy_generator)
-                      for k, r in enumerate(runs)]  # fmt: skip
+                # each run's draws from its own generator (as TruncatedGaussian.sample draws
+                # them), the inverse-CDF transform once for all runs
+                u = torch.stack([torch.rand(dist[0].shape[1:], generator=r.policy_generator,
+                                            dtype=torch.float64, device=objects.device)
+                                 for r in runs])  # fmt: skip
+                q = truncated_normal(dist[0], dist[1], uniform=u)
             else:
-                qs = [Uniform((batch,), objects.device).sample(r.policy_generator) for r in runs]
-            q = torch.stack(qs)
+                q = torch.stack(
+                    [Uniform((batch,), objects.device).sample(r.policy_generator) for r in runs]
+                )
         mu = torch.stack(mus, 1) if mus else None
         sigma = torch.stack(sigmas, 1) if sigmas else None
         return (
