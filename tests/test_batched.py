@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from ham.errors import HamError
+from ham.experiments.reproduce import PROFILES, Job, render_report, stopped_at_perfect
 from ham.experiments.runs import is_finished
 from ham.learn import batched
 from ham.learn.batched import BatchedRuns, _open_runs, train_batched
@@ -192,6 +193,18 @@ def test_stop_at_perfect(tmp_path):
     # without the option nothing stops
     plain = train_batched(configs, [tmp_path / "p0", tmp_path / "p1"])
     assert [r["steps"] for r in plain] == [6, 6]
+    # the reproduce report marks the stopped run (and only it)
+    root = tmp_path / "grid"
+    for name, key in (("s0", "full-concat2-g1-s0"), ("s1", "full-concat2-g1-s1")):
+        (root / "runs").mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).rename(root / "runs" / key)
+    jobs = [Job(f"full-concat2-g1-s{s}", "full", "concat2", 1, s, {}) for s in (0, 1)]
+    stopped = stopped_at_perfect(root, jobs)
+    assert stopped == {"full-concat2-g1-s1": 0}
+    report = render_report("table1", PROFILES["smoke"], [], [], [], None, "batched",
+                           stopped=stopped, steps=6)  # fmt: skip
+    assert "- `full-concat2-g1-s1`: best accuracy 1.000 at step 0 of 6" in report
+    assert "full-concat2-g1-s0" not in report
 
 
 def test_refused_configs(tmp_path):
