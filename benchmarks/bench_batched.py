@@ -3,14 +3,17 @@
 For each glance count (3 and 10 by default): N = 10 runs of the paper's model (seeds 0..9)
 as single runs (:func:`ham.learn.train.train_step`, one after another) and as one batched group
 (:class:`ham.learn.batched.BatchedRuns`), measured interleaved in the same process (both see the
-same machine load), one torch thread (as a worker of the local pool). Also one evaluation (100
-batches) per run, which stays per run in both. Prints the ratio and the projected CPU-hours of
+same machine load), one torch thread (as a worker of the local pool). The times are the
+process's CPU time (on a shared machine wall-clock time counts the other jobs' share; the
+wall-clock ratio is printed beside). Also one evaluation (100 batches) per run, which stays per
+run in both. Prints the ratio and the projected CPU-hours of
 the full paper grid (Table 1: 7 glance counts x 3 trained variants x 10 seeds, Table 2: 3 more
 combiners x 10 seeds at 3 glances; 50,000 steps and 250 evaluations each), with ms/step at
 the other glance counts interpolated linearly in G from the measured ones, and every variant
 costed as the full model (the MLP core is cheaper: an upper bound).
 
-    PYTHONPATH=src python benchmarks/bench_batched.py [--runs 10] [--glances 3 10] [--repeats 4]
+    PYTHONPATH=src python benchmarks/bench_batched.py [--table TABLE] [--runs 10] [--glances 3 10]
+        [--repeats 4]
 """
 
 from __future__ import annotations

@@ -1,19 +1,23 @@
 """Batched training: N runs of one shape trained as one stacked model (beyond the paper).
 
-The paper's grid is hundreds of small runs (LSTM 256, batch 64); one run at a time leaves the
-matrix units idle. Here N runs whose configs differ only in ``seed`` (and ``steps``) share every
-matrix product: their weights are stacked along a leading run axis and one glance of all N runs
-is one :func:`torch.vmap` of the HAM's own modules (:func:`torch.func.functional_call`), the
-hybrid loss likewise; one backward yields every run's gradient (the runs' graphs are disjoint).
+The paper's grid is hundreds of small runs (LSTM 256, batch 64); one run at a time pays every
+operation's overhead for a few small matrices. Here N runs whose configs differ only in ``seed``
+(and ``steps``) go through each step together: their weights are stacked along a leading run
+axis, one glance of all N runs is one pass through the stacked layers (:class:`_StackedHam`,
+mirroring :mod:`ham.model` line by line), the hybrid loss is :func:`torch.vmap` of
+:func:`ham.learn.hybrid_loss.hybrid_loss`, and one backward yields every run's gradient (the
+runs' graphs are disjoint). On the CPU each large product is one oneDNN call per run, weight
+gradients are deferred to one product per layer over all glances, and one fused SGD call steps
+all runs (docs/agent.md#batched-runs has the measurements); on CUDA each layer is one ``bmm``.
 
 Everything else stays per run and is the single run's own code (:mod:`ham.learn.train`): each
 run is a :class:`ham.learn.train.Run` with its own environment generator (objects, stream 0),
 pose generator (stream 1), optimizer (SGD with Nesterov momentum at its own learning-rate
 schedule), evaluation (stream 2), checkpoint, ``config.json``, ``metrics.json``, ``timing.json``
-and ``tb/``. A run's parameters are views into the stacked tensors, so its optimizer steps them
-in place and its evaluation reads the current weights. The same seed gives the single run's
-numbers to float tolerance (the batched products sum in another order); resume is bit-identical
-to an uninterrupted batched group. A run whose loss or weights turn NaN/inf stops alone (its
+and ``tb/``. A run's parameters (and its SGD momentum buffers) are views into the stacked
+tensors, so its evaluation reads the current weights and its checkpoint the current state. The
+same seed gives the single run's numbers to float tolerance (the batched products sum in
+another order); resume is bit-identical to an uninterrupted batched group. A run whose loss or weights turn NaN/inf stops alone (its
 directory keeps its last checkpoint), the others go on. With ``stop_at_perfect`` a run whose
 best evaluation reaches 1.0 stops (its best accuracy can no longer change); its metrics say
 ``"stopped_at_perfect": step``.
