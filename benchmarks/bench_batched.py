@@ -3,20 +3,24 @@
 For each glance count (3 and 10 by default): N = 10 runs of the paper's model (seeds 0..9)
 as single runs (:func:`ham.learn.train.train_step`, one after another) and as one batched group
 (:class:`ham.learn.batched.BatchedRuns`), measured interleaved in the same process (both see the
-same machine load), one torch thread (as a worker of the local pool). Also one evaluation (100
-batches) per run, which stays per run in both. Prints the ratio and the projected CPU-hours of
+same machine load), one torch thread (as a worker of the local pool). The times are the
+process's CPU time (on a shared machine wall-clock time counts the other jobs' share; the
+wall-clock ratio is printed beside). Also one evaluation (100 batches) per run, which stays per
+run in both. Prints the ratio and the projected CPU-hours of
 the full paper grid (Table 1: 7 glance counts x 3 trained variants x 10 seeds, Table 2: 3 more
 combiners x 10 seeds at 3 glances; 50,000 steps and 250 evaluations each), with ms/step at
 the other glance counts interpolated linearly in G from the measured ones, and every variant
 costed as the full model (the MLP core is cheaper: an upper bound).
 
-    PYTHONPATH=src python benchmarks/bench_batched.py [--runs 10] [--glances 3 10] [--repeats 4]
+    PYTHONPATH=src python benchmarks/bench_batched.py [--table TABLE] [--runs 10] [--glances 3 10]
+        [--repeats 4]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import tempfile
 import time
@@ -50,20 +54,23 @@ def measure(glances: int, runs: int, repeats: int, table: str | None) -> dict:
             group.step()
             for r in singles:
                 train_step(r)
-        t_single, t_batched = [], []
-        for _ in range(repeats):  # interleaved
-            t0 = time.perf_counter()
+        t_single, t_batched, c_single, c_batched = [], [], [], []
+        for _ in range(repeats):  # interleaved: both see the same machine load
+            t0, c0 = time.perf_counter(), time.process_time()
             for r in singles:
                 train_step(r)
-            t1 = time.perf_counter()
+            t1, c1 = time.perf_counter(), time.process_time()
             group.step()
-            t2 = time.perf_counter()
+            t2, c2 = time.perf_counter(), time.process_time()
             t_single.append(t1 - t0)
             t_batched.append(t2 - t1)
-    t0 = time.perf_counter()
+            c_single.append(c1 - c0)
+            c_batched.append(c2 - c1)
+    c0 = time.process_time()
     evaluate(singles[0].agent, singles[0].env, 100, seed=2)
-    t_eval = time.perf_counter() - t0
-    single, batched = statistics.median(t_single), statistics.median(t_batched)
+    c_eval = time.process_time() - c0
+    single, batched = statistics.median(c_single), statistics.median(c_batched)
+    wall_single, wall_batched = statistics.median(t_single), statistics.median(t_batched)
     return {
         "glances": glances,
         "runs": runs,
@@ -72,7 +79,8 @@ def measure(glances: int, runs: int, repeats: int, table: str | None) -> dict:
         "single_seed_steps_per_s": runs / single,
         "batched_seed_steps_per_s": runs / batched,
         "ratio": single / batched,
-        "eval_ms": 1000 * t_eval,
+        "wall_ratio": wall_single / wall_batched,
+        "eval_ms": 1000 * c_eval,
     }
 
 
@@ -109,11 +117,15 @@ def main() -> None:
         print(json.dumps({"rows": rows, "grid_cpu_hours": [before, after]}, indent=1))
         return
     print(f"{args.runs} runs, {args.threads} torch thread(s), batch 64, the paper's model")
-    print("glances  single ms/run-step  batched ms/run-step  seed-steps/s single  batched  ratio")
+    print(f"CPU time per process, median of {args.repeats} interleaved repeats; load average "
+          f"{os.getloadavg()[0]:.1f} at the end")  # fmt: skip
+    print("glances  single ms/run-step  batched ms/run-step  seed-steps/s single  batched  ratio"
+          "  (wall-clock ratio)")  # fmt: skip
     for r in rows:
         print(f"{r['glances']:>7}  {r['single_ms_per_run_step']:>18.1f}  "
               f"{r['batched_ms_per_run_step']:>19.1f}  {r['single_seed_steps_per_s']:>19.1f}  "
-              f"{r['batched_seed_steps_per_s']:>7.1f}  {r['ratio']:>5.2f}")  # fmt: skip
+              f"{r['batched_seed_steps_per_s']:>7.1f}  {r['ratio']:>5.2f}  "
+              f"({r['wall_ratio']:.2f})")  # fmt: skip
     evals = ", ".join(f"G={r['glances']}: {r['eval_ms']:.0f} ms" for r in rows)
     print(f"one evaluation (100 batches, per run in both): {evals}")
     print(

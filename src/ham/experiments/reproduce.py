@@ -743,11 +743,29 @@ def write_outputs(
     if target in ("figures", "all"):
         figures = draw_figures(root, jobs, profile)
     summary["figures"] = [str(Path(f).relative_to(root)) for f in figures]
+    summary["stopped_at_perfect"] = stopped_at_perfect(root, jobs)
     _write_json(root / "summary.json", summary)
-    (root / "report.md").write_text(
-        render_report(target, profile, sections, summary["figures"], failures, command, executor)
-    )
+    report = render_report(
+        target, profile, sections, summary["figures"], failures, command, executor,
+        stopped=summary["stopped_at_perfect"], steps=profile.steps,
+    )  # fmt: skip
+    (root / "report.md").write_text(report)
     return summary
+
+
+def stopped_at_perfect(root: Path, jobs: list[Job]) -> dict[str, int]:
+    """The runs that ``--stop-at-perfect`` stopped: run key -> the step of their perfect
+    evaluation (their curves end there)."""
+    from ham.learn.batched import STOPPED_KEY
+
+    out = {}
+    for j in jobs:
+        path = run_dir(root, j.key) / "metrics.json"
+        if path.exists():
+            step = json.loads(path.read_text()).get(STOPPED_KEY)
+            if step is not None:
+                out[j.key] = step
+    return out
 
 
 def per_object_markdown(root: Path, jobs: list[Job]) -> str | None:
@@ -837,6 +855,8 @@ def render_report(
     failures: list[dict],
     command: str | None,
     executor: str,
+    stopped: dict[str, int] | None = None,
+    steps: int | None = None,
 ) -> str:
     env = _environment()
     lines = [
@@ -860,6 +880,11 @@ def render_report(
         lines += [f"![{Path(f).stem}]({f})" for f in figures]
         lines.append("")
     lines += ["## Where and why our numbers differ from the paper's", "", KNOWN_DIFFERENCES, ""]
+    if stopped:
+        lines += ["## Runs stopped at a perfect evaluation (--stop-at-perfect)", ""]
+        lines += [f"- `{k}`: best accuracy 1.000 at step {v:,} of {steps:,}; its curve ends "
+                  "there" for k, v in sorted(stopped.items())]  # fmt: skip
+        lines.append("")
     if failures:
         lines += ["## Failed runs", ""]
         lines += [f"- `{f['key']}`: {f.get('error', '?')}" for f in failures]

@@ -1,19 +1,23 @@
 """Batched training: N runs of one shape trained as one stacked model (beyond the paper).
 
-The paper's grid is hundreds of small runs (LSTM 256, batch 64); one run at a time leaves the
-matrix units idle. Here N runs whose configs differ only in ``seed`` (and ``steps``) share every
-matrix product: their weights are stacked along a leading run axis and one glance of all N runs
-is one :func:`torch.vmap` of the HAM's own modules (:func:`torch.func.functional_call`), the
-hybrid loss likewise; one backward yields every run's gradient (the runs' graphs are disjoint).
+The paper's grid is hundreds of small runs (LSTM 256, batch 64); one run at a time pays every
+operation's overhead for a few small matrices. Here N runs whose configs differ only in ``seed``
+(and ``steps``) go through each step together: their weights are stacked along a leading run
+axis, one glance of all N runs is one pass through the stacked layers (:class:`_StackedHam`,
+mirroring :mod:`ham.model` line by line), the hybrid loss is :func:`torch.vmap` of
+:func:`ham.learn.hybrid_loss.hybrid_loss`, and one backward yields every run's gradient (the
+runs' graphs are disjoint). On the CPU each large product is one oneDNN call per run, weight
+gradients are deferred to one product per layer over all glances, and one fused SGD call steps
+all runs (docs/agent.md#batched-runs has the measurements); on CUDA each layer is one ``bmm``.
 
 Everything else stays per run and is the single run's own code (:mod:`ham.learn.train`): each
 run is a :class:`ham.learn.train.Run` with its own environment generator (objects, stream 0),
 pose generator (stream 1), optimizer (SGD with Nesterov momentum at its own learning-rate
 schedule), evaluation (stream 2), checkpoint, ``config.json``, ``metrics.json``, ``timing.json``
-and ``tb/``. A run's parameters are views into the stacked tensors, so its optimizer steps them
-in place and its evaluation reads the current weights. The same seed gives the single run's
-numbers to float tolerance (the batched products sum in another order); resume is bit-identical
-to an uninterrupted batched group. A run whose loss or weights turn NaN/inf stops alone (its
+and ``tb/``. A run's parameters (and its SGD momentum buffers) are views into the stacked
+tensors, so its evaluation reads the current weights and its checkpoint the current state. The
+same seed gives the single run's numbers to float tolerance (the batched products sum in
+another order); resume is bit-identical to an uninterrupted batched group. A run whose loss or weights turn NaN/inf stops alone (its
 directory keeps its last checkpoint), the others go on. With ``stop_at_perfect`` a run whose
 best evaluation reaches 1.0 stops (its best accuracy can no longer change); its metrics say
 ``"stopped_at_perfect": step``.
@@ -54,7 +58,7 @@ from ham.learn.train import (
     stream_seed,
 )
 from ham.model.agent import Episode, HamConfig
-from ham.model.location_net import uniform_locations
+from ham.model.location_net import truncated_normal, uniform_locations
 from ham.model.policy import TruncatedGaussian, Uniform
 from ham.world.source import check_model_fits, make_source
 
@@ -94,27 +98,181 @@ def check_batchable(config: TrainConfig) -> None:
         )
 
 
-class _Linear(torch.autograd.Function):
-    """``y = x W^T + b`` for N runs at once: ``x (N, B, in)``, ``W (N, out, in)``, ``b (N, out)``.
+def _keep_freed_memory() -> None:
+    """Ask glibc to keep freed memory for reuse (mmap threshold 32 MiB, trim at 512 MiB).
 
-    By hand rather than through :func:`torch.vmap` of ``nn.Linear``: the weight gradient comes
-    out as one ``bmm`` in ``W``'s own layout (vmap's is transposed, then copied: on the CPU that
-    copy and the slower transposed product cost as much as the batching saves)."""
+    By default a freed block of more than 128 KiB, or memory at the top of the heap, goes back
+    to the operating system, and the next step's tensors of the same size fault every page back
+    in: tens of thousands of page faults per batched step (several ms per run-step on this
+    CPU). Process-wide and idempotent; a no-op where the C library is not glibc."""
+    global _MALLOPT_DONE
+    if _MALLOPT_DONE:
+        return
+    _MALLOPT_DONE = True
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6")
+        libc.mallopt(-3, 32 << 20)  # M_MMAP_THRESHOLD (glibc's largest)
+        libc.mallopt(-1, 512 << 20)  # M_TRIM_THRESHOLD
+    except (OSError, AttributeError):
+        pass
+
+
+_MALLOPT_DONE = False
+_FUSED_SGD = getattr(torch, "_fused_sgd_", None)
+
+
+def _onednn_ok(a: torch.Tensor, b: torch.Tensor) -> bool:
+    """Whether ``a[k] @ b[k]^T`` goes to oneDNN one run at a time (see :func:`_mm_nt`)."""
+    return (
+        _LINEAR_ONEDNN is not None
+        and a.device.type == "cpu"
+        and a.dtype == torch.float32
+        and a.shape[1] >= 16
+        and b.shape[1] * b.shape[2] >= _ONEDNN_MIN
+    )
+
+
+# oneDNN's fp32 linear; None where this torch lacks it (then every product is a bmm)
+_LINEAR_ONEDNN = getattr(getattr(torch.ops, "mkldnn", None), "_linear_pointwise", None)
+if _LINEAR_ONEDNN is not None and not torch.backends.mkldnn.is_available():
+    _LINEAR_ONEDNN = None
+# smaller layers (poses in, heads out, 256 -> 64): one bmm beats N small calls (measured)
+_ONEDNN_MIN = 128 * 256
+
+
+def _mm_nt(a: torch.Tensor, b: torch.Tensor, bias: torch.Tensor | None = None) -> torch.Tensor:
+    """``a[k] @ b[k]^T (+ bias[k])`` for every run ``k``: ``a (N, M, K)``, ``b (N, P, K)``,
+    either possibly a transposed view (never copied: a transposing copy costs more than the
+    product).
+
+    On the CPU in fp32, one oneDNN product per run: on this project's CPU (AMD, where MKL's
+    sgemm runs its AVX2 kernels) oneDNN's AVX-512 kernels are twice as fast, and MKL's batched
+    ``bmm`` is no faster than a loop of single products (docs/agent.md#batched-runs). Elsewhere
+    (CUDA: one launch for all runs) one ``bmm``/``baddbmm``."""
+    if _onednn_ok(a, b):
+        return torch.stack(
+            [
+                _LINEAR_ONEDNN(a[k], b[k], None if bias is None else bias[k], "none", [], "")
+                for k in range(a.shape[0])
+            ]
+        )
+    bt = b.transpose(1, 2)
+    return torch.bmm(a, bt) if bias is None else torch.baddbmm(bias.unsqueeze(1), a, bt)
+
+
+class _Layer:
+    """One dense layer of N runs: ``y = x W^T + b``, ``x (N, B, in)``, ``W (N, out, in)``.
+
+    Its weight gradient is deferred: each application (one per glance) copies its input, and
+    its output gradient in the backward pass, into the layer's record buffers, and
+    :meth:`grads` turns one step's records into one product per run (``W``'s gradient over
+    every glance at once, ``G * B`` rows deep) instead of one product and one accumulation per
+    glance. The buffers live as long as the layer (the group's stacked weights): fresh
+    buffers every step cost more in page faults than the copies."""
+
+    def __init__(self, weight: torch.Tensor, bias: torch.Tensor | None, capacity: int) -> None:
+        self.weight, self.bias = weight, bias
+        self.capacity = capacity  # applications per step (the glances)
+        self.xbuf: torch.Tensor | None = None  # (N, capacity * B, in)
+        self.gbuf: torch.Tensor | None = None  # (N, capacity * B, out)
+        self.rows = 0
+        self.applied = 0
+        self.filled: set[int] = set()
+
+    def begin(self) -> None:
+        self.applied = 0
+        self.filled = set()
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        slot = self.applied
+        self.applied += 1
+        if self.xbuf is None or slot >= self.capacity or x.shape[1] != self.rows:
+            if self.xbuf is not None:  # more applications than glances: a layout this
+                raise HamError(f"batched layer applied {slot + 1} times in a step")  # misses
+            self.rows = x.shape[1]
+            n, out = self.weight.shape[0], self.weight.shape[1]
+            self.xbuf = x.new_empty(n, self.capacity * self.rows, x.shape[2])
+            self.gbuf = x.new_empty(n, self.capacity * self.rows, out)
+        with torch.no_grad():
+            self.xbuf[:, slot * self.rows : (slot + 1) * self.rows].copy_(x)
+        return _LayerFn.apply(x, self.weight, self.bias, self, slot)
+
+    def grads(self) -> tuple[torch.Tensor, torch.Tensor | None] | None:
+        """The weight and bias gradients of the step (``None``: the layer took no part)."""
+        if not self.filled:
+            return None
+        r = self.rows
+        for slot in set(range(self.applied)) - self.filled:  # an output the loss never read
+            self.gbuf[:, slot * r : (slot + 1) * r].zero_()
+        x, g = self.xbuf[:, : self.applied * r], self.gbuf[:, : self.applied * r]
+        gw = _mm_nt(g.transpose(1, 2), x.transpose(1, 2))
+        return gw, None if self.bias is None else g.sum(1)
+
+
+class _LayerFn(torch.autograd.Function):
+    """The autograd node of one :class:`_Layer` application: the input gradient now, the
+    weight gradient recorded for :meth:`_Layer.grads` (so ``W`` and ``b`` get none here)."""
 
     @staticmethod
-    def forward(ctx, x, weight, bias):
-        ctx.save_for_backward(x, weight)
-        ctx.has_bias = bias is not None
-        wt = weight.transpose(1, 2)
-        return torch.bmm(x, wt) if bias is None else torch.baddbmm(bias.unsqueeze(1), x, wt)
+    def forward(ctx, x, weight, bias, layer, slot):
+        ctx.layer, ctx.slot = layer, slot
+        return _mm_nt(x, weight, bias)
 
     @staticmethod
     def backward(ctx, grad):
-        x, weight = ctx.saved_tensors
-        gx = torch.bmm(grad, weight) if ctx.needs_input_grad[0] else None
-        gw = torch.bmm(grad.transpose(1, 2), x) if ctx.needs_input_grad[1] else None
-        gb = grad.sum(1) if ctx.has_bias and ctx.needs_input_grad[2] else None
-        return gx, gw, gb
+        layer, slot, r = ctx.layer, ctx.slot, ctx.layer.rows
+        layer.gbuf[:, slot * r : (slot + 1) * r].copy_(grad)
+        layer.filled.add(slot)
+        gx = _mm_nt(grad, layer.weight.transpose(1, 2)) if ctx.needs_input_grad[0] else None
+        return gx, None, None, None, None
+
+
+class _TanhLSTMCell(torch.autograd.Function):
+    """:class:`ham.model.core.LSTMCore`'s cell after its gate product, fused, with ``tanh`` as
+    ``2 sigmoid(2x) - 1``: ``c' = sigmoid(f + b_f) c + sigmoid(i) tanh(u)``,
+    ``h = sigmoid(o) tanh(c')``, gates ``(i, f, u, o)`` along the last axis.
+
+    Why: on this project's CPU ``torch.tanh`` takes ten times as long as ``torch.sigmoid``
+    (0.36 vs 0.04 ms on 10 x 64 x 256), and autograd's dozen elementwise nodes per cell cost as
+    much as the cell's products; here one sigmoid over all four gates and a hand-written
+    backward. Equal to the module's cell to float rounding (tested against single runs)."""
+
+    @staticmethod
+    def forward(ctx, gates, cell, forget_bias):
+        shape = gates.shape
+        z = gates.view(*shape[:-1], 4, shape[-1] // 4)
+        # one sigmoid of (i, f + b_f, 2u, o): tanh(u) = 2 sigmoid(2u) - 1
+        scale = z.new_tensor([1.0, 1.0, 2.0, 1.0]).unsqueeze(-1)
+        shift = z.new_tensor([0.0, forget_bias, 0.0, 0.0]).unsqueeze(-1)
+        sig = torch.sigmoid(torch.addcmul(shift, z, scale))
+        si, sf, su, so = sig.unbind(-2)
+        tu = su * 2 - 1
+        c1 = torch.addcmul(sf * cell, si, tu)
+        tc = torch.sigmoid(c1 * 2).mul_(2).sub_(1)
+        h = so * tc
+        ctx.save_for_backward(sig, tu, tc, cell)
+        return h, c1
+
+    @staticmethod
+    def backward(ctx, dh, dc1):
+        sig, tu, tc, cell = ctx.saved_tensors
+        si, sf, _, so = sig.unbind(-2)
+        d = torch.empty_like(sig)  # d loss / d (i, f, tanh u, o), then / d gates
+        dcell = dh * so
+        dcell.mul_(1 - tc * tc)
+        if dc1 is not None:
+            dcell.add_(dc1)
+        torch.mul(dcell, tu, out=d[..., 0, :])
+        torch.mul(dcell, cell, out=d[..., 1, :])
+        torch.mul(dcell, si, out=d[..., 2, :])
+        torch.mul(dh, tc, out=d[..., 3, :])
+        # sigmoid' = s (1 - s); tanh'(u) = 1 - tanh(u)^2 = 4 s_u (1 - s_u) with s_u = sigmoid(2u)
+        k = sig.new_tensor([1.0, 1.0, 4.0, 1.0]).unsqueeze(-1)
+        d.mul_(sig).mul_(1 - sig).mul_(k)
+        dgates = d.view(*sig.shape[:-2], -1)
+        return dgates, (dcell * sf if ctx.needs_input_grad[1] else None), None
 
 
 class _StackedHam:
@@ -125,12 +283,37 @@ class _StackedHam:
     def __init__(self, config: HamConfig) -> None:
         self.c = config
         self.used: set[str] = set()  # the weights read: checked against the model's once
+        self.layers: dict[str, _Layer] = {}
+
+    def begin(self, p: dict) -> None:
+        """A new step of the weights ``p``: the layers' records start over (new layers when
+        the stack changed: a run left the group)."""
+        if p is not getattr(self, "_p", None):
+            self._p, self.layers = p, {}
+        for layer in self.layers.values():
+            layer.begin()
+
+    def grads(self) -> dict[str, torch.Tensor]:
+        """The step's weight gradients by parameter name, after the backward pass."""
+        out = {}
+        for name, layer in self.layers.items():
+            g = layer.grads()
+            if g is not None:
+                out[name + ".weight"] = g[0]
+                if g[1] is not None:
+                    out[name + ".bias"] = g[1]
+        return out
 
     def _lin(self, p: dict, name: str, x: torch.Tensor) -> torch.Tensor:
-        self.used.add(name + ".weight")
-        if name + ".bias" in p:
-            self.used.add(name + ".bias")
-        return _Linear.apply(x, p[name + ".weight"], p.get(name + ".bias"))
+        layer = self.layers.get(name)
+        if layer is None:
+            self.used.add(name + ".weight")
+            if name + ".bias" in p:
+                self.used.add(name + ".bias")
+            layer = self.layers[name] = _Layer(
+                p[name + ".weight"], p.get(name + ".bias"), self.c.glances
+            )
+        return layer(x)
 
     def glance(self, p: dict, pressure, q, state, with_policy: bool):
         c = self.c
@@ -152,10 +335,13 @@ class _StackedHam:
             h, cell = state
             if c.truncate_bptt:
                 h, cell = h.detach(), cell.detach()
-            act = torch.tanh if c.lstm_activation == "tanh" else torch.relu
-            i, f, u, o = self._lin(p, "core.gates", torch.cat([g, h], dim=-1)).chunk(4, dim=-1)
-            cell = torch.sigmoid(f + c.forget_bias) * cell + torch.sigmoid(i) * act(u)
-            tau = torch.sigmoid(o) * act(cell)
+            gates = self._lin(p, "core.gates", torch.cat([g, h], dim=-1))
+            if c.lstm_activation == "tanh":
+                tau, cell = _TanhLSTMCell.apply(gates, cell, c.forget_bias)
+            else:
+                i, f, u, o = gates.chunk(4, dim=-1)
+                cell = torch.sigmoid(f + c.forget_bias) * cell + torch.sigmoid(i) * torch.relu(u)
+                tau = torch.sigmoid(o) * torch.relu(cell)
             state = (tau, cell)
         else:
             tau = torch.relu(self._lin(p, "core.dense", g))
@@ -188,32 +374,101 @@ class BatchedRuns:
         self.active = [
             i for i in range(len(self.runs)) if not self._done(i) and i not in self.stopped
         ]
+        _keep_freed_memory()
         self._template = self.runs[0].agent  # its config and initial state only
         self._net = _StackedHam(self._template.config)
         self._names = [n for n, _ in self.runs[0].agent.named_parameters()]
+        self._params = [dict(r.agent.named_parameters()) for r in self.runs]
+        # SGD (the paper's) is stepped for all runs at once; Adam by each run's own optimizer
+        self._sgd = self.runs[0].config.optimizer == "sgd"
+        scale = {id(p): g.get("lr_scale", 1.0)
+                 for g in self.runs[0].optimizer.param_groups for p in g["params"]}  # fmt: skip
+        self._lr_scale = {n: scale[id(p)] for n, p in self._params[0].items()}
         self._checked = False
         if self.active:
             self._stack()
 
     # ------------------------------------------------------------------ stacked weights
     def _stack(self) -> None:
-        """Stack the active runs' weights and make each run's parameters views of the stack."""
+        """Stack the active runs' weights (and SGD momentum buffers) and make each run's
+        parameters (and its optimizer's buffers) views of the stack: the run's own optimizer
+        state and checkpoint stay as ``ham train`` writes them."""
         self.stacked: dict[str, torch.Tensor] = {}
-        params = [dict(self.runs[i].agent.named_parameters()) for i in self.active]
+        self.buffers: dict[str, torch.Tensor] = {}
+        params = [self._params[i] for i in self.active]
         for name in self._names:
             big = torch.stack([p[name].detach() for p in params])
             for k, p in enumerate(params):
                 p[name].data = big[k]
             self.stacked[name] = big.detach().requires_grad_()
+            if self._sgd:
+                states = [self.runs[i].optimizer.state[self._params[i][name]]
+                          for i in self.active]  # fmt: skip
+                if any("momentum_buffer" in st for st in states):
+                    # a run without one yet starts from zeros: 0 * m + g is exactly the
+                    # optimizer's first buffer (a copy of g)
+                    self._new_buffer(name, [st.get("momentum_buffer") for st in states])
+
+    def _new_buffer(self, name: str, bufs: list[torch.Tensor | None]) -> torch.Tensor:
+        big = torch.stack([torch.zeros_like(self.stacked[name][0]) if b is None else b.detach()
+                           for b in bufs])  # fmt: skip
+        for k, i in enumerate(self.active):
+            self.runs[i].optimizer.state[self._params[i][name]]["momentum_buffer"] = big[k]
+        self.buffers[name] = big
+        return big
 
     def _drop(self, gone: list[int]) -> None:
         """Take runs out of the group (finished, diverged, stopped); the others go on."""
         self.active = [i for i in self.active if i not in gone]
-        for i in gone:  # its own compact copy of the weights, apart from the stack
+        for i in gone:  # its own compact copy of the weights and buffers, apart from the stack
             for p in self.runs[i].agent.parameters():
                 p.data = p.data.clone()
+            for st in self.runs[i].optimizer.state.values():
+                if "momentum_buffer" in st:
+                    st["momentum_buffer"] = st["momentum_buffer"].clone()
         if self.active:
             self._stack()
+
+    def _sgd_step(self, runs: list[Run], stepping: list[int], grads: dict) -> None:
+        """``torch.optim.SGD``'s update (Nesterov momentum, no dampening or weight decay) of
+        every stepping run over the stacked tensors: one fused pass per learning rate (PyTorch's
+        ``_fused_sgd_``: the foreach optimizer's numbers to the last bit of the momentum
+        buffer) instead of N optimizers looping over their parameters. Runs at one learning
+        rate (the usual case: one schedule, one step) are updated as whole stacked tensors;
+        others, and a group some of whose runs diverged, run by run."""
+        c = runs[0].config
+        m = c.momentum
+        by_lr: dict[float, list[int]] = {}
+        for k in stepping:
+            by_lr.setdefault(c.learning_rate(runs[k].step), []).append(k)
+        if len(by_lr) == 1 and len(stepping) == len(runs):
+            parts = [(slice(None), next(iter(by_lr)))]
+        else:
+            parts = [(k, lr) for lr, ks in by_lr.items() for k in ks]
+        by_scale: dict[float, list[str]] = {}
+        for name in grads:
+            by_scale.setdefault(self._lr_scale[name], []).append(name)
+            if m != 0 and name not in self.buffers:
+                self._new_buffer(name, [None] * len(runs))
+        with torch.no_grad():
+            for scale, names in by_scale.items():
+                for idx, lr in parts:
+                    ps = [self.stacked[n][idx] for n in names]
+                    gs = [grads[n][idx] for n in names]
+                    if m == 0:  # the optimizer keeps no buffers
+                        torch._foreach_add_(ps, gs, alpha=-(lr * scale))
+                    elif _FUSED_SGD is not None:
+                        # zero-initialized buffers: 0 * m + g is exactly the first buffer
+                        _FUSED_SGD(ps, gs, [self.buffers[n][idx] for n in names],
+                                   weight_decay=0.0, momentum=m, lr=lr * scale, dampening=0.0,
+                                   nesterov=c.nesterov, maximize=False,
+                                   is_first_step=False)  # fmt: skip
+                    else:  # torch.optim.SGD's foreach steps
+                        bs = [self.buffers[n][idx] for n in names]
+                        torch._foreach_mul_(bs, m)
+                        torch._foreach_add_(bs, gs)
+                        ds = torch._foreach_add(gs, bs, alpha=m) if c.nesterov else bs
+                        torch._foreach_add_(ps, ds, alpha=-(lr * scale))
 
     def _done(self, i: int) -> bool:
         return self.runs[i].step >= self.runs[i].config.steps
@@ -247,11 +502,16 @@ class BatchedRuns:
             if dist:
                 mus.append(dist[0])
                 sigmas.append(dist[1])
-                qs = [TruncatedGaussian(dist[0][k], dist[1][k]).sample(r.policy_generator)
-                      for k, r in enumerate(runs)]  # fmt: skip
+                # each run's draws from its own generator (as TruncatedGaussian.sample draws
+                # them), the inverse-CDF transform once for all runs
+                u = torch.stack([torch.rand(dist[0].shape[1:], generator=r.policy_generator,
+                                            dtype=torch.float64, device=objects.device)
+                                 for r in runs])  # fmt: skip
+                q = truncated_normal(dist[0], dist[1], uniform=u)
             else:
-                qs = [Uniform((batch,), objects.device).sample(r.policy_generator) for r in runs]
-            q = torch.stack(qs)
+                q = torch.stack(
+                    [Uniform((batch,), objects.device).sample(r.policy_generator) for r in runs]
+                )
         mu = torch.stack(mus, 1) if mus else None
         sigma = torch.stack(sigmas, 1) if sigmas else None
         return (
@@ -290,10 +550,11 @@ class BatchedRuns:
         the runs that stepped; a run whose loss or
         weights are not finite leaves the group with its error recorded."""
         runs = [self.runs[i] for i in self.active]
-        for r in runs:
+        for r in runs:  # as train_step: the run's optimizer (its checkpoint) holds its rates
             for group in r.optimizer.param_groups:
-                group["lr"] = r.config.learning_rate(r.step)
+                group["lr"] = r.config.learning_rate(r.step) * group.get("lr_scale", 1.0)
         objects = torch.stack([r.env.sample_objects() for r in runs])
+        self._net.begin(self.stacked)
         totals, rewards, *parts = self._losses(objects, *self._forward(objects))
         if not self._checked:  # a weight the stacked layers skip would silently never train
             unused = set(self._names) - self._net.used
@@ -313,19 +574,21 @@ class BatchedRuns:
                     self.results[self.active[k]] = str(exc)
                 failed.append(self.active[k])
         mask = torch.tensor(finite, device=totals.device)
-        for v in self.stacked.values():
-            v.grad = None
         torch.where(mask, totals, torch.zeros_like(totals)).sum().backward()
-        for k, r in enumerate(runs):
-            if not finite[k]:
-                continue
-            for name, p in r.agent.named_parameters():
-                grad = self.stacked[name].grad  # None: unused (one glance: the location heads)
-                p.grad = None if grad is None else grad[k]
-            r.optimizer.step()
-            for p in r.agent.parameters():
-                p.grad = None
-            r.step += 1
+        grads = self._net.grads()  # None of a layer unused (one glance: the location heads)
+        stepping = [k for k in range(len(runs)) if finite[k]]
+        if self._sgd:
+            self._sgd_step(runs, stepping, grads)
+        else:
+            for k in stepping:
+                r, params = runs[k], self._params[self.active[k]]
+                for name, p in params.items():
+                    p.grad = grads[name][k] if name in grads else None
+                r.optimizer.step()
+                for p in params.values():
+                    p.grad = None
+        for k in stepping:
+            runs[k].step += 1
         # the weights of all runs in one reduction (one sync on a GPU), as _check_weights does
         with torch.no_grad():
             sums = torch.stack([v.reshape(len(runs), -1).sum(1) for v in self.stacked.values()])
@@ -444,6 +707,12 @@ class BatchedRuns:
         would save the whole stack)."""
         state = self.runs[i].state_dict()
         state["model"] = {k: v.clone() for k, v in state["model"].items()}
+        # (a copy: state_dict() shares the optimizer's own per-parameter dicts)
+        state["optimizer"] = dict(state["optimizer"])
+        state["optimizer"]["state"] = {
+            k: {n: v.clone() if n == "momentum_buffer" else v for n, v in st.items()}
+            for k, st in state["optimizer"]["state"].items()
+        }
         _write_atomic(self.outs[i] / CHECKPOINT_FILE, lambda p: torch.save(state, p))
         _write_json(self.outs[i] / METRICS_FILE, self.metrics(i))
 

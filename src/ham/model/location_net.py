@@ -74,18 +74,23 @@ def truncated_normal(
     generator: torch.Generator | None = None,
     low: float = -1.0,
     high: float = 1.0,
+    uniform: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """A sample of ``N(mu, sigma)`` truncated to ``[low, high]``, by inverse CDF, detached.
 
     ``u ~ U(Phi(a), Phi(b))`` with ``a, b = (low - mu)/sigma, (high - mu)/sigma``, then
     ``q = mu + sigma * Phi^-1(u)``: equal in distribution to resampling until the draw falls
     inside, in one vectorized step. Computed in float64; the result is clamped to ``[low, high]``
-    against rounding, so it is always a valid action (never NaN).
+    against rounding, so it is always a valid action (never NaN). ``uniform``: the ``U[0, 1)``
+    draws (float64, ``mu``'s shape) instead of drawing them from ``generator`` (batched runs
+    draw each run's from its own generator and transform all at once).
     """
     m, s = mu.detach().double(), sigma.detach().double()
     a = torch.special.ndtr((low - m) / s)
     b = torch.special.ndtr((high - m) / s)
-    u = torch.rand(m.shape, generator=generator, dtype=torch.float64, device=m.device)
+    u = uniform
+    if u is None:
+        u = torch.rand(m.shape, generator=generator, dtype=torch.float64, device=m.device)
     q = m + s * torch.special.ndtri(a + u * (b - a))
     q = torch.where(torch.isnan(q), m, q)  # sigma == 0: the mean itself
     # NaN parameters (a diverged network) give pose 0, so the glance still runs; the NaN shows in
