@@ -146,9 +146,11 @@ class GridJob:
     labels: dict
     config: dict
     evaluate: list
+    #: the cell's own world (a WorldConfig dict) when it has one: a worker builds its table
+    world: dict | None = None
 
     def to_dict(self) -> dict:
-        return {
+        d = {
             "key": self.key,
             "cell": self.cell,
             "seed": self.seed,
@@ -156,6 +158,9 @@ class GridJob:
             "config": self.config,
             "evaluate": self.evaluate,
         }
+        if self.world is not None:
+            d["world"] = self.world
+        return d
 
 
 @dataclass(frozen=True)
@@ -466,8 +471,9 @@ class Grid:
             for seed in cell.seeds:
                 config = self.config(cell.overrides, seed, path).to_dict()
                 key = f"{cell.name}-s{seed}"
+                own = cell.overrides.get("world", {}).get("world")
                 out.append(GridJob(key, cell.name, seed, dict(cell.labels), config,
-                                   list(self.evaluate)))  # fmt: skip
+                                   list(self.evaluate), own))  # fmt: skip
         return out
 
     # ------------------------------------------------------------------ files

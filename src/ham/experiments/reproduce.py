@@ -274,8 +274,8 @@ def run_job(job: dict, root: str, world: dict, grid: int | None) -> dict:
     status = "skipped"
     if not is_finished(out, config.steps):
         if config.table is not None:
-            # the run's own world: a grid's cells may each have one (docs/grids.md)
-            _ensure_table(Path(config.table), config.world.to_dict(), grid)
+            # a grid cell's own world (docs/grids.md), else the grid's
+            _ensure_table(Path(config.table), job.get("world", world), grid)
         if (out / "checkpoint.pt").exists():
             resume(out, progress=False)
         else:
@@ -416,7 +416,7 @@ def run_batch(
     if todo:
         configs = [TrainConfig.from_dict(j["config"]) for j in todo]
         if configs[0].table is not None:
-            _ensure_table(Path(configs[0].table), configs[0].world.to_dict(), grid)
+            _ensure_table(Path(configs[0].table), todo[0].get("world", world), grid)
         outs = [run_dir(Path(root), j["key"]) for j in todo]
         results = train_batched(configs, outs, stop_at_perfect=stop_at_perfect)
         errors = {j["key"]: r for j, r in zip(todo, results, strict=True) if isinstance(r, str)}
