@@ -149,7 +149,7 @@ def draw(t: dict, path: Path) -> None:
             ax.hlines(p[0], j - 0.42, j + 0.42, colors="k", linewidth=2,
                       label="paper" if j == 0 else None)  # fmt: skip
     ax.set_xticks(range(len(gs)), [f"{g} glance{'s' * (g > 1)}" for g in gs])
-    ax.set_ylim(0.4, 1.0)
+    ax.set_ylim(0.2, 1.02)
     ax.set_ylabel("best accuracy (mean ± s.e.m. over seeds)")
     ax.set_title("Table 1 rows 1-4, full model: paper-gazebo preset and one factor changed")
     ax.legend(fontsize=7, ncol=3, loc="upper left")
