@@ -140,10 +140,15 @@ def _config_from_args(args: argparse.Namespace):
                 "glimpse: leave them out"
             )
     _refuse_world_options(args)  # --table and --env bring their own world: nothing is ignored
-    # The input size (taxels^2) and the classes come from the table or the online world.
-    model = model_for_source(HamConfig(**overrides(args, HamConfig)), args.table, world)
     table = str(Path(args.table).resolve()) if args.table else None
-    config = TrainConfig(model=model, table=table, world=world, **overrides(args, TrainConfig))
+    train_changes = overrides(args, TrainConfig)
+    preset = _preset_defaults(args, world)
+    if preset is not None:
+        table = table or preset.get("table")
+        train_changes.setdefault("eval_policy", preset["eval_policy"])
+    # The input size (taxels^2) and the classes come from the table or the online world.
+    model = model_for_source(HamConfig(**overrides(args, HamConfig)), table, world)
+    config = TrainConfig(model=model, table=table, world=world, **train_changes)
     if not args.env:
         stray = [f"--{k.replace('_', '-')}" for k in ("actions", "max_step_length", "eval_env", "glimpse")
                  if getattr(args, k) is not None]  # fmt: skip
@@ -163,6 +168,23 @@ def _config_from_args(args: argparse.Namespace):
         )
         config = fit_to_ap_gym(config, env)
     return config
+
+
+def _preset_defaults(args: argparse.Namespace, world) -> dict | None:
+    """With ``--world PRESET``: the preset's evaluation policy and, unless ``--online`` or
+    ``--env``, its glance table (of ``world``, at the preset's grid), built once into the cache."""
+    from ham.cli.options import command_line, preset_from_args
+
+    preset = preset_from_args(args)
+    if preset is None:
+        return None
+    if not (args.online or args.env):
+        from ham.world.cache import cached_table
+
+        path = cached_table(world, preset["grid"], args.cache_dir,
+                            progress=not args.no_progress, command=command_line(args))  # fmt: skip
+        preset["table"] = str(path.resolve())
+    return preset
 
 
 def _check_table_sensor(args: argparse.Namespace, info) -> None:

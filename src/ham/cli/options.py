@@ -6,6 +6,7 @@ import argparse
 import json
 import shlex
 import sys
+from dataclasses import replace
 
 from ham.errors import HamError
 from ham.world.glance import PAPER_POSE_DIMS, POSE_PRESETS, check_pose_dims
@@ -65,8 +66,11 @@ def objects_from_args(
     return objects, record
 
 
-def add_world_options(p: argparse.ArgumentParser, *, objects: bool = True) -> None:
-    """Options that build a :class:`ham.world.config.WorldConfig` (paper defaults)."""
+def add_world_options(
+    p: argparse.ArgumentParser, *, objects: bool = True, cache: bool = True
+) -> None:
+    """Options that build a :class:`ham.world.config.WorldConfig` (paper defaults); ``cache``:
+    also ``--cache-dir`` (commands that use a preset's glance table)."""
     if objects:
         p.add_argument(
             "--objects",
@@ -75,17 +79,18 @@ def add_world_options(p: argparse.ArgumentParser, *, objects: bool = True) -> No
             "all, or a comma list of names/ids",
         )
         add_objects_file_option(p)
-    p.add_argument("--simulator", default="fast", help="fast (default) or mujoco")
+    add_world_preset_option(p, cache=cache)
+    p.add_argument("--simulator", default=None, help="fast (default) or mujoco")
     p.add_argument(
         "--sensor",
-        default="taxels",
+        default=None,
         choices=READOUTS,
         help="read-out: taxels (default; edges are lines) or gazebo (MuJoCo only: contact points "
         "spread by a 5 mm Gaussian, the paper's plugin: edges are blobs)",
     )
     p.add_argument(
         "--pose",
-        default="paper",
+        default=None,
         choices=POSE_PRESETS,
         help="pose mapping: paper (phi = q*pi/2, default) or authors (phi = q*0.3pi, pivot shift)",
     )
@@ -97,6 +102,36 @@ def add_world_options(p: argparse.ArgumentParser, *, objects: bool = True) -> No
         "(default: x,phi, the paper's; y or phi_y pick the extended glance)",
     )
     add_sensor_options(p)
+
+
+def add_world_preset_option(p: argparse.ArgumentParser, *, cache: bool = True) -> None:
+    """``--world NAME`` (a world preset, :data:`ham.world.config.WORLD_PRESETS`) and
+    ``--cache-dir DIR`` (where preset tables are kept)."""
+    from ham.world.config import WORLD_PRESETS
+
+    p.add_argument(
+        "--world",
+        default=None,
+        metavar="PRESET",
+        help=f"a world preset: {', '.join(WORLD_PRESETS)} (docs/world.md, 'World presets'); "
+        "explicit world options (--simulator, --sensor, --pose, sensor options) override its fields",
+    )
+    if cache:
+        p.add_argument(
+            "--cache-dir",
+            default=None,
+            metavar="DIR",
+            help="where a preset's glance table is built once and kept (default $HAM_CACHE_DIR or "
+            "~/.cache/ham)",
+        )
+
+
+def preset_from_args(args: argparse.Namespace) -> dict | None:
+    """The ``--world`` preset (refused by name when unknown), or ``None``."""
+    from ham.world.config import world_preset
+
+    name = getattr(args, "world", None)
+    return None if name is None else world_preset(name)
 
 
 def add_sensor_options(p: argparse.ArgumentParser, *, geometry_only: bool = False) -> None:
@@ -131,31 +166,38 @@ def sensor_from_args(args: argparse.Namespace):
 
 
 def world_from_args(args: argparse.Namespace, objects: str | None = None):
-
-    from ham.world.config import WorldConfig
-    from ham.world.glance import PoseConfig
+    """The :class:`ham.world.config.WorldConfig` of the world options: ``--world``'s preset (if
+    given) with every explicitly given option replacing the preset's field; paper defaults else."""
+    from ham.world.config import world_from_table
 
     objects, record = objects_from_args(args, objects)
-
-    sensor = sensor_from_args(args)
+    preset = preset_from_args(args)
+    base = preset["world"] if preset else {}
+    simulator = args.simulator or base.get("simulator", "fast")
+    readout = args.sensor or base.get("mujoco", {}).get("readout", "taxels")
+    pose = args.pose or base.get("pose", "paper")
     mujoco = {}
-    if args.sensor == "gazebo":
-        if args.simulator != "mujoco":
+    if readout == "gazebo":
+        if simulator != "mujoco":
+            given = f" (world {args.world!r})" if preset else ""
             raise HamError(
-                f"--sensor gazebo needs --simulator mujoco (got {args.simulator!r}): the fast "
-                "model has no contact points to spread; for a Gazebo-like blur use --spread-sigma 0.005"
+                f"--sensor gazebo{given} needs --simulator mujoco (got {simulator!r}): the fast "
+                "model has no contact points to spread; for a Gazebo-like blur use --spread-sigma "
+                "0.005, or --sensor taxels"
             )
         mujoco["readout"] = "gazebo"
+    table = {
+        "objects": objects,
+        "simulator": simulator,
+        "pose": pose,
+        "mujoco": mujoco,
+        "objects_file": record,
+    }
     dims = getattr(args, "pose_dims", None)
-    return WorldConfig(
-        objects=objects,
-        simulator=args.simulator,
-        sensor=sensor,
-        pose=PoseConfig.preset(args.pose),
-        mujoco=mujoco,
-        objects_file=record,
-        pose_dims=PAPER_POSE_DIMS if dims is None else check_pose_dims(dims, "--pose-dims"),
-    )
+    if dims is not None:
+        table["pose_dims"] = list(check_pose_dims(dims, "--pose-dims"))
+    world = world_from_table(table)
+    return replace(world, sensor=sensor_from_args(args))
 
 
 def print_json(obj) -> None:

@@ -7,7 +7,13 @@ import argparse
 import json
 import sys
 
-from ham.cli.options import add_objects_file_option, command_line, objects_from_args
+from ham.cli.options import (
+    add_objects_file_option,
+    add_world_preset_option,
+    command_line,
+    objects_from_args,
+    preset_from_args,
+)
 from ham.errors import HamError
 from ham.experiments.reproduce import EXECUTORS, PROFILES, TARGETS, TRAINED_VARIANTS, reproduce
 
@@ -85,6 +91,7 @@ def add_commands(subparsers) -> None:
         help="object set (default: paper; with --objects-file: the file's objects)",
     )
     add_objects_file_option(p)
+    add_world_preset_option(p)
     p.set_defaults(func=cmd_reproduce)
 
 
@@ -96,6 +103,16 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     from ham.world.config import WorldConfig
 
     objects, record = objects_from_args(args)
+    preset = preset_from_args(args)
+    if args.cache_dir is not None and preset is None:
+        raise HamError("--cache-dir keeps a --world preset's glance table; give --world PRESET")
+    world = WorldConfig(objects=objects, objects_file=record)
+    if preset is not None:
+        from dataclasses import replace
+
+        from ham.world.config import world_from_table
+
+        world = replace(world_from_table(preset["world"]), objects=objects, objects_file=record)
     summary = reproduce(
         args.target,
         args.profile or "quick",
@@ -110,9 +127,12 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         command=command_line(args),
         glances=args.glances,
         variants=args.variants,
-        world=WorldConfig(objects=objects, objects_file=record),
+        world=world,
         batch_runs=args.batch_runs,
         stop_at_perfect=args.stop_at_perfect,
+        eval_policy=preset["eval_policy"] if preset else None,
+        table_cache=preset is not None,
+        cache_dir=args.cache_dir,
     )
     _print_summary(args, summary, [f"{n}.md" for n in ("table1", "table2") if n in summary])
     return _failures(summary)
@@ -136,10 +156,10 @@ def cmd_grid(args: argparse.Namespace) -> int:
     given = [f"--{k}" for k in ("profile", "glances", "variants") if getattr(args, k) is not None]
     if given:
         raise HamError(f"{', '.join(given)} apply to the paper's tables, not to a grid file")
-    if args.objects is not None or args.objects_file is not None:
+    if args.objects is not None or args.objects_file is not None or args.world is not None:
         raise HamError(
-            "--objects/--objects-file apply to the paper's tables; a grid file names its "
-            "objects in its [world] table (docs/grids.md)"
+            "--objects/--objects-file/--world apply to the paper's tables; a grid file names its "
+            "world in its [world] table (preset = NAME, objects = ...; docs/grids.md)"
         )
     summary = run_grid(
         args.file,
@@ -154,6 +174,7 @@ def cmd_grid(args: argparse.Namespace) -> int:
         command=command_line(args),
         batch_runs=args.batch_runs,
         stop_at_perfect=args.stop_at_perfect,
+        cache_dir=args.cache_dir,
     )
     _print_summary(args, summary, ["results.json"])
     return _failures(summary)

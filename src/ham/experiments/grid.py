@@ -146,9 +146,11 @@ class GridJob:
     labels: dict
     config: dict
     evaluate: list
+    #: the cell's own world (a WorldConfig dict) when it has one: a worker builds its table
+    world: dict | None = None
 
     def to_dict(self) -> dict:
-        return {
+        d = {
             "key": self.key,
             "cell": self.cell,
             "seed": self.seed,
@@ -156,6 +158,9 @@ class GridJob:
             "config": self.config,
             "evaluate": self.evaluate,
         }
+        if self.world is not None:
+            d["world"] = self.world
+        return d
 
 
 @dataclass(frozen=True)
@@ -185,11 +190,12 @@ class Grid:
     table_grid: int | None = None
     evaluate: list = field(default_factory=list)
     description: str = ""
+    #: take the glance tables from the table cache (:mod:`ham.world.cache`) instead of DIR
+    table_cache: bool = False
 
     # ------------------------------------------------------------------ validation
     def __post_init__(self) -> None:
         from ham.learn.evaluation import EVAL_POLICIES
-        from ham.world.config import WorldConfig
 
         w = f"grid {self.name!r}"
         if not (isinstance(self.name, str) and _NAME.match(self.name)):
@@ -200,19 +206,23 @@ class Grid:
             raise HamError(f"{w}: base = {self.base!r}; accepted: a table of overrides")
         object.__setattr__(self, "base", flatten(self.base))
         _check_keys(self.base, f"{w} base")
+        # the world (a WorldConfig table; ``preset`` names a world preset, ``pose`` may name a
+        # pose preset): resolved first, a cell's own ``world`` table is laid over it
+        preset = self.world.get("preset") if isinstance(self.world, Mapping) else None
+        world = _resolve_world(self.world, {}, f"{w} world")
+        object.__setattr__(self, "world", world.to_dict())
+        object.__setattr__(self, "_n_objects", len(world.resolve_objects()))
+        if preset is not None and "eval_policy" not in self.base:
+            # the preset's evaluation is the grid's default (an explicit eval_policy wins)
+            from ham.world.config import world_preset
+
+            base = {**self.base, "eval_policy": world_preset(preset)["eval_policy"]}
+            object.__setattr__(self, "base", base)
         object.__setattr__(self, "seeds", _seeds(self.seeds, w))
         object.__setattr__(self, "axes", self._checked_axes(w))
         object.__setattr__(self, "cells", self._checked_cells(w))
-        # the world: its top-level keys here (WorldConfig.from_dict ignores unknown ones)
-        accepted = [f.name for f in fields(WorldConfig)]
-        if not isinstance(self.world, Mapping):
-            raise HamError(f"{w}: world = {self.world!r}; accepted: a WorldConfig table")
-        for k in self.world:
-            if k not in accepted:
-                raise HamError(f"{w} world: unknown key {k!r}; accepted: {', '.join(accepted)}")
-        world = WorldConfig.from_dict(dict(self.world))
-        object.__setattr__(self, "world", world.to_dict())
-        object.__setattr__(self, "_n_objects", len(world.resolve_objects()))
+        if not isinstance(self.table_cache, bool):
+            raise HamError(f"{w}: table cache = {self.table_cache!r}; accepted: true or false")
         if self.table_grid is not None and not (
             isinstance(self.table_grid, int)
             and not isinstance(self.table_grid, bool)
@@ -280,10 +290,13 @@ class Grid:
                     raise HamError(f"{where}: a config key takes values, not tables")
                 out = []
                 for v in values:
-                    v = flatten(v)
+                    own_world = v.get("world")
+                    v = flatten({k: x for k, x in v.items() if k != "world"})
                     if not isinstance(v.get("name"), str) or not v["name"]:
                         raise HamError(f"{where}: value {v!r} has no name")
                     _check_keys([k for k in v if k != "name"], f"{where} {v['name']!r}")
+                    if own_world is not None:
+                        v["world"] = self._cell_world(own_world, f"{where} {v['name']!r} world")
                     out.append(v)
                 names = [v["name"] for v in out]
             else:
@@ -304,12 +317,54 @@ class Grid:
         for i, c in enumerate(self.cells):
             if not isinstance(c, Mapping):
                 raise HamError(f"{w} cells[{i}] = {c!r}; accepted: a table of overrides")
-            c = flatten(c)
+            own_world = c.get("world")
+            c = flatten({k: x for k, x in c.items() if k != "world"})
             where = f"{w} cell {c.get('name', i)!r}"
             _check_keys([k for k in c if k not in ("name", "seeds")], where)
+            if own_world is not None:
+                c["world"] = self._cell_world(own_world, f"{where} world")
             if "seeds" in c:
                 c["seeds"] = list(_seeds(c["seeds"], where))
             out.append(c)
+        return out
+
+    def _cell_world(self, own, where: str) -> dict:
+        """A cell's ``world`` table: ``{"table": its own fields, "world": the resolved dict}``."""
+        if isinstance(own, Mapping) and set(own) == {"table", "world"}:
+            own = own["table"]  # checked before (dataclasses.replace checks a grid again)
+        world = _resolve_world(own, self.world, where)
+        return {"table": dict(own), "world": world.to_dict()}
+
+    def worlds(self) -> list[dict]:
+        """The distinct worlds of the cells (WorldConfig dicts), the grid's own first."""
+        out = [self.world]
+        for cell in self.expand():
+            w = cell.overrides.get("world", {}).get("world", self.world)
+            if w not in out:
+                out.append(w)
+        return out
+
+    def table_paths(self, root: str | Path, cache_dir: str | Path | None = None) -> dict | None:
+        """World (its JSON text) -> glance table path: ``DIR/table_<N>.h5`` for the grid's world,
+        ``DIR/table_<N>_<hash>.h5`` for a cell's own world; with ``[table] cache = true`` the
+        table cache's path (:mod:`ham.world.cache`). ``None`` when the grid glances online."""
+        if self.table_grid is None:
+            return None
+        from ham.world.cache import cached_table_path, table_key
+        from ham.world.config import WorldConfig
+
+        out = {}
+        for d in self.worlds():
+            world = WorldConfig.from_dict(d)
+            if self.table_cache:
+                path = cached_table_path(world, self.table_grid, cache_dir)
+            elif d == self.world:
+                path = Path(root) / f"table_{self.table_grid}.h5"
+            else:
+                path = (
+                    Path(root) / f"table_{self.table_grid}_{table_key(world, self.table_grid)}.h5"
+                )
+            out[_world_text(d)] = str(path)
         return out
 
     # ------------------------------------------------------------------ expansion
@@ -366,16 +421,24 @@ class Grid:
         from ham.model.agent import HamConfig
         from ham.world.config import WorldConfig
 
-        model: dict = {"n_objects": self._n_objects}
+        world = self.world
+        if "world" in overrides:  # a cell's own world
+            world = overrides["world"]["world"]
+        n_objects = self._n_objects
+        if world != self.world:
+            n_objects = len(WorldConfig.from_dict(world).resolve_objects())
+        model: dict = {"n_objects": n_objects}
         train: dict = {}
         for k, v in overrides.items():
+            if k == "world":
+                continue
             if k.startswith("model."):
                 model[k[len("model.") :]] = v
             else:
                 train[k] = v
         return TrainConfig(
             model=HamConfig(**model),
-            world=WorldConfig.from_dict(self.world),
+            world=WorldConfig.from_dict(world),
             seed=seed,
             table=table,
             **train,
@@ -387,19 +450,30 @@ class Grid:
             return None
         return str(Path(root) / f"table_{self.table_grid}.h5")
 
-    def jobs(self, table: str | None = None) -> list[GridJob]:
-        """Every run: cells in order, seeds within a cell; ``table`` is the glance table's path."""
+    def jobs(self, table: str | Mapping | None = None) -> list[GridJob]:
+        """Every run: cells in order, seeds within a cell; ``table`` is the glance table's path,
+        or :meth:`table_paths`' mapping when cells have worlds of their own."""
         if (table is None) != (self.table_grid is None):
             raise HamError(
                 f"grid {self.name!r}: a table path goes with [table] grid (got {table!r})"
             )
         out = []
         for cell in self.expand():
+            path = table
+            if isinstance(table, Mapping):
+                world = cell.overrides.get("world", {}).get("world", self.world)
+                path = table[_world_text(world)]
+            elif table is not None and "world" in cell.overrides:
+                raise HamError(
+                    f"grid {self.name!r}: cell {cell.name!r} has its own world; give the "
+                    "tables of table_paths()"
+                )
             for seed in cell.seeds:
-                config = self.config(cell.overrides, seed, table).to_dict()
+                config = self.config(cell.overrides, seed, path).to_dict()
                 key = f"{cell.name}-s{seed}"
+                own = cell.overrides.get("world", {}).get("world")
                 out.append(GridJob(key, cell.name, seed, dict(cell.labels), config,
-                                   list(self.evaluate)))  # fmt: skip
+                                   list(self.evaluate), own))  # fmt: skip
         return out
 
     # ------------------------------------------------------------------ files
@@ -413,12 +487,14 @@ class Grid:
             d["key"] = self.key
         d["base"] = dict(self.base)
         if self.axes:
-            d["axes"] = dict(self.axes)
+            d["axes"] = {k: [_raw_world(v) for v in vs] for k, vs in self.axes.items()}
         if self.cells:
-            d["cells"] = list(self.cells)
+            d["cells"] = [_raw_world(c) for c in self.cells]
         d["world"] = dict(self.world)
         if self.table_grid is not None:
             d["table"] = {"grid": self.table_grid}
+            if self.table_cache:
+                d["table"]["cache"] = True
         if self.evaluate:
             d["evaluate"] = list(self.evaluate)
         return d
@@ -430,11 +506,17 @@ class Grid:
         bad = [k for k in d if k not in GRID_KEYS]
         if bad:
             raise HamError(f"{source}: unknown key {bad[0]!r}; accepted: {', '.join(GRID_KEYS)}")
-        table = d.get("table")
+        table, cache = d.get("table"), False
         if table is not None:
-            if not isinstance(table, Mapping) or set(table) - {"grid"} or "grid" not in table:
-                raise HamError(f"{source}: table = {table!r}; accepted: a table with grid = N")
-            table = table["grid"]
+            if (
+                not isinstance(table, Mapping)
+                or set(table) - {"grid", "cache"}
+                or "grid" not in table
+            ):
+                raise HamError(
+                    f"{source}: table = {table!r}; accepted: a table with grid = N (and cache = true)"
+                )
+            table, cache = table["grid"], table.get("cache", False)
         for k in ("evaluate",):
             if not isinstance(d.get(k, []), list):
                 raise HamError(f"{source}: {k} = {d[k]!r}; accepted: a list of tables")
@@ -449,7 +531,38 @@ class Grid:
             world=d.get("world", {}),
             table_grid=table,
             evaluate=d.get("evaluate", []),
+            table_cache=cache,
         )
+
+
+def _raw_world(v):
+    """An axis value or cell with its own world as the file wrote it (its ``world`` table)."""
+    if isinstance(v, Mapping) and "world" in v:
+        return {**v, "world": v["world"]["table"]}
+    return v
+
+
+def _world_text(world: Mapping) -> str:
+    return json.dumps(world, sort_keys=True, default=str)
+
+
+def _resolve_world(own, under: Mapping, where: str):
+    """``own`` (a world table: WorldConfig fields, ``preset``, ``pose`` as a preset name) laid
+    over the resolved world dict ``under``; a one-line HamError naming ``where`` if it is bad."""
+    from ham.world.config import WorldConfig, world_from_table
+
+    accepted = [f.name for f in fields(WorldConfig)] + ["preset"]
+    if not isinstance(own, Mapping):
+        raise HamError(f"{where} = {own!r}; accepted: a WorldConfig table")
+    for k in own:
+        if k not in accepted:
+            raise HamError(f"{where}: unknown key {k!r}; accepted: {', '.join(accepted)}")
+    try:
+        if "preset" in own:  # a preset starts afresh: only the cell's own fields replace it
+            return world_from_table(dict(own))
+        return world_from_table({**under, **own})
+    except HamError as exc:
+        raise HamError(f"{where}: {exc}") from None
 
 
 def _axis_items(axes: Mapping):
@@ -490,4 +603,10 @@ def load_grid(path: str | Path) -> Grid:
 
 def settings_text(settings: Mapping) -> str:
     """``glances=3, policy=random`` for a report."""
-    return ", ".join(f"{_short(k)}={_value_text(v)}" for k, v in settings.items())
+
+    def text(k, v) -> str:
+        if k == "world":  # a cell's own world: the fields it sets
+            return "world: " + ", ".join(f"{a}={json.dumps(b)}" for a, b in v["table"].items())
+        return f"{_short(k)}={_value_text(v)}"
+
+    return ", ".join(text(k, v) for k, v in settings.items())

@@ -56,13 +56,16 @@ def run_grid(
     command: str | None = None,
     batch_runs: int | None = None,
     stop_at_perfect: bool = False,
+    cache_dir: str | os.PathLike | None = None,
 ) -> dict:
     """Run what is not finished of ``grid`` (a :class:`Grid` or a grid file) into ``out``.
 
     ``seeds`` replaces every cell's seeds by ``0..seeds-1``; ``device`` sets every run's device.
     ``batch_runs`` (runs per batch) and ``stop_at_perfect`` go with ``executor="batched"``.
-    Returns the summary (``results.json`` plus ``ran``, ``skipped`` and ``failures``).
+    ``cache_dir``: the table cache of a grid with ``[table] cache = true`` (default
+    ``$HAM_CACHE_DIR`` or ``~/.cache/ham``). Returns the summary (``results.json`` plus ``ran``, ``skipped`` and ``failures``).
     """
+    from ham.world.cache import cached_table
     from ham.world.config import WorldConfig
     from ham.world.table import build_table
 
@@ -85,12 +88,18 @@ def run_grid(
         raise HamError(f"retries = {retries!r}; accepted: an integer >= 0")
     root = Path(out).resolve()
     root.mkdir(parents=True, exist_ok=True)
-    table = grid.table_path(root)
-    jobs = grid.jobs(table)
+    tables = grid.table_paths(root, cache_dir)
+    jobs = grid.jobs(tables)
     _check_existing_runs(root, jobs)
-    if table is not None and not Path(table).exists():
-        build_table(WorldConfig.from_dict(grid.world), grid.table_grid, table, progress=progress,
-                    command="ham reproduce grid")  # fmt: skip
+    for world, table in (tables or {}).items():  # one table per world, built before any run
+        if not Path(table).exists():
+            world = WorldConfig.from_dict(json.loads(world))
+            if grid.table_cache:
+                cached_table(world, grid.table_grid, cache_dir, progress=progress,
+                             command="ham reproduce grid")  # fmt: skip
+            else:
+                build_table(world, grid.table_grid, table, progress=progress,
+                            command="ham reproduce grid")  # fmt: skip
     _write_json(root / "grid.json", grid.to_dict())
     _write_json(root / "plan.json", [j.to_dict() for j in jobs])
 

@@ -195,9 +195,11 @@ def paper_grid(
     seeds: int | None = None,
     device: str = "cpu",
     world: dict | None = None,
+    eval_policy: str | None = None,
 ):
     """Table 1 (``table1``, also the figures' runs: ``figures``) or Table 2 as a :class:`Grid`,
-    cut to ``profile``'s protocol, glance counts and variants, in ``world`` (default: the paper's).
+    cut to ``profile``'s protocol, glance counts and variants, in ``world`` (default: the paper's),
+    evaluated with ``eval_policy`` (default: TrainConfig's).
     """
     from ham.experiments.grid import Grid
 
@@ -210,6 +212,8 @@ def paper_grid(
                      eval_batches=profile.eval_batches)  # fmt: skip
     if device != "cpu":
         d["base"]["device"] = device
+    if eval_policy is not None:
+        d["base"]["eval_policy"] = eval_policy
     if name != "table2":
         kept = [v for v in profile.variants if name == "table1" or v in ("full", "rloc")]
         d["axes"]["variant"] = [v for v in VARIANT_AXIS if v["name"] in kept]
@@ -228,6 +232,7 @@ def plan(
     table: str,
     device: str = "cpu",
     world: dict | None = None,
+    eval_policy: str | None = None,
 ) -> list[Job]:
     """The runs ``target`` needs, deduplicated (Table 2's concat2 run is Table 1's full model).
 
@@ -239,7 +244,7 @@ def plan(
              "all": ["table1", "table2", "figures"]}[target]  # fmt: skip
     jobs: dict[str, Job] = {}
     for name in names:
-        grid = paper_grid(name, profile, seeds, device, world)
+        grid = paper_grid(name, profile, seeds, device, world, eval_policy)
         for j in grid.jobs(table) if grid is not None else []:
             if j.key not in jobs:
                 model = j.config["model"]
@@ -269,7 +274,8 @@ def run_job(job: dict, root: str, world: dict, grid: int | None) -> dict:
     status = "skipped"
     if not is_finished(out, config.steps):
         if config.table is not None:
-            _ensure_table(Path(config.table), world, grid)
+            # a grid cell's own world (docs/grids.md), else the grid's
+            _ensure_table(Path(config.table), job.get("world", world), grid)
         if (out / "checkpoint.pt").exists():
             resume(out, progress=False)
         else:
@@ -410,7 +416,7 @@ def run_batch(
     if todo:
         configs = [TrainConfig.from_dict(j["config"]) for j in todo]
         if configs[0].table is not None:
-            _ensure_table(Path(configs[0].table), world, grid)
+            _ensure_table(Path(configs[0].table), todo[0].get("world", world), grid)
         outs = [run_dir(Path(root), j["key"]) for j in todo]
         results = train_batched(configs, outs, stop_at_perfect=stop_at_perfect)
         errors = {j["key"]: r for j, r in zip(todo, results, strict=True) if isinstance(r, str)}
@@ -629,6 +635,9 @@ def reproduce(
     world: WorldConfig | None = None,
     batch_runs: int | None = None,
     stop_at_perfect: bool = False,
+    eval_policy: str | None = None,
+    table_cache: bool = False,
+    cache_dir: str | os.PathLike | None = None,
 ) -> dict:
     """Plan, run (skipping finished runs), aggregate and report. Returns the summary dict.
 
@@ -637,7 +646,11 @@ def reproduce(
     ``world``: the world of the glance table (default: the paper's); with an objects file, every
     worker registers the file's objects from the record in the table and the world.
     ``batch_runs`` (runs per batch) and ``stop_at_perfect`` go with ``executor="batched"``.
+    ``eval_policy``: the evaluation during training (a world preset's; default TrainConfig's).
+    ``table_cache``: take the glance table from the table cache (:mod:`ham.world.cache`, in
+    ``cache_dir``), built there once, instead of ``OUT/table_<N>.h5`` (a preset's slow world).
     """
+    from ham.world.cache import cached_table
     from ham.world.config import WorldConfig
     from ham.world.devices import check_device
     from ham.world.files import check_output_dir
@@ -668,13 +681,16 @@ def reproduce(
     root.mkdir(parents=True, exist_ok=True)
     world = world or WorldConfig()
     table = root / f"table_{profile.table_grid}.h5"
-    if table.exists():
+    if table_cache:
+        table = cached_table(world, profile.table_grid, cache_dir, progress=progress,
+                             command=command or "ham reproduce")  # fmt: skip
+    elif table.exists():
         _check_table_objects(table, world)
     else:
         build_table(
             world, profile.table_grid, table, progress=progress, command=command or "ham reproduce"
         )
-    jobs = plan(target, profile, profile.seeds, str(table), device, world.to_dict())
+    jobs = plan(target, profile, profile.seeds, str(table), device, world.to_dict(), eval_policy)
     (root / "plan.json").write_text(json.dumps([j.to_dict() for j in jobs], indent=1))
 
     todo = [j for j in jobs if not is_finished(run_dir(root, j.key), profile.steps)]

@@ -184,3 +184,46 @@ def make_simulator(
             objs, config.sensor, config.pose, config.glance, device=device, **kwargs
         )
     raise HamError(f"unknown simulator {name!r}; accepted: {', '.join(simulator_names())}")
+
+
+# ------------------------------------------------------------------------------------------------
+# World presets: named worlds as data (docs/world.md, "World presets"). A preset is a WorldConfig
+# table (``pose`` may name a PoseConfig preset), the glance table's grid and the evaluation the
+# setting calls for. Explicit options override a preset's fields (``--world P --sensor taxels``).
+
+#: The presets ``--world`` knows; one definition, read by the CLI, grids and reproduce.
+WORLD_PRESETS: dict[str, dict] = {
+    "paper-gazebo": {
+        "description": "the paper's world as its Gazebo plugin saw it: MuJoCo contacts read out "
+        "as a few points spread by a 5 mm Gaussian, the authors' pose mapping (phi = q * 0.3 pi, "
+        "pivot shift) and exploration zones, a 201 x 201 glance table, evaluated with sampled "
+        "poses (the paper: 'using the currently available policy')",
+        "world": {"simulator": "mujoco", "mujoco": {"readout": "gazebo"}, "pose": "authors"},
+        "grid": 201,
+        "eval_policy": "sample",
+    },
+}
+
+
+def world_preset(name: str) -> dict:
+    """The preset ``name`` (a copy): ``description``, ``world``, ``grid``, ``eval_policy``."""
+    import copy
+
+    if name not in WORLD_PRESETS:
+        raise HamError(f"world preset {name!r}; accepted: {', '.join(WORLD_PRESETS)}")
+    return copy.deepcopy(WORLD_PRESETS[name])
+
+
+def world_from_table(d: dict) -> WorldConfig:
+    """A world from a table of WorldConfig fields that may name a ``preset`` (its world is the
+    start; the table's other fields replace the preset's) and a pose preset (``pose = "authors"``).
+    """
+    if not isinstance(d, dict):
+        raise HamError(f"world = {d!r}; accepted: a table of WorldConfig fields (and preset)")
+    d = dict(d)
+    name = d.pop("preset", None)
+    base = world_preset(name)["world"] if name is not None else {}
+    merged = {**base, **d}
+    if isinstance(merged.get("pose"), str):
+        merged["pose"] = asdict(PoseConfig.preset(merged["pose"]))
+    return WorldConfig.from_dict(merged)
