@@ -9,7 +9,7 @@ import sys
 from dataclasses import replace
 
 from ham.errors import HamError
-from ham.world.glance import PAPER_POSE_DIMS, POSE_PRESETS, check_pose_dims
+from ham.world.glance import POSE_PRESETS, check_pose_dims
 from ham.world.sensor import READOUTS
 
 
