@@ -294,3 +294,21 @@ def test_heights_reads_the_surface():
     ref = DOME.surface(x.double().numpy(), y.double().numpy())
     np.testing.assert_allclose(h.numpy(), ref, atol=1e-6)  # 0.5 mm bilinear grid; table beside
     assert float(h[0, 3]) == 0.0
+
+
+def test_objects_of_different_sizes_glance_as_alone():
+    # Different grids per object take the per-row path; it must give each object's own glances.
+    wide = HapticObject.from_surface("t_wide", _dome, width=0.15, depth=0.12)
+    ramp = objects.get("trough")  # extruded, with feature lines
+    mixed = ExtendedSimulator([wide, ramp])
+    assert not mixed._uniform
+    g = torch.Generator().manual_seed(1)
+    n = 300
+    q = [torch.rand(n, generator=g) * 2 - 1 for _ in range(4)]
+    pose = (torch.rand(n, generator=g) * 6, torch.zeros(n) + 0.004, torch.zeros(n) - 0.003)
+    for oid, obj in enumerate((wide, ramp)):
+        alone = ExtendedSimulator([obj])
+        for kw in ({}, {"object_pose": pose}):
+            a = mixed.glance(torch.full((n,), oid), *q, **kw)
+            b = alone.glance(torch.zeros(n, dtype=torch.long), *q, **kw)
+            assert torch.equal(a.z, b.z) and torch.equal(a.pressure, b.pressure)
