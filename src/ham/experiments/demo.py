@@ -29,7 +29,8 @@ def run_demo(out: Path, *, quick: bool = False) -> dict:
     grid = 21 if quick else 201
     table_path = build_table(world, grid, out / "table.h5", command=f"ham demo --out {out}")
     print(f"glance table: {table_path}")
-    draw_objects(objects.resolve_set("all"), out / "objects.png")
+    # the line objects (paper + MHSB); the height-field sets have pictures of their own
+    draw_objects(objects.resolve_set("paper") + objects.resolve_set("mhsb"), out / "objects.png")
     sim = make_simulator(world)
     pictures = []
     for oid, obj in enumerate(world.resolve_objects()):
