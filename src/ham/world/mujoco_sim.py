@@ -439,11 +439,16 @@ def scene_xml(
             f'pos="{_fmt([0, 0, f / 2])}"/>'
         )
     flags = '<flag multiccd="enable"/>' if c.readout == "gazebo" else ""
+    # Height fields collide through MuJoCo's convex (CCD) test, whose depth is only as exact as
+    # its tolerance (1e-6 m by default, the size of the foam's whole compression): tighter.
+    ccd = (
+        ' ccd_tolerance="1e-10" ccd_iterations="100"' if any(o.varies_in_y for o in objects) else ""
+    )
     big = _fmt([L, L, 0.05])
     return f"""<mujoco model="ham_glance">
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{c.timestep:.9g}" gravity="0 0 0" integrator="implicitfast" solver="Newton"
-          iterations="50" tolerance="1e-10">{flags}</option>
+          iterations="50" tolerance="1e-10"{ccd}>{flags}</option>
   <visual><global offwidth="1280" offheight="960"/></visual>
   <default>
     <geom condim="1" friction="0 0 0"/>
@@ -1004,7 +1009,7 @@ class MujocoSimulator:
         steps, status = 0, STEP_LIMIT
         h_tol = 1e-3 * target
         idle = 0  # consecutive checks with only the housing touching
-        thin = general and self._fields and self.objects[obj].varies_in_y
+        thin = self.objects[obj].varies_in_y
         while steps < c.max_steps:
             if thin:
                 for _ in range(c.check_every):
@@ -1047,39 +1052,49 @@ class MujocoSimulator:
         return pressure, total, float(d.qpos[0]), steps, status
 
     def _step_one_contact_per_taxel(self, m: mujoco.MjModel, d: mujoco.MjData) -> None:
-        """One ``mj_step`` in which each taxel keeps only its deepest contact.
+        """One ``mj_step`` in which each taxel keeps only its deepest contact
+        (:meth:`_one_contact_per_taxel` between collision and dynamics)."""
+        mujoco.mj_step1(m, d)
+        self._one_contact_per_taxel(m, d)
+        mujoco.mj_step2(m, d)
+
+    def _one_contact_per_taxel(self, m: mujoco.MjModel, d: mujoco.MjData) -> bool:
+        """Exclude every contact of a taxel but its deepest, and make the constraints again.
 
         A height field is a mesh of triangle prisms, and MuJoCo collides a sphere with each prism
         it reaches: a taxel resting near a vertex gets up to a dozen contacts, each a full spring,
-        so it would be many times stiffer than its neighbours. Between collision and the
-        constraints, every contact of a taxel but the deepest is excluded (``exclude = 1``, as
-        MuJoCo marks contacts in the margin gap) and the constraints are made again.
+        so it would be many times stiffer than its neighbours. The others are marked as MuJoCo
+        marks contacts in the margin gap (``exclude = 1``) and lose their constraint address, so
+        neither the solver nor the sensors count them. Returns whether any was dropped; call
+        after the position stage (``mj_step1``, ``mj_fwdPosition``).
         """
-        mujoco.mj_step1(m, d)
         ncon = d.ncon
-        if ncon > 1:
-            con = d.contact
-            geoms = con.geom[:ncon]
-            tax = np.maximum(self._geom_taxel[geoms[:, 0]], self._geom_taxel[geoms[:, 1]])
-            sel = np.flatnonzero(tax >= 0)
-            if len(sel) > 1:
-                order = sel[np.lexsort((con.dist[sel], tax[sel]))]
-                first = np.ones(len(order), dtype=bool)
-                first[1:] = tax[order[1:]] != tax[order[:-1]]
-                drop = order[~first]
-                if len(drop):
-                    exclude = con.exclude[:ncon].copy()
-                    exclude[drop] = 1
-                    con.exclude[:ncon] = exclude
-                    mujoco.mj_makeConstraint(m, d)
-                    # The sensors read every contact with an address: clear the dropped ones'.
-                    address = con.efc_address[:ncon].copy()
-                    address[drop] = -1
-                    con.efc_address[:ncon] = address
-                    mujoco.mj_island(m, d)
-                    mujoco.mj_projectConstraint(m, d)
-                    mujoco.mj_fwdVelocity(m, d)
-        mujoco.mj_step2(m, d)
+        if ncon < 2:
+            return False
+        con = d.contact
+        geoms = con.geom[:ncon]
+        tax = np.maximum(self._geom_taxel[geoms[:, 0]], self._geom_taxel[geoms[:, 1]])
+        sel = np.flatnonzero(tax >= 0)
+        if len(sel) < 2:
+            return False
+        order = sel[np.lexsort((con.dist[sel], tax[sel]))]
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = tax[order[1:]] != tax[order[:-1]]
+        drop = order[~first]
+        if not len(drop):
+            return False
+        exclude = con.exclude[:ncon].copy()
+        exclude[drop] = 1
+        con.exclude[:ncon] = exclude
+        mujoco.mj_makeConstraint(m, d)
+        # The sensors read every contact with an address: clear the dropped ones'.
+        address = con.efc_address[:ncon].copy()
+        address[drop] = -1
+        con.efc_address[:ncon] = address
+        mujoco.mj_island(m, d)
+        mujoco.mj_projectConstraint(m, d)
+        mujoco.mj_fwdVelocity(m, d)
+        return True
 
     def _read(self, m: mujoco.MjModel, d: mujoco.MjData) -> tuple[np.ndarray, float]:
         """The image (Pa) from the last step's contacts, and their summed normal force (N)."""
@@ -1137,6 +1152,11 @@ class MujocoSimulator:
             z0 += self.config.clearance
         self._glance_one(m, d, int(object_id), x, phi, z0, y=y, phi_y=phi_y, general=general)
         mujoco.mj_forward(m, d)
+        if self.objects[int(object_id)].varies_in_y and self._one_contact_per_taxel(m, d):
+            mujoco.mj_fwdActuation(m, d)
+            mujoco.mj_fwdAcceleration(m, d)
+            mujoco.mj_fwdConstraint(m, d)
+            mujoco.mj_sensorAcc(m, d)
         return m, d, res
 
     # ------------------------------------------------------------------ description

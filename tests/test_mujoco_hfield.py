@@ -1,0 +1,158 @@
+"""MuJoCo glances on height-field objects and the 4-D pose (x, y, phi, phi_y) of issue 12.
+
+Every test runs the real MuJoCo engine; none asserts a timing.
+"""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from ham.errors import HamError
+from ham.world.objects import HapticObject, resolve_set
+
+mujoco = pytest.importorskip("mujoco")
+
+from ham.world.mujoco_sim import (  # noqa: E402
+    SETTLED,
+    MujocoSimulator,
+    build_model,
+    hfield_samples,
+)
+
+PHI_MAX = math.pi / 2
+#: The pose of the tilted-plane test (rad) and the plane that lies parallel to the face there.
+PHI, PHI_Y = 0.2, 0.15
+SLOPE_X = -math.tan(PHI)
+SLOPE_Y = -math.sin(PHI_Y) / (math.cos(PHI_Y) * math.cos(PHI))
+
+
+def _plane(x, y):
+    return 0.04 + SLOPE_X * x + SLOPE_Y * y
+
+
+def _dome(x, y):
+    return 0.02 + 0.02 * np.clip(1 - (x**2 + y**2) / 0.045**2, 0, None)
+
+
+PLANE = HapticObject.from_surface("tilted_plane", _plane)
+DOME = HapticObject.from_surface("dome_test", _dome)
+
+
+@pytest.fixture(scope="module")
+def sim() -> MujocoSimulator:
+    return MujocoSimulator([PLANE, DOME, resolve_set("paper")[0]], threads=2)
+
+
+def test_height_field_becomes_an_hfield_geom_the_right_way_round():
+    m = build_model([PLANE, DOME])
+    g = m.geom("obj0_hfield")
+    assert g.type[0] == mujoco.mjtGeom.mjGEOM_HFIELD
+    hs = hfield_samples(PLANE, 1e-3)
+    assert hs.shape == (91, 91)  # an even number of 1 mm cells: the centre lines are sampled
+    # Rays straight down meet the plane's own height at (x, y): rows run from -y to +y.
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    geomid = np.zeros(1, dtype=np.int32)
+    for x, y in [(0.03, 0.035), (-0.02, -0.04), (0.0, 0.0), (0.041, -0.012)]:
+        dist = mujoco.mj_ray(
+            m, d, np.array([x, y, 0.5]), np.array([0, 0, -1.0]), None, 1, -1, geomid
+        )
+        assert 0.5 - dist == pytest.approx(float(_plane(x, y)), abs=1e-7)
+
+
+def test_pose_rotation_follows_the_spec(sim):
+    """d = R_y(phi) R_x(phi_y) (u, v, 0) as written in issue 12's contract."""
+    q_phi, q_phi_y = 0.3, -0.2
+    m, d, res = sim.settled_scene(1, 0.1, q_phi, -0.2, q_phi_y)
+    phi, phi_y = float(res.phi[0]), float(res.phi_y[0])
+    assert phi == pytest.approx(q_phi * PHI_MAX) and phi_y == pytest.approx(q_phi_y * PHI_MAX)
+    rot = d.xmat[m.body("pad").id].reshape(3, 3)
+    for u, v in [(0.04, 0.0), (0.0, 0.04), (-0.03, 0.02)]:
+        want = [
+            u * math.cos(phi) - v * math.sin(phi_y) * math.sin(phi),
+            v * math.cos(phi_y),
+            -u * math.sin(phi) - v * math.sin(phi_y) * math.cos(phi),
+        ]
+        np.testing.assert_allclose(rot @ [u, v, 0.0], want, atol=1e-6)
+    # y is the object's half depth times q_y; the pad stands there.
+    assert float(res.y[0]) == pytest.approx(-0.2 * DOME.depth / 2)
+    assert d.xpos[m.body("pad").id][1] == pytest.approx(float(res.y[0]))
+
+
+def test_tilted_plane_face_parallel_stops_at_the_analytic_height():
+    """The face parallel to a sloped plane: all 256 taxels press equally, each a linear spring
+    (contact_stiffness), so the summed normal force 2 N sinks the face ``p = 2 N / (256 k)``
+    along the normal, ``p / n_z`` below the plane under the face centre. Settled far tighter
+    than a table glance (as the calibration does): the depth is micrometres."""
+    sim = MujocoSimulator(
+        [PLANE], threads=1, settle_speed=1e-9, settle_tolerance=1e-6, max_steps=4000
+    )
+    r = sim.glance([0], [0.0], [PHI / PHI_MAX], [0.0], [PHI_Y / PHI_MAX])
+    assert int(r.info["status"][0]) == SETTLED
+    k = sim.config.contact_stiffness
+    force = float(r.force[0])
+    assert force == pytest.approx(2.0, rel=1e-5)
+    n_z = 1.0 / math.sqrt(1.0 + SLOPE_X**2 + SLOPE_Y**2)
+    want = float(_plane(0.0, 0.0)) - force / (256 * k) / n_z
+    assert float(r.z[0]) == pytest.approx(want, abs=2e-8)
+    assert float(r.height[0]) == float(r.z[0])
+    # Every taxel carries its share: the image is uniform to a few percent.
+    img = r.pressure[0].numpy()
+    assert img.min() > 0.95 * img.mean() and img.max() < 1.05 * img.mean()
+
+
+def test_dome_glance_one_contact_per_taxel(sim):
+    """A taxel near a height-field vertex meets several triangle prisms; only its deepest
+    contact is kept, so it is one spring like its neighbours."""
+    m, d, res = sim.settled_scene(1, 0.2, 0.1, 0.3, -0.1)
+    assert bool(res.contact[0])
+    con = d.contact
+    n = d.ncon
+    geoms = con.geom[:n]
+    tax = np.maximum(sim._geom_taxel[geoms[:, 0]], sim._geom_taxel[geoms[:, 1]])
+    kept = (tax >= 0) & (con.exclude[:n] == 0)
+    assert kept.any()
+    assert np.bincount(tax[kept]).max() == 1
+    assert ((tax >= 0) & (con.exclude[:n] != 0)).any()  # there were several to thin
+    # The stop height lies within a millimetre of the dome under the touching taxels.
+    assert float(res.z[0]) == pytest.approx(float(_dome(float(res.x[0]), float(res.y[0]))), abs=5e-3)
+
+
+def test_paper_object_with_zero_extended_pose_is_the_paper_glance(sim):
+    ids, qx, qp = [2, 2, 2], [-0.5, 0.0, 0.7], [0.1, -0.3, 0.0]
+    a = sim.glance(ids, qx, qp)
+    b = sim.glance(ids, qx, qp, [0.0] * 3, [0.0] * 3)
+    for k in ("pressure", "force", "z", "x", "phi"):
+        assert torch.equal(getattr(a, k), getattr(b, k)), k
+    assert (a.y == 0).all() and (a.phi_y == 0).all()
+
+
+def test_paper_box_tilted_about_x_is_glanced_from_a_clear_start(sim):
+    """phi_y != 0 on an extruded object: the start height comes from MuJoCo's collision test."""
+    r = sim.glance([2], [0.0], [0.0], [0.0], [0.2 / PHI_MAX])
+    assert int(r.info["status"][0]) == SETTLED
+    # The lowest row of taxels rests on the box top (4.5 cm): the face centre sits higher by
+    # half the tilted face's drop (4 cm * sin 0.2) minus the rim sphere's reach beyond it.
+    assert 0.045 < float(r.z[0]) < 0.045 + 0.04 * math.sin(0.2)
+    assert bool(r.contact[0])
+
+
+def test_bad_inputs_are_named(sim):
+    with pytest.raises(HamError, match=r"q_y = 1.5 .*\[-1, 1\]"):
+        sim.glance([1], [0.0], [0.0], [1.5], [0.0])
+    with pytest.raises(HamError, match=r"q_phi_y = nan"):
+        sim.glance([1], [0.0], [0.0], [0.0], [float("nan")])
+    with pytest.raises(HamError, match=r"q_x, q_phi, q_y and q_phi_y must have equal lengths"):
+        sim.glance([1, 1], [0.0, 0.1], [0.0, 0.0], [0.0, 0.1, 0.2])
+    with pytest.raises(HamError, match="object_pose.*accepted: None"):
+        sim.glance([1], [0.0], [0.0], object_pose=(torch.zeros(1), torch.zeros(1), torch.zeros(1)))
+    with pytest.raises(HamError, match="hfield_spacing = 0.*positive"):
+        MujocoSimulator([DOME], hfield_spacing=0.0)
+
+
+def test_describe_names_hfield_spacing_only_for_height_fields(sim):
+    assert sim.describe()["mujoco"]["hfield_spacing"] == sim.config.hfield_spacing
+    paper = MujocoSimulator(resolve_set("paper"), threads=1)
+    assert "hfield_spacing" not in paper.describe()["mujoco"]
