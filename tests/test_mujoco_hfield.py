@@ -117,7 +117,9 @@ def test_dome_glance_one_contact_per_taxel(sim):
     assert np.bincount(tax[kept]).max() == 1
     assert ((tax >= 0) & (con.exclude[:n] != 0)).any()  # there were several to thin
     # The stop height lies within a millimetre of the dome under the touching taxels.
-    assert float(res.z[0]) == pytest.approx(float(_dome(float(res.x[0]), float(res.y[0]))), abs=5e-3)
+    assert float(res.z[0]) == pytest.approx(
+        float(_dome(float(res.x[0]), float(res.y[0]))), abs=5e-3
+    )
 
 
 def test_paper_object_with_zero_extended_pose_is_the_paper_glance(sim):

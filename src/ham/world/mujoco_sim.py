@@ -86,10 +86,13 @@ from ham.world.sensor import READOUTS, Myrmex, SensorConfig
 
 Readout = Literal["taxels", "gazebo"]
 FailureMode = Literal["flag", "raise"]
+HfieldContacts = Literal["deepest", "all"]
 
 # Status codes of one glance (``GlanceResult.info["status"]``).
 SETTLED, BLOCKED, STEP_LIMIT, UNSTABLE = 0, 1, 2, 3
 STATUS_NAMES: tuple[str, ...] = ("settled", "blocked", "step_limit", "unstable")
+#: The taxel spheres' radius (m) in a scene of the paper's kind of objects.
+PAPER_TAXEL_RADIUS = 0.005
 #: A glance whose pad leaves its start height by more than this (m) has diverged.
 _DIVERGED = 0.05
 
@@ -101,8 +104,11 @@ class MujocoConfig:
     Attributes:
         readout: ``taxels`` (16 x 16 sphere taxels, one contact each: edges are lines) or
             ``gazebo`` (the paper's plugin: few contact points spread by a Gaussian: blobs).
-        taxel_radius: radius of each sphere taxel (m); its bottom lies on the face. 5 mm keeps the
-            bumps between neighbours (0.67 mm deep) and the bulge at tilted contacts small.
+        taxel_radius: radius of each sphere taxel (m); its bottom lies on the face. ``None``
+            (default): 5 mm in a scene of the paper's kind of objects, which keeps the bumps
+            between neighbours (0.67 mm deep) and the bulge at tilted contacts small; half the
+            pitch (2.5 mm) in a scene with height fields, so that the rim taxels end at the
+            face's rim as the fast model's face does (docs/crosscheck_curvature2d.md).
         contact_stiffness: equilibrium force per metre of penetration of one taxel contact (N/m).
             250 N/m is the fast model's default foam (1e7 Pa/m over a 5 x 5 mm cell).
         contact_time_constant: MuJoCo's ``solref[0]``: the time constant (s) with which every
@@ -132,6 +138,9 @@ class MujocoConfig:
         hfield_spacing: grid spacing (m) of the MuJoCo height field that carries an object whose
             top varies in y (:attr:`HapticObject.varies_in_y`); MuJoCo joins the samples by two
             triangles per cell.
+        hfield_contacts: ``deepest`` (default) keeps one contact per taxel on a height field,
+            its deepest; ``all`` keeps every contact MuJoCo makes with the field's triangle
+            prisms (up to a dozen per taxel, each a full spring; for comparison only).
         on_failure: ``flag`` (default) marks a failed glance in the result; ``raise`` raises.
 
     The pad mass is not a free parameter: MuJoCo's soft-contact force at rest is
@@ -142,7 +151,7 @@ class MujocoConfig:
     """
 
     readout: Readout = "taxels"
-    taxel_radius: float = 0.005
+    taxel_radius: float | None = None
     contact_stiffness: float = 1000.0
     contact_time_constant: float = 0.006
     damping_ratio: float = 1.0
@@ -165,6 +174,7 @@ class MujocoConfig:
     object_spacing: float = 0.3
     curve_tolerance: float = 2.0e-5
     hfield_spacing: float = 1.0e-3
+    hfield_contacts: HfieldContacts = "deepest"
     on_failure: FailureMode = "flag"
 
     def __post_init__(self) -> None:
@@ -172,8 +182,18 @@ class MujocoConfig:
             raise HamError(f"readout = {self.readout!r}; accepted: {', '.join(READOUTS)}")
         if self.on_failure not in ("flag", "raise"):
             raise HamError(f"on_failure = {self.on_failure!r}; accepted: flag, raise")
+        if self.hfield_contacts not in ("deepest", "all"):
+            raise HamError(f"hfield_contacts = {self.hfield_contacts!r}; accepted: deepest, all")
+        if self.taxel_radius is not None and not (
+            isinstance(self.taxel_radius, (int, float))
+            and math.isfinite(self.taxel_radius)
+            and self.taxel_radius > 0
+        ):
+            raise HamError(
+                f"taxel_radius = {self.taxel_radius!r}; accepted: None (by the scene) or a "
+                "positive number (m)"
+            )
         for name in (
-            "taxel_radius",
             "contact_stiffness",
             "contact_time_constant",
             "damping_ratio",
@@ -227,6 +247,13 @@ class MujocoConfig:
             raise HamError(f"solref = {self.solref!r}; accepted: None or 2 numbers")
         if self.solimp is not None and len(self.solimp) != 5:
             raise HamError(f"solimp = {self.solimp!r}; accepted: None or 5 numbers")
+
+    def resolved(self, objects: list[HapticObject], sensor: SensorConfig) -> MujocoConfig:
+        """This configuration with ``taxel_radius`` set for a scene of ``objects``."""
+        if self.taxel_radius is not None:
+            return self
+        fields_ = any(o.varies_in_y for o in objects)
+        return replace(self, taxel_radius=0.5 * sensor.pitch if fields_ else PAPER_TAXEL_RADIUS)
 
     @property
     def pad_mass(self) -> float:
@@ -410,7 +437,7 @@ def scene_xml(
 ) -> str:
     """The MJCF of the whole scene: table, objects in a row, the pad (see module doc)."""
     s = sensor or SensorConfig()
-    c = config or MujocoConfig()
+    c = (config or MujocoConfig()).resolved(objects, s)
     L, f, T = s.size, s.foam_thickness, s.housing_thickness
     r = c.taxel_radius
     assets, bodies = [], []
@@ -696,10 +723,10 @@ class MujocoSimulator:
             raise HamError(
                 f"device = {device!r}: the MuJoCo simulator runs on the CPU; accepted: cpu"
             )
-        self.config = config
         self.objects = list(objects)
         self.myrmex = Myrmex(sensor)
         self.sensor = self.myrmex.config
+        self.config = config = config.resolved(self.objects, self.sensor)
         self.pose = pose or PoseConfig()
         self.glance_config = glance or GlanceConfig()
         _check_world(self.sensor, self.glance_config, self.objects)
@@ -740,10 +767,20 @@ class MujocoSimulator:
         return x, phi
 
     def poses4(self, ids, q_x, q_phi, q_y, q_phi_y):
-        """Metric ``(x, y, phi, phi_y)`` of the face centre (SPEC of issue 12): ``y = q_y *
-        depth / 2`` of the object, ``phi_y = q_phi_y * phi_max``; x and phi as :meth:`poses`."""
-        x, phi = self.poses(ids, q_x, q_phi)
-        return x, q_y * self._half_depth[ids], phi, q_phi_y * self.pose.phi_max
+        """Metric ``(x, y, phi, phi_y)`` of the face centre, the extended fast simulator's
+        mapping: ``y = q_y * depth / 2`` of the object, ``phi_y = q_phi_y * phi_max``; x and phi
+        as :meth:`poses`, the authors' pivot (``pivot_offset`` above the face, along its normal)
+        shifting x by ``-p sin(phi) cos(phi_y)`` and y by ``-p sin(phi_y)``."""
+        phi = q_phi * self.pose.phi_max
+        phi_y = q_phi_y * self.pose.phi_max
+        p = self.pose.pivot_offset
+        x = q_x * self._half[ids]
+        y = q_y * self._half_depth[ids]
+        if p != 0:
+            # With phi_y = 0 this is :meth:`poses` bit for bit (cos 0 = 1 exactly).
+            x = x - p * torch.sin(phi) * torch.cos(phi_y)
+            y = y - p * torch.sin(phi_y)
+        return x, y, phi, phi_y
 
     def first_touch(self, ids: np.ndarray, x: np.ndarray, phi: np.ndarray) -> np.ndarray:
         """Height (m) of the face centre at which the pad's boundary first meets the surface.
@@ -1009,7 +1046,7 @@ class MujocoSimulator:
         steps, status = 0, STEP_LIMIT
         h_tol = 1e-3 * target
         idle = 0  # consecutive checks with only the housing touching
-        thin = self.objects[obj].varies_in_y
+        thin = self.objects[obj].varies_in_y and c.hfield_contacts == "deepest"
         while steps < c.max_steps:
             if thin:
                 for _ in range(c.check_every):
@@ -1152,7 +1189,8 @@ class MujocoSimulator:
             z0 += self.config.clearance
         self._glance_one(m, d, int(object_id), x, phi, z0, y=y, phi_y=phi_y, general=general)
         mujoco.mj_forward(m, d)
-        if self.objects[int(object_id)].varies_in_y and self._one_contact_per_taxel(m, d):
+        thin = self.objects[int(object_id)].varies_in_y and self.config.hfield_contacts == "deepest"
+        if thin and self._one_contact_per_taxel(m, d):
             mujoco.mj_fwdActuation(m, d)
             mujoco.mj_fwdAcceleration(m, d)
             mujoco.mj_fwdConstraint(m, d)
@@ -1166,7 +1204,7 @@ class MujocoSimulator:
         if not self._fields:
             # Only height fields use it: worlds of the paper's objects describe themselves (and
             # their tables' attributes) as before.
-            del mj["hfield_spacing"]
+            del mj["hfield_spacing"], mj["hfield_contacts"]
         return {
             "simulator": self.name,
             "engine": f"mujoco {mujoco.__version__}",
