@@ -16,9 +16,18 @@ Scene (one model for the whole object set, like the paper's Fig. "Gazebo Simulat
   paper objects are each one convex slab (the box a box, the ramps and the convex curve one prism
   each); concave MHSB shapes become several slabs. Curved profiles are sampled densely and
   simplified to ``curve_tolerance`` (20 um) before meshing;
+* an object whose top varies in y (a height field, issue 12: :attr:`HapticObject.varies_in_y`) is
+  a MuJoCo ``hfield`` sampled every ``hfield_spacing`` (2 mm, an even number of cells so that the
+  centre lines are sampled), standing on a base down to the table, so its sides are vertical; a
+  flat top is an exact ``box``. (A ``mesh`` would be its convex hull: a saddle or a bowl would have
+  to be cut into convex pieces.) MuJoCo collides a taxel with every triangle prism of the field
+  it reaches; each taxel keeps only its deepest contact (``hfield_contacts``), else a taxel near a
+  vertex would be a dozen springs (docs/crosscheck_curvature2d.md);
 * the pad (section "The Tactile Sensor Array - Myrmex") hangs from a massless carriage on one slide
-  joint along z. Its pose ``(x, phi)`` is *pinned*: it is written into the carriage position and
-  the pad orientation of the thread's own model copy, so the only degree of freedom is the height.
+  joint along z. Its pose ``(x, phi)`` (or the extended glance's ``(x, y, phi, phi_y)``, rotation
+  ``R_y(phi) R_x(phi_y)`` as in :mod:`ham.world.extended_glance`) is *pinned*: it is written into
+  the carriage position and the pad orientation of the thread's own model copy, so the only degree
+  of freedom is the height.
   Gravity is off (the "hand of god" plugin of the paper). The sensitive face is a 16 x 16 grid of
   sphere geoms (``taxels`` read-out), one contact per taxel, whose bottoms form the face; behind
   them is the rigid housing (a box from ``foam_thickness`` to ``foam_thickness +
@@ -26,7 +35,8 @@ Scene (one model for the whole object set, like the paper's Fig. "Gazebo Simulat
   the pad but are not sensed.
 
 Glance (force-controlled and dynamic): the pad starts at rest ``clearance`` (50 um) above the
-first touch, computed from the same geometry, and is pushed down by a force actuator on the slide
+first touch, computed from the same geometry (on a height field or tilted about x: found with
+MuJoCo's own collision test, lifted until clear and bisected to 5 um), and is pushed down by a force actuator on the slide
 joint; the joint's viscous damping limits the approach speed and vanishes at rest. Every
 ``check_every`` steps the controller reads the summed normal force ``S`` of the taxels (a touch
 sensor) and the vertical part ``F_z`` of their contact force (a contact sensor), and pushes with
@@ -173,7 +183,7 @@ class MujocoConfig:
     threads: int | None = None
     object_spacing: float = 0.3
     curve_tolerance: float = 2.0e-5
-    hfield_spacing: float = 1.0e-3
+    hfield_spacing: float = 2.0e-3
     hfield_contacts: HfieldContacts = "deepest"
     on_failure: FailureMode = "flag"
 
@@ -399,7 +409,7 @@ def _hfield_xml(obj: HapticObject, index: int, x0: float, spacing: float) -> tup
 
 
 def _object_xml(
-    obj: HapticObject, index: int, x0: float, tolerance: float, spacing: float = 1e-3
+    obj: HapticObject, index: int, x0: float, tolerance: float, spacing: float = 2e-3
 ) -> tuple[str, str]:
     """(asset xml, worldbody xml) for object ``index`` centred at world x ``x0``."""
     if obj.varies_in_y:
@@ -466,16 +476,11 @@ def scene_xml(
             f'pos="{_fmt([0, 0, f / 2])}"/>'
         )
     flags = '<flag multiccd="enable"/>' if c.readout == "gazebo" else ""
-    # Height fields collide through MuJoCo's convex (CCD) test, whose depth is only as exact as
-    # its tolerance (1e-6 m by default, the size of the foam's whole compression): tighter.
-    ccd = (
-        ' ccd_tolerance="1e-10" ccd_iterations="100"' if any(o.varies_in_y for o in objects) else ""
-    )
     big = _fmt([L, L, 0.05])
     return f"""<mujoco model="ham_glance">
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{c.timestep:.9g}" gravity="0 0 0" integrator="implicitfast" solver="Newton"
-          iterations="50" tolerance="1e-10"{ccd}>{flags}</option>
+          iterations="50" tolerance="1e-10">{flags}</option>
   <visual><global offwidth="1280" offheight="960"/></visual>
   <default>
     <geom condim="1" friction="0 0 0"/>
