@@ -47,6 +47,17 @@ POSES_2D = 64
 FIGURE_POSES = [(0.0, 0.0), (1.0, 0.0), (0.5, 0.3), (-0.5, -0.3), (0.9, 0.5), (-0.2, 1.2)]
 
 
+#: The paper report's pointer to the curvature2d report (issue 12), which has its own run.
+HEIGHT_FIELD_SECTION = (
+    "The extended glance of issue 12 (pose `(x, y, phi, phi_y)`, objects whose top varies in "
+    "x and y) is cross-checked on the `curvature2d` set in its own report, "
+    "[crosscheck_curvature2d.md](crosscheck_curvature2d.md), written by "
+    "`.venv/bin/python -m ham.experiments.crosscheck --set curvature2d` (a few minutes on 2 "
+    "cores). There MuJoCo builds each object as a height field (`hfield`) and keeps one contact "
+    "per taxel; the paper's objects and poses above are glanced exactly as before.\n"
+)
+
+
 def grid(n_x: int, n_phi: int, phi_limit: float):
     qx = np.linspace(-1.0, 1.0, n_x)
     qp = np.linspace(-phi_limit, phi_limit, n_phi) / PHI_MAX
@@ -646,6 +657,8 @@ def main(argv: list[str] | None = None) -> None:
         "the sphere taxels by more than two points, and none removes the cause, which the fast "
         "model shares with itself at a finer read-out. The sphere taxels were kept.\n"
     )
+    md.append("## Height-field objects and the 4-D glance\n")
+    md.append(HEIGHT_FIELD_SECTION)
     md.append("## Configuration used\n")
     md.append("```\n" + "\n".join(f"{k} = {v}" for k, v in asdict(cfg).items()) + "\n```\n")
     out.write_text("\n".join(md))
