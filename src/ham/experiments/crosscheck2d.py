@@ -52,10 +52,10 @@ SADDLE_POSES = [
     (0.5, -0.5, 0.2, -0.2),
 ]
 PYRAMID_POSES = [
-    (0.0, 0.0, 0.0, 0.0),
-    (0.0, 0.0, 0.2, 0.2),
-    (1.0, 1.0, 0.0, 0.0),
-    (1.0, 1.0, -0.3, -0.3),
+    (0.0, 0.0, 0.0, 0.0),  # the apex
+    (0.0, 0.0, 0.2, 0.2),  # the apex, tilted
+    (0.5, 0.0, math.atan(0.5), 0.0),  # lying on a face (slope 0.5), between two ridges
+    (1.0, 1.0, 0.4, 0.4),  # over the base's corner, its outer corner lowered onto the block's
 ]
 
 
@@ -81,7 +81,7 @@ def pressed_cells(pressure) -> np.ndarray:
 
 
 def _label(q) -> str:
-    return f"x {q[0]:+.1f} y {q[1]:+.1f}\nphi {q[2]:+.1f} phi_y {q[3]:+.1f}"
+    return f"x {q[0]:+.1f} y {q[1]:+.1f}\nphi {q[2]:+.2f} phi_y {q[3]:+.2f}"
 
 
 def report(
@@ -196,7 +196,11 @@ def report(
     pictures = []
     for name, poses_, title in (
         ("saddle", SADDLE_POSES, "saddle"),
-        ("pyramid", PYRAMID_POSES, "pyramid: the apex (left) and a base corner (right)"),
+        (
+            "pyramid",
+            PYRAMID_POSES,
+            "pyramid: apex, apex tilted, on a face between two ridges, the base's corner",
+        ),
     ):
         oid = [o.name for o in objs].index(name)
         qq = np.array(poses_, dtype=np.float64)
