@@ -15,7 +15,9 @@ from ham.world.objects import HapticObject, resolve_set
 mujoco = pytest.importorskip("mujoco")
 
 from ham.world.mujoco_sim import (  # noqa: E402
+    HFIELD_TILE_CELLS,
     SETTLED,
+    MujocoConfig,
     MujocoSimulator,
     build_model,
     hfield_samples,
@@ -46,11 +48,13 @@ def sim() -> MujocoSimulator:
 
 
 def test_height_field_becomes_an_hfield_geom_the_right_way_round():
-    m = build_model([PLANE, DOME])
-    g = m.geom("obj0_hfield")
-    assert g.type[0] == mujoco.mjtGeom.mjGEOM_HFIELD
+    m = build_model([PLANE, DOME], config=MujocoConfig(hfield_spacing=1e-3))
     hs = hfield_samples(PLANE, 1e-3)
     assert hs.shape == (91, 91)  # an even number of 1 mm cells: the centre lines are sampled
+    # Tiles of HFIELD_TILE_CELLS cells a side, sharing their border samples.
+    tiles = [m.geom(i) for i in range(m.ngeom) if m.geom(i).name.startswith("obj0_hfield_")]
+    assert len(tiles) == math.ceil(90 / HFIELD_TILE_CELLS) ** 2
+    assert all(g.type[0] == mujoco.mjtGeom.mjGEOM_HFIELD for g in tiles)
     # Rays straight down meet the plane's own height at (x, y): rows run from -y to +y.
     d = mujoco.MjData(m)
     mujoco.mj_forward(m, d)
