@@ -107,7 +107,7 @@ def report(
     qn = q.copy()
     qn[:, 2:] *= math.pi / 2  # metric tilts for the tables
 
-    rows, area_rows, worst, all_dh, all_corr, all_area = [], [], [], [], [], []
+    rows, area_rows, worst, all_dh, all_corr, all_area, all_free = [], [], [], [], [], [], []
     t_mj = t_fast = 0.0
     n_mj = 0
     for oid, obj in enumerate(objs):
@@ -124,6 +124,8 @@ def report(
         dh = (r.height - f.height).double().numpy() * 1e3
         st = r.info["status"].numpy()
         mjb, fb = st != SETTLED, f.blocked.numpy()
+        free = ~mjb & ~fb
+        all_free.append(free)
         cells = np.minimum(pressed_cells(r.pressure), pressed_cells(f.pressure))
         area = cells > POINT_CELLS
         all_dh.append(dh)
@@ -152,7 +154,9 @@ def report(
                 f"{np.abs(dh).max():.2f}",
                 f"{np.abs(dh).mean():.3f}",
                 f"{np.mean(np.abs(dh) <= HEIGHT_GOAL_MM):.0%}",
+                f"{np.abs(dh[free]).max():.2f}" if free.any() else "-",
                 f"{np.mean(st == SETTLED):.0%}",
+                f"{np.mean(fb):.0%}",
                 f"{np.mean(mjb == fb):.0%}",
             ]
         )
@@ -170,7 +174,9 @@ def report(
                     cells[i],
                 )
             )
-    all_dh, all_corr, all_area = map(np.concatenate, (all_dh, all_corr, all_area))
+    all_dh, all_corr, all_area, all_free = map(
+        np.concatenate, (all_dh, all_corr, all_area, all_free)
+    )
     mean_corr = [float(c.mean()) for c in np.split(all_corr, len(objs))]
 
     # ---------------------------------------------------------------- deepest vs all contacts
@@ -254,8 +260,8 @@ def report(
         f"[-1, 1] (the pad centre anywhere over the base), `phi`, `phi_y` uniform in "
         f"[-{TILT}, {TILT}] rad. `corr`: Pearson correlation of the MuJoCo image with the fast one "
         f"at the same pose (two uniform images count as 1); `dh`: MuJoCo's contact height minus "
-        "the fast model's (mm); `blocked agree`: both or neither stopped below 2 N by a rigid "
-        "part.\n"
+        "the fast model's (mm); `blocked`: stopped below 2 N by a rigid part (the housing; for "
+        "MuJoCo also a step limit); `blocked agree`: both or neither.\n"
     )
     md.append(
         fmt_table(
@@ -270,7 +276,9 @@ def report(
                 "max abs dh",
                 "mean abs dh",
                 f"abs dh <= {HEIGHT_GOAL_MM:g} mm",
+                "max abs dh, neither blocked",
                 "MuJoCo settled",
+                "fast blocked",
                 "blocked agree",
             ],
             rows,
@@ -285,7 +293,9 @@ def report(
         f"(lowest object mean {min(mean_corr):.3f}); contact height within {HEIGHT_GOAL_MM:g} mm "
         f"at every pose — {'met' if ok_dh else 'missed'} "
         f"({np.mean(np.abs(all_dh) <= HEIGHT_GOAL_MM):.1%} of {len(all_dh)} poses, largest "
-        f"{np.abs(all_dh).max():.2f} mm).\n"
+        f"{np.abs(all_dh).max():.2f} mm); where neither is blocked, "
+        f"{np.mean(np.abs(all_dh[all_free]) <= HEIGHT_GOAL_MM):.1%} of {int(all_free.sum())} "
+        f"poses (largest {np.abs(all_dh[all_free]).max():.2f} mm).\n"
     )
     md.append("### Point contacts and contacts over an area\n")
     md.append(
