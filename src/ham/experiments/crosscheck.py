@@ -1,7 +1,7 @@
 """Cross-check the MuJoCo glance against the fast foam model; write docs/crosscheck.md and its pictures.
 
     .venv/bin/python -m ham.experiments.crosscheck            # writes docs/crosscheck.md, docs/img/crosscheck_*.png
-    .venv/bin/python -m ham.experiments.crosscheck --set curvature2d   # docs/crosscheck_curvature2d.md
+    .venv/bin/python -m ham.experiments.crosscheck2d          # the curvature2d report (issue 12)
 
 Every number and picture in the report comes from this run (section "Scenario and Experimental
 Setup" of the paper: the glance, the Myrmex pad and its Gazebo plugin).
@@ -41,8 +41,6 @@ ROOT = Path.cwd()  # run from the repository root: writes docs/crosscheck.md and
 PHI_MAX = math.pi / 2
 #: The dense scan at |phi| <= 0.5 rad: q_x values x phi values per object.
 DENSE = (161, 7)
-#: Random 4-D poses per object of the curvature2d report (``--set curvature2d``).
-POSES_2D = 64
 #: Poses of the picture grids: (q_x, phi in rad).
 FIGURE_POSES = [(0.0, 0.0), (1.0, 0.0), (0.5, 0.3), (-0.5, -0.3), (0.9, 0.5), (-0.2, 1.2)]
 
@@ -52,7 +50,7 @@ HEIGHT_FIELD_SECTION = (
     "The extended glance of issue 12 (pose `(x, y, phi, phi_y)`, objects whose top varies in "
     "x and y) is cross-checked on the `curvature2d` set in its own report, "
     "[crosscheck_curvature2d.md](crosscheck_curvature2d.md), written by "
-    "`.venv/bin/python -m ham.experiments.crosscheck --set curvature2d` (a few minutes on 2 "
+    "`.venv/bin/python -m ham.experiments.crosscheck2d` (a few minutes on 2 "
     "cores). There MuJoCo builds each object as a height field (`hfield`) and keeps one contact "
     "per taxel; the paper's objects and poses above are glanced exactly as before.\n"
 )
@@ -112,31 +110,10 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    ap.add_argument(
-        "--set",
-        default="paper",
-        choices=("paper", "curvature2d"),
-        help="paper: the line glance on the paper's objects (docs/crosscheck.md); curvature2d: "
-        "the extended 4-D glance on height fields (docs/crosscheck_curvature2d.md)",
-    )
-    ap.add_argument("--out", default=None, help="the report (default: by --set, in docs/)")
+    ap.add_argument("--out", default=str(ROOT / "docs" / "crosscheck.md"))
     ap.add_argument("--threads", type=int, default=None, help="MuJoCo threads (default: all cores)")
-    ap.add_argument(
-        "--poses",
-        type=int,
-        default=POSES_2D,
-        help=f"curvature2d: random 4-D poses per object (default {POSES_2D})",
-    )
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
-    if args.set == "curvature2d":
-        from ham.experiments.crosscheck2d import report
-
-        out = Path(args.out or ROOT / "docs" / "crosscheck_curvature2d.md")
-        report(out, threads=args.threads, poses=args.poses)
-        return
-    if args.out is None:
-        args.out = str(ROOT / "docs" / "crosscheck.md")
     out = Path(args.out)
     img_dir = out.parent / "img"
     img_dir.mkdir(parents=True, exist_ok=True)
