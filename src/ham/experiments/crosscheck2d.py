@@ -210,11 +210,7 @@ def report(
     pictures = []
     for name, poses_, title in (
         ("saddle", SADDLE_POSES, "saddle"),
-        (
-            "pyramid",
-            PYRAMID_POSES,
-            "pyramid: apex, apex tilted, on a face between two ridges, the base's corner",
-        ),
+        ("pyramid", PYRAMID_POSES, "pyramid"),
     ):
         oid = [o.name for o in objs].index(name)
         qq = np.array(poses_, dtype=np.float64)
@@ -233,7 +229,7 @@ def report(
         path = img_dir / f"crosscheck2d_{name}.png"
         draw_grid(
             path,
-            f"{title}: MuJoCo taxels / fast (1 row per taxel) / fast (4 x 4 per taxel)",
+            f"{title}: MuJoCo / fast / fast 4x4",
             cols,
             ["MuJoCo", "fast", "fast 4x4"],
         )
@@ -401,8 +397,17 @@ def report(
         "Each column is one pose (`q_x`, `q_y`, `phi`, `phi_y` in rad); rows: MuJoCo, fast, fast "
         "with 4 x 4 read-out points per taxel. Each image has its own colour scale.\n"
     )
+    captions = {
+        "saddle": "At the centre, flat; tilted about y; tilted about x; off centre, tilted about "
+        "both. A flat pad touches the saddle's rise at its rim.",
+        "pyramid": "The apex, flat and tilted; lying on a face between two ridges (tilt = the "
+        "face's slope); over the base's corner with the pad's outer corner lowered onto it. "
+        "MuJoCo's height field is two triangles per cell, whose diagonals follow one ridge and "
+        "cut across the other (by up to half a millimetre at 2 mm spacing): the face's two "
+        "ridge lines differ a little in the MuJoCo image.",
+    }
     for name, path in pictures:
-        md.append(f"### {name}\n\n![{name}]({rel(path)})\n")
+        md.append(f"### {name}\n\n![{name}]({rel(path)})\n\n{captions.get(name, '')}\n")
     md.append("## Height field or mesh, and one contact per taxel\n")
     md.append(
         "MuJoCo collides a mesh as its convex hull, so a saddle or a bowl would have to be cut "
