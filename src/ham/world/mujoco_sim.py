@@ -75,7 +75,7 @@ import math
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, replace
 from typing import Literal
 
 import mujoco
@@ -89,6 +89,7 @@ from ham.world.glance import (
     PoseConfig,
     as_action,
     as_object_ids,
+    check_foam,
     check_pad,
 )
 from ham.world.objects import HapticObject
@@ -675,36 +676,14 @@ def _pad_points(
 
 
 def _check_world(sensor: SensorConfig, glance: GlanceConfig, objects: list[HapticObject]) -> None:
-    """The fast model's checks of the pad (:func:`ham.world.glance.check_pad`) for the paper's
+    """The line glance's checks of the pad (:func:`ham.world.glance.check_pad`) for the paper's
     kind of objects; for height fields only the foam's (a pad wider than such an object reads
     nothing beside it, as a real pad would)."""
     lines = [o for o in objects if not o.varies_in_y]
     if lines:
         check_pad(sensor, glance, lines)
-    if len(lines) < len(objects):
-        flat = glance.force_threshold / (sensor.foam_stiffness * sensor.size**2)
-        if flat >= sensor.foam_thickness:
-            least = math.sqrt(
-                glance.force_threshold / (sensor.foam_stiffness * sensor.foam_thickness)
-            )
-            raise HamError(
-                f"the pad ({sensor.describe()}) is too small to carry {glance.force_threshold:g} N "
-                f"on its {sensor.foam_thickness * 1000:g} mm foam; accepted: taxels * pitch > "
-                f"{least:.4g} m"
-            )
-
-
-_RESULT_FIELDS = frozenset(f.name for f in fields(GlanceResult))
-
-
-def _result(**values) -> GlanceResult:
-    """A :class:`GlanceResult`; values it has no field for yet (``y``, ``phi_y``, ``height``
-    of the extended glance) become attributes."""
-    extra = {k: values.pop(k) for k in list(values) if k not in _RESULT_FIELDS}
-    result = GlanceResult(**values)
-    for k, v in extra.items():
-        setattr(result, k, v)
-    return result
+    else:
+        check_foam(sensor, glance)
 
 
 # --------------------------------------------------------------------------- simulator
@@ -768,7 +747,7 @@ class MujocoSimulator:
         # The fast simulator's pose mapping, in float32 as there (poses bit-identical).
         f32 = dict(dtype=torch.float32)
         self._half = torch.tensor([self.pose.half_width(o) for o in self.objects], **f32)
-        self._half_depth = torch.tensor([0.5 * o.depth for o in self.objects], **f32)
+        self._half_depth = torch.tensor([self.pose.half_depth(o) for o in self.objects], **f32)
         self._fields = any(o.varies_in_y for o in self.objects)
         self.model = build_model(self.objects, self.sensor, config)
         m = self.model
@@ -802,8 +781,8 @@ class MujocoSimulator:
         return x, phi
 
     def poses4(self, ids, q_x, q_phi, q_y, q_phi_y):
-        """Metric ``(x, y, phi, phi_y)`` of the face centre, the extended fast simulator's
-        mapping: ``y = q_y * depth / 2`` of the object, ``phi_y = q_phi_y * phi_max``; x and phi
+        """Metric ``(x, y, phi, phi_y)`` of the face centre: the mapping of
+        :meth:`ham.world.extended_glance.ExtendedSimulator.poses`, ``y = q_y * depth / 2`` of the object, ``phi_y = q_phi_y * phi_max``; x and phi
         as :meth:`poses`, the authors' pivot (``pivot_offset`` above the face, along its normal)
         shifting x by ``-p sin(phi) cos(phi_y)`` and y by ``-p sin(phi_y)``."""
         phi = q_phi * self.pose.phi_max
@@ -1006,7 +985,7 @@ class MujocoSimulator:
         force = torch.from_numpy(out["force"]).float()
         ok = status < UNSTABLE
         z = torch.from_numpy(out["z"]).float()
-        return _result(
+        return GlanceResult(
             pressure=pressure,
             force=force,
             z=z,
