@@ -131,6 +131,17 @@ def test_dome_glance_one_contact_per_taxel(sim):
     )
 
 
+def test_gazebo_face_keeps_its_contact_points_on_a_height_field():
+    """The gazebo read-out's one face is not thinned to one contact: flat on the dome's apex it
+    rests on the apex (the prisms meeting there each a contact spring: sunk a fraction of a
+    millimetre; one contact alone would sink 2 mm), tilted it settles as the taxels do."""
+    sim = MujocoSimulator([DOME], threads=1, readout="gazebo")
+    r = sim.glance([0, 0], [0.0, 0.3], [0.0, 0.1], [0.0, -0.2], [0.0, 0.1])
+    assert (r.info["status"].numpy() == SETTLED).all()
+    assert float(r.z[0]) == pytest.approx(float(_dome(0.0, 0.0)), abs=5e-4)
+    assert r.contact.all()
+
+
 def test_paper_object_with_zero_extended_pose_is_the_paper_glance(sim):
     ids, qx, qp = [2, 2, 2], [-0.5, 0.0, 0.7], [0.1, -0.3, 0.0]
     a = sim.glance(ids, qx, qp)

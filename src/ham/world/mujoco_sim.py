@@ -151,7 +151,8 @@ class MujocoConfig:
             triangles per cell.
         hfield_contacts: ``deepest`` (default) keeps one contact per taxel on a height field,
             its deepest; ``all`` keeps every contact MuJoCo makes with the field's triangle
-            prisms (up to a dozen per taxel, each a full spring; for comparison only).
+            prisms (up to a dozen per taxel, each a full spring; for comparison only). The
+            ``gazebo`` face always keeps all of its contact points, as the plugin read them.
         on_failure: ``flag`` (default) marks a failed glance in the result; ``raise`` raises.
 
     The pad mass is not a free parameter: MuJoCo's soft-contact force at rest is
@@ -767,6 +768,8 @@ class MujocoSimulator:
         self._pad_geom = np.isin(m.geom_bodyid, list(pad_bodies))
         self._outline = _pad_outline(self.sensor, config)
         self._points, self._sphere_centres = _pad_points(self.sensor, config)
+        # One contact per taxel on height fields; the gazebo face keeps its contact points.
+        self._thin_taxels = config.readout == "taxels" and config.hfield_contacts == "deepest"
         self._threads = config.threads or os.cpu_count() or 1
         self._workers: list[_Worker] = []
         self._pool: ThreadPoolExecutor | None = None
@@ -1060,7 +1063,7 @@ class MujocoSimulator:
         steps, status = 0, STEP_LIMIT
         h_tol = 1e-3 * target
         idle = 0  # consecutive checks with only the housing touching
-        thin = self.objects[obj].varies_in_y and c.hfield_contacts == "deepest"
+        thin = self.objects[obj].varies_in_y and self._thin_taxels
         while steps < c.max_steps:
             if thin:
                 for _ in range(c.check_every):
@@ -1203,7 +1206,7 @@ class MujocoSimulator:
             z0 += self.config.clearance
         self._glance_one(m, d, int(object_id), x, phi, z0, y=y, phi_y=phi_y, general=general)
         mujoco.mj_forward(m, d)
-        thin = self.objects[int(object_id)].varies_in_y and self.config.hfield_contacts == "deepest"
+        thin = self.objects[int(object_id)].varies_in_y and self._thin_taxels
         if thin and self._one_contact_per_taxel(m, d):
             mujoco.mj_fwdActuation(m, d)
             mujoco.mj_fwdAcceleration(m, d)
