@@ -34,11 +34,13 @@ Model (:class:`ExtendedSimulator`):
   ``housing_samples`` (6) points along each edge (corners included) by ``housing_samples`` along
   the pad normal from the foam's back to the housing's back.
 * **Narrow features.** Points sample the surface every ``pitch / supersample`` (1.25 mm) along u
-  and ``pitch / rows_per_taxel`` (5 mm) along v: a ridge or spike narrower than that spacing can
-  fall between points and go unfelt (an edge tilted against the pad is felt late by up to one
-  spacing times the tilt's sine). The line glance's *feature points* for narrow peaks are not
-  carried over: an extruded object with narrow peaks (``FastSimulator.features``) can differ from
-  the line glance there; the paper's objects have none, and on them both glances agree (tests).
+  and ``pitch / rows_per_taxel`` (5 mm) along v. The line glance's *feature points* (narrow peaks
+  of an extruded profile, :meth:`ham.world.glance.FastSimulator._set_features`) are carried over
+  as lines along y: in each row of points, the point whose cell the line crosses is raised to it,
+  so the pad stops on a spike or a trough's lip as in the line glance. A height field's own narrow
+  ridges and spikes are not searched for: one narrower than the spacing can fall between points
+  and go unfelt, and an edge tilted against the pad is felt late by up to one spacing times the
+  tilt's sine (for an isotropic 1.25 mm grid: ``rows_per_taxel = 4``).
 
 Speed (one core): every ``(B, K)`` step is one vectorized pass without boolean temporaries, the
 coordinates are outer sums of per-row u and v terms (no ``(B, K)`` rotation), the bilinear
@@ -57,6 +59,7 @@ import torch
 
 from ham.errors import HamError
 from ham.world.glance import (
+    FastSimulator,
     GlanceConfig,
     GlanceResult,
     PoseConfig,
@@ -69,9 +72,12 @@ from ham.world.glance import (
 from ham.world.objects import HapticObject
 from ham.world.sensor import Myrmex, SensorConfig
 
-#: Default sampling step (m) of a height-field object's surface grid: 0.2 mm, 451 x 451 samples
-#: over a 9 cm base (a dome of 16 cm radius is then read within 0.03 um).
-GRID_STEP = 2e-4
+#: Default sampling step (m) of a height-field object's surface grid: 0.5 mm, 181 x 181 samples
+#: over a 9 cm base: a dome of 16 cm radius is read within 0.2 um, a sharp edge within 0.25 mm
+GRID_STEP = 5e-4
+#: Points along each edge of the housing's sides (corners included), times ``housing_samples``
+#: along the pad's normal: 8 x 6 = 48 rigid points.
+HOUSING_EDGE_SAMPLES = 3
 #: Most grid cells per object: float32 map coordinates index cells exactly below 2^24.
 MAX_CELLS = 1 << 24
 
@@ -119,7 +125,7 @@ class ExtendedSimulator:
         grid_step: float = GRID_STEP,
         resolution: int = 4096,
         rows_per_taxel: int = 1,
-        chunk: int = 2048,
+        chunk: int | None = None,
     ) -> None:
         if not objects:
             raise HamError("a simulator needs at least one object")
@@ -129,8 +135,8 @@ class ExtendedSimulator:
             raise HamError(f"resolution = {resolution!r}; accepted: an integer 2 .. 65536")
         if not (isinstance(rows_per_taxel, int) and 1 <= rows_per_taxel <= 16):
             raise HamError(f"rows_per_taxel = {rows_per_taxel!r}; accepted: an integer 1 .. 16")
-        if not (isinstance(chunk, int) and chunk >= 1):
-            raise HamError(f"chunk = {chunk!r}; accepted: an integer >= 1")
+        if chunk is not None and not (isinstance(chunk, int) and chunk >= 1):
+            raise HamError(f"chunk = {chunk!r}; accepted: None (automatic) or an integer >= 1")
         self.objects = list(objects)
         self.myrmex = Myrmex(sensor)
         self.sensor = s = self.myrmex.config
@@ -141,9 +147,9 @@ class ExtendedSimulator:
         self.grid_step = float(grid_step)
         self.resolution = resolution
         self.rows_per_taxel = rows_per_taxel
-        self.chunk = chunk
         f32 = dict(dtype=torch.float32, device=self.device)
         self._build_maps()
+        self._build_features()
         self._half_x = torch.tensor([self.pose.half_width(o) for o in self.objects], **f32)
         self._half_y = torch.tensor([self.pose.half_depth(o) for o in self.objects], **f32)
         # Read-out points: columns along u (as the line glance), rows along v.
@@ -152,9 +158,11 @@ class ExtendedSimulator:
         k = np.arange(s.taxels * sv)
         self._v = torch.tensor((k + 0.5) * (s.pitch / sv) - 0.5 * s.size, **f32)
         # Housing sides: u = +-L/2 over v, v = +-L/2 over u (corners once), w along the normal.
+        # Each side at its two corners and its middle: the rigid stops are for steep tilts,
+        # where a side lies nearly flat; fewer points, since each costs a scattered lookup.
         m = self.glance_config.housing_samples
-        edge = np.linspace(-0.5 * s.size, 0.5 * s.size, m)
-        half = np.full(m, 0.5 * s.size)
+        edge = np.linspace(-0.5 * s.size, 0.5 * s.size, HOUSING_EDGE_SAMPLES)
+        half = np.full(len(edge), 0.5 * s.size)
         hu = np.concatenate([-half, half, edge[1:-1], edge[1:-1]])
         hv = np.concatenate([edge, edge, -half[1:-1], half[1:-1]])
         w = np.linspace(s.foam_thickness, s.foam_thickness + s.housing_thickness, m)
@@ -166,6 +174,9 @@ class ExtendedSimulator:
         self._direct_image = (
             type(self.myrmex) is Myrmex and s.spread_sigma is None and s.quantize_bits is None
         )
+        # Glances per chunk: about 2^20 read-out points (4 MB buffers; measured best on one
+        # core among 2^17 .. 2^21): fewer and the per-call overhead of each step shows.
+        self.chunk = chunk or max(64, (1 << 20) // (len(self._u) * len(self._v)))
 
     # ------------------------------------------------------------------ height maps
     def _build_maps(self) -> None:
@@ -211,6 +222,7 @@ class ExtendedSimulator:
         nx, ny, w, dp, b0 = (torch.tensor(v, dtype=torch.float64) for v in zip(*meta, strict=True))
         dev = self.device
         self._nx = nx.to(dev, torch.float32)
+        self._ny = ny.to(dev, torch.float32)
         self._scale_x = (nx / w).to(dev, torch.float32)  # cells per metre
         self._scale_y = (ny / dp).to(dev, torch.float32)
         self._off_x = (0.5 * nx).to(dev, torch.float32)  # the cell coordinate of local x = 0
@@ -220,9 +232,30 @@ class ExtendedSimulator:
         self._lo = torch.full((len(meta),), -1.0, **f32)
         self._stride = torch.tensor([m[0] + 2 for m in meta], dtype=torch.float32, device=dev)
         # First cell (i, j) = (-1, -1) of each object: base + 0; (i, j) is at (j+1)(nx+2) + i+1.
-        self._base = torch.tensor([m[4] + m[0] + 3 for m in meta], dtype=torch.int32, device=dev)
+        first = [m[4] + m[0] + 3 for m in meta]
+        self._base = torch.tensor(first, dtype=torch.int32, device=dev)
+        # Also as float32, exact below 2^24 cells in all (:meth:`_lookup_` adds it in float).
+        self._float_index = base < 2**24
+        self._base_f = torch.tensor(first, dtype=torch.float64).to(dev, torch.float32)
         self._uniform = len({m[:4] for m in meta}) == 1
         self.cells = [(m[0] + 2) * (m[1] + 2) for m in meta]
+
+    def _build_features(self) -> None:
+        """The line glance's narrow peaks of each extruded object (its *feature points*,
+        :meth:`ham.world.glance.FastSimulator._set_features`), here lines along y; none for
+        height fields. ``features`` counts them per object."""
+        xs = [np.linspace(-0.5 * o.width, 0.5 * o.width, self.resolution + 1) for o in self.objects]
+        maps = np.stack(
+            [
+                np.zeros(len(x)) if o.varies_in_y else np.asarray(o.profile(x), dtype=np.float64)
+                for o, x in zip(self.objects, xs, strict=True)
+            ]
+        )
+        FastSimulator._set_features(self, maps)  # sets features, _feat_x, _feat_h, _has_features
+        if self._feat_x is not None:
+            # Feature x as a cell coordinate of the object's map (as the read-out points are).
+            ids = torch.arange(len(self.objects), device=self.device)
+            self._feat_t = self._feat_x * self._scale_x[ids, None] + self._off_x[ids, None]
 
     def heights(self, ids, x, y) -> torch.Tensor:
         """Surface height (m) of objects ``ids`` (B,) at local ``(x, y)`` (B, K), float32: what
@@ -252,13 +285,16 @@ class ExtendedSimulator:
         fx = torch.floor(tx, out=work.get("b", shape))
         fy = torch.floor(ty, out=work.get("c", yshape))
         wx, wy = tx.sub_(fx), ty.sub_(fy)
-        # Local cell index (exact in float32: < 2^24 cells per object), then the object's base.
-        if self._uniform:
-            flat = fx.add_(fy, alpha=float(self._stride[0]))
+        # Cell index: local (exact in float32: < 2^24 cells per object) plus the object's base,
+        # added to the per-row y term where y is one value per row, in float while exact.
+        stride = float(self._stride[0]) if self._uniform else self._stride[ids, None, None]
+        if self._float_index and yshape[-1] == 1:
+            flat = fx.add_(fy.mul_(stride).add_(self._base_f[ids, None, None]))
+            idx = work.get("i", shape, torch.int32).copy_(flat).view(-1)
         else:
-            flat = fx.addcmul_(fy, self._stride[ids, None, None])
-        idx = work.get("i", shape, torch.int32).copy_(flat)
-        idx = idx.add_(self._base[ids, None, None]).view(-1)
+            flat = fx.add_(fy, alpha=stride) if self._uniform else fx.addcmul_(fy, stride)
+            idx = work.get("i", shape, torch.int32).copy_(flat)
+            idx = idx.add_(self._base[ids, None, None]).view(-1)
         n = idx.numel()
         a = torch.index_select(self._map_a, 0, idx, out=work.get(out, (n,))).view(shape)
         b = torch.index_select(self._map_b, 0, idx, out=work.get("b", (n,))).view(shape)
@@ -373,7 +409,7 @@ class ExtendedSimulator:
     def _glance_into(self, out: GlanceResult, sl, ids, x, y, phi, phi_y, obj, work) -> None:
         """Glances ``sl`` of the batch, written into ``out``'s rows ``sl``."""
         s, g = self.sensor, self.glance_config
-        b = len(ids)
+        b, su = len(ids), s.supersample
         tx0, ty0, xu, yu, xv, yv, xw, yw, zu, zv, zw = self._frame(ids, x, y, phi, phi_y, obj)
         u, v = self._u, self._v
         rows, cols = len(v), len(u)
@@ -397,10 +433,19 @@ class ExtendedSimulator:
             )
         e = self._lookup_(ids, tx, ty, work, "e")
         e.add_((zu[:, None] * u)[:, None, :]).add_((zv[:, None] * v)[:, :, None])
+        if self._feat_x is not None:
+            self._add_features(e, ids, (tx0, ty0, xu, yu, xv, yv, zu, zv))
         e = e.view(b, -1)
         top = e.amax(1)
         e.sub_(top[:, None])  # relative to the first touch: small numbers, float32-exact enough
-        z_force = _solve_stop_height(e, g.force_threshold / self._c0, work)
+        target = g.force_threshold / self._c0
+        z0 = None
+        if su > 1:
+            # Newton from far below takes many steps over all K points: first the root over one
+            # point per taxel (each taxel's highest), a lower bound found on K / su points.
+            sub = torch.amax(e.view(b, -1, su), 2, out=work.get("g", (b, e.shape[1] // su)))
+            z0 = _solve_stop_height(sub, target, work)
+        z_force = _solve_stop_height(e, target, work, z0)
         # Rigid parts: the pad behind the foam (foam fully compressed) and the housing's sides.
         hu, hv, hw = self._hu, self._hv, self._hw
         hshape = (b, len(hu))
@@ -418,7 +463,7 @@ class ExtendedSimulator:
         torch.gt(z_block, z_force, out=out.blocked[sl])
         compression = e.sub_(z_rel[:, None]).clamp_(0, s.foam_thickness)
         torch.mul(compression.sum(1), self._c0, out=out.force[sl])
-        n, su, sv = s.taxels, s.supersample, self.rows_per_taxel
+        n, sv = s.taxels, self.rows_per_taxel
         if self._direct_image:  # Myrmex's read-out, per taxel over its su x sv points
             c = compression.view(b, n, sv, n, su)
             acc = work.get("d", (b, n * n)).view(b, n, n)
@@ -432,6 +477,30 @@ class ExtendedSimulator:
         else:
             cells = compression.view(b, n, sv, n, su).mean((2, 4))
             out.pressure[sl] = self.myrmex.postprocess(cells * s.foam_stiffness)
+
+    def _add_features(self, e: torch.Tensor, ids, frame) -> None:
+        """Raise the touch height ``e`` (B, R, C) of the read-out point whose cell a feature line
+        crosses, in each row, to the line's: the line glance's feature points, row by row."""
+        s = self.sensor
+        rows = self._has_features[ids].nonzero().squeeze(1)
+        if len(rows) == 0:
+            return
+        tx0, ty0, xu, yu, xv, yv, zu, zv = (t[rows, None, None] for t in frame)
+        ids_r = ids[rows]
+        v = self._v[None, :, None]
+        tf = self._feat_t[ids_r][:, None, :]  # (B', 1, F)
+        # The row at v meets the line x = x_f where tx0 + u xu + v xv = t_f.
+        uf = (tf - tx0 - v * xv) / xu  # (B', R, F); inf or NaN for a vertical pad: outside
+        ef = self._feat_h[ids_r][:, None, :] + uf * zu + v * zv
+        tyf = ty0 + uf * yu + v * yv  # on the block along y?
+        spacing = s.pitch / s.supersample
+        cell = torch.floor((uf + 0.5 * s.size) / spacing)
+        cols = e.shape[2]
+        inside = (cell >= 0) & (cell < cols) & (tyf >= 0) & (tyf <= self._ny[ids_r, None, None])
+        ef = torch.where(inside, ef, -torch.inf)
+        cell = torch.where(inside, cell, 0).long()
+        sub = e.index_select(0, rows).scatter_reduce_(2, cell, ef, "amax")
+        e.index_copy_(0, rows, sub)
 
     def describe(self) -> dict:
         return {

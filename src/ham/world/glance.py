@@ -644,7 +644,7 @@ def _contiguous_strides(shape: tuple) -> tuple:
 
 
 def _solve_stop_height(
-    e: torch.Tensor, target: float, work: _Workspace | None = None
+    e: torch.Tensor, target: float, work: _Workspace | None = None, z0: torch.Tensor | None = None
 ) -> torch.Tensor:
     """The height z with ``sum_k max(0, e_k - z) = target`` for each row of ``e`` (B, K).
 
@@ -653,11 +653,15 @@ def _solve_stop_height(
     active set stops changing: at most K iterations, usually 3-6.
 
     ``work``: a workspace for the temporaries (its ``t``, ``d``, ``f`` and ``a`` buffers).
+    ``z0``: another lower bound of the root (B,), if known: e.g. the root over a subset of the
+    points (any subset's root lies below: its force is never more at the same height).
     """
     if work is None:
         work = _Workspace(e.numel(), e.device)
     # Two lower bounds of the root: one point carries everything, or all points press equally.
     z = torch.maximum(e.amax(1) - target, (e.sum(1) - target) / e.shape[1])
+    if z0 is not None:
+        z = torch.maximum(z, z0)
     rows, ez, zz = None, e, z
     spare = ("f", "a")  # the rows still moving are copied back and forth between these
     for it in range(e.shape[1] + 1):
