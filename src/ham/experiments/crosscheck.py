@@ -50,7 +50,7 @@ HEIGHT_FIELD_SECTION = (
     "The extended glance of issue 12 (pose `(x, y, phi, phi_y)`, objects whose top varies in "
     "x and y) is cross-checked on the `curvature2d` set in its own report, "
     "[crosscheck_curvature2d.md](crosscheck_curvature2d.md), written by "
-    "`.venv/bin/python -m ham.experiments.crosscheck2d` (a few minutes on 2 "
+    "`.venv/bin/python -m ham.experiments.crosscheck2d` (about 30 s on 2 "
     "cores). There MuJoCo builds each object as a height field (`hfield`) and keeps one contact "
     "per taxel; the paper's objects and poses above are glanced exactly as before.\n"
 )
