@@ -36,6 +36,10 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--object", required=True, help="object id or name within --objects")
     p.add_argument("--x", type=float, required=True, help="normalized position q_x in [-1, 1]")
     p.add_argument("--phi", type=float, required=True, help="normalized angle q_phi in [-1, 1]")
+    p.add_argument("--y", type=float, default=None,
+                   help="normalized position q_y in [-1, 1] (the extended glance; default 0)")  # fmt: skip
+    p.add_argument("--phi-y", type=float, default=None, dest="phi_y",
+                   help="normalized tilt q_phi_y about x in [-1, 1] (default 0)")  # fmt: skip
     p.add_argument("--out", required=True, help="output PNG path")
     p.add_argument("--objects", default=None, help="object set (default: paper; with "
                    "--objects-file: the file's objects)")  # fmt: skip
@@ -69,6 +73,8 @@ def cmd_render(args: argparse.Namespace) -> int:
         width=width,
         height=height,
         readout=args.sensor,
+        q_y=args.y,
+        q_phi_y=args.phi_y,
     )
     print(f"wrote {out}")
     return 0
@@ -95,8 +101,12 @@ def render_glance(
     width: int = 960,
     height: int = 720,
     readout: str = "taxels",
+    q_y: float | None = None,
+    q_phi_y: float | None = None,
 ) -> Path:
-    """Glance once with MuJoCo and write a PNG: the scene (left) and the tactile image (right)."""
+    """Glance once with MuJoCo and write a PNG: the scene (left) and the tactile image (right).
+
+    ``q_y``, ``q_phi_y``: the extended glance's pose (``None``: the paper's glance)."""
     backend = _select_gl_backend()
     try:
         import mujoco
@@ -114,7 +124,7 @@ def render_glance(
         raise HamError(f"--object {obj!r} is not in the object set {object_set!r}: {names}")
     oid = objs.index(target)
     sim = MujocoSimulator(objs, readout=readout, threads=1)
-    m, d, res = sim.settled_scene(oid, q_x, q_phi)
+    m, d, res = sim.settled_scene(oid, q_x, q_phi, q_y, q_phi_y)
     try:
         renderer = mujoco.Renderer(m, height, width)
     except Exception as exc:
@@ -145,9 +155,12 @@ def render_glance(
     a0.imshow(pixels)
     a0.set_axis_off()
     status = STATUS_NAMES[int(res.info["status"][0])]
+    pose = f"q = ({q_x:+.2f}, {q_phi:+.2f}), x = {float(res.x[0]) * 1e3:.1f} mm, "
+    pose += f"phi = {float(res.phi[0]):.3f} rad"
+    if q_y is not None or q_phi_y is not None:
+        pose += f", y = {float(res.y[0]) * 1e3:.1f} mm, phi_y = {float(res.phi_y[0]):.3f} rad"
     a0.set_title(
-        f"{target.name}: q = ({q_x:+.2f}, {q_phi:+.2f}), x = {float(res.x[0]) * 1e3:.1f} mm, "
-        f"phi = {float(res.phi[0]):.3f} rad; z = {float(res.z[0]) * 1e3:.2f} mm, "
+        f"{target.name}: {pose}; z = {float(res.z[0]) * 1e3:.2f} mm, "
         f"F = {float(res.force[0]):.2f} N ({status})",
         fontsize=9,
     )

@@ -16,9 +16,18 @@ Scene (one model for the whole object set, like the paper's Fig. "Gazebo Simulat
   paper objects are each one convex slab (the box a box, the ramps and the convex curve one prism
   each); concave MHSB shapes become several slabs. Curved profiles are sampled densely and
   simplified to ``curve_tolerance`` (20 um) before meshing;
+* an object whose top varies in y (a height field, issue 12: :attr:`HapticObject.varies_in_y`) is
+  a MuJoCo ``hfield`` sampled every ``hfield_spacing`` (2 mm, an even number of cells so that the
+  centre lines are sampled), standing on a base down to the table, so its sides are vertical; a
+  flat top is an exact ``box``. (A ``mesh`` would be its convex hull: a saddle or a bowl would have
+  to be cut into convex pieces.) MuJoCo collides a taxel with every triangle prism of the field
+  it reaches; each taxel keeps only its deepest contact (``hfield_contacts``), else a taxel near a
+  vertex would be a dozen springs (docs/crosscheck_curvature2d.md);
 * the pad (section "The Tactile Sensor Array - Myrmex") hangs from a massless carriage on one slide
-  joint along z. Its pose ``(x, phi)`` is *pinned*: it is written into the carriage position and
-  the pad orientation of the thread's own model copy, so the only degree of freedom is the height.
+  joint along z. Its pose ``(x, phi)`` (or the extended glance's ``(x, y, phi, phi_y)``, rotation
+  ``R_y(phi) R_x(phi_y)`` as in :mod:`ham.world.extended_glance`) is *pinned*: it is written into
+  the carriage position and the pad orientation of the thread's own model copy, so the only degree
+  of freedom is the height.
   Gravity is off (the "hand of god" plugin of the paper). The sensitive face is a 16 x 16 grid of
   sphere geoms (``taxels`` read-out), one contact per taxel, whose bottoms form the face; behind
   them is the rigid housing (a box from ``foam_thickness`` to ``foam_thickness +
@@ -26,7 +35,8 @@ Scene (one model for the whole object set, like the paper's Fig. "Gazebo Simulat
   the pad but are not sensed.
 
 Glance (force-controlled and dynamic): the pad starts at rest ``clearance`` (50 um) above the
-first touch, computed from the same geometry, and is pushed down by a force actuator on the slide
+first touch, computed from the same geometry (on a height field or tilted about x: found with
+MuJoCo's own collision test, lifted until clear and bisected to 5 um), and is pushed down by a force actuator on the slide
 joint; the joint's viscous damping limits the approach speed and vanishes at rest. Every
 ``check_every`` steps the controller reads the summed normal force ``S`` of the taxels (a touch
 sensor) and the vertical part ``F_z`` of their contact force (a contact sensor), and pushes with
@@ -74,22 +84,26 @@ import torch
 
 from ham.errors import HamError
 from ham.world.glance import (
-    FastSimulator,
     GlanceConfig,
     GlanceResult,
     PoseConfig,
     as_action,
     as_object_ids,
+    check_foam,
+    check_pad,
 )
 from ham.world.objects import HapticObject
-from ham.world.sensor import READOUTS, SensorConfig
+from ham.world.sensor import READOUTS, Myrmex, SensorConfig
 
 Readout = Literal["taxels", "gazebo"]
 FailureMode = Literal["flag", "raise"]
+HfieldContacts = Literal["deepest", "all"]
 
 # Status codes of one glance (``GlanceResult.info["status"]``).
 SETTLED, BLOCKED, STEP_LIMIT, UNSTABLE = 0, 1, 2, 3
 STATUS_NAMES: tuple[str, ...] = ("settled", "blocked", "step_limit", "unstable")
+#: The taxel spheres' radius (m) in a scene of the paper's kind of objects.
+PAPER_TAXEL_RADIUS = 0.005
 #: A glance whose pad leaves its start height by more than this (m) has diverged.
 _DIVERGED = 0.05
 
@@ -101,8 +115,11 @@ class MujocoConfig:
     Attributes:
         readout: ``taxels`` (16 x 16 sphere taxels, one contact each: edges are lines) or
             ``gazebo`` (the paper's plugin: few contact points spread by a Gaussian: blobs).
-        taxel_radius: radius of each sphere taxel (m); its bottom lies on the face. 5 mm keeps the
-            bumps between neighbours (0.67 mm deep) and the bulge at tilted contacts small.
+        taxel_radius: radius of each sphere taxel (m); its bottom lies on the face. ``None``
+            (default): 5 mm in a scene of the paper's kind of objects, which keeps the bumps
+            between neighbours (0.67 mm deep) and the bulge at tilted contacts small; half the
+            pitch (2.5 mm) in a scene with height fields, so that the rim taxels end at the
+            face's rim as the fast model's face does (docs/crosscheck_curvature2d.md).
         contact_stiffness: equilibrium force per metre of penetration of one taxel contact (N/m).
             250 N/m is the fast model's default foam (1e7 Pa/m over a 5 x 5 mm cell).
         contact_time_constant: MuJoCo's ``solref[0]``: the time constant (s) with which every
@@ -129,6 +146,13 @@ class MujocoConfig:
         threads: worker threads for a batch (``None``: all cores).
         object_spacing: distance (m) between neighbouring objects on the table.
         curve_tolerance: curved profiles are simplified to polylines within this distance (m).
+        hfield_spacing: grid spacing (m) of the MuJoCo height field that carries an object whose
+            top varies in y (:attr:`HapticObject.varies_in_y`); MuJoCo joins the samples by two
+            triangles per cell.
+        hfield_contacts: ``deepest`` (default) keeps one contact per taxel on a height field,
+            its deepest; ``all`` keeps every contact MuJoCo makes with the field's triangle
+            prisms (up to a dozen per taxel, each a full spring; for comparison only). The
+            ``gazebo`` face always keeps all of its contact points, as the plugin read them.
         on_failure: ``flag`` (default) marks a failed glance in the result; ``raise`` raises.
 
     The pad mass is not a free parameter: MuJoCo's soft-contact force at rest is
@@ -139,7 +163,7 @@ class MujocoConfig:
     """
 
     readout: Readout = "taxels"
-    taxel_radius: float = 0.005
+    taxel_radius: float | None = None
     contact_stiffness: float = 1000.0
     contact_time_constant: float = 0.006
     damping_ratio: float = 1.0
@@ -161,6 +185,8 @@ class MujocoConfig:
     threads: int | None = None
     object_spacing: float = 0.3
     curve_tolerance: float = 2.0e-5
+    hfield_spacing: float = 2.0e-3
+    hfield_contacts: HfieldContacts = "deepest"
     on_failure: FailureMode = "flag"
 
     def __post_init__(self) -> None:
@@ -168,8 +194,18 @@ class MujocoConfig:
             raise HamError(f"readout = {self.readout!r}; accepted: {', '.join(READOUTS)}")
         if self.on_failure not in ("flag", "raise"):
             raise HamError(f"on_failure = {self.on_failure!r}; accepted: flag, raise")
+        if self.hfield_contacts not in ("deepest", "all"):
+            raise HamError(f"hfield_contacts = {self.hfield_contacts!r}; accepted: deepest, all")
+        if self.taxel_radius is not None and not (
+            isinstance(self.taxel_radius, (int, float))
+            and math.isfinite(self.taxel_radius)
+            and self.taxel_radius > 0
+        ):
+            raise HamError(
+                f"taxel_radius = {self.taxel_radius!r}; accepted: None (by the scene) or a "
+                "positive number (m)"
+            )
         for name in (
-            "taxel_radius",
             "contact_stiffness",
             "contact_time_constant",
             "damping_ratio",
@@ -182,6 +218,7 @@ class MujocoConfig:
             "settle_tolerance",
             "object_spacing",
             "curve_tolerance",
+            "hfield_spacing",
         ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -222,6 +259,13 @@ class MujocoConfig:
             raise HamError(f"solref = {self.solref!r}; accepted: None or 2 numbers")
         if self.solimp is not None and len(self.solimp) != 5:
             raise HamError(f"solimp = {self.solimp!r}; accepted: None or 5 numbers")
+
+    def resolved(self, objects: list[HapticObject], sensor: SensorConfig) -> MujocoConfig:
+        """This configuration with ``taxel_radius`` set for a scene of ``objects``."""
+        if self.taxel_radius is not None:
+            return self
+        fields_ = any(o.varies_in_y for o in objects)
+        return replace(self, taxel_radius=0.5 * sensor.pitch if fields_ else PAPER_TAXEL_RADIUS)
 
     @property
     def pad_mass(self) -> float:
@@ -327,8 +371,81 @@ def _fmt(values) -> str:
     return " ".join(f"{float(v):.9g}" for v in np.ravel(values))
 
 
-def _object_xml(obj: HapticObject, index: int, x0: float, tolerance: float) -> tuple[str, str]:
+#: Cells a side of each ``hfield`` tile of a height-field object (:func:`_hfield_xml`).
+HFIELD_TILE_CELLS = 4
+
+
+def hfield_samples(obj: HapticObject, spacing: float) -> np.ndarray:
+    """The object's top on the grid of the MuJoCo height field: ``(ny, nx)`` samples (edges
+    included, row ``j`` at ``y = -depth/2 + j * depth / (ny - 1)``), at most ``spacing`` apart.
+
+    The number of cells is even along each side, so the centre lines are sampled: a ridge or apex
+    there (a pyramid's) stays sharp instead of being cut off between two samples."""
+    nx = 2 * max(1, int(math.ceil(obj.width / (2 * spacing) - 1e-9))) + 1
+    ny = 2 * max(1, int(math.ceil(obj.depth / (2 * spacing) - 1e-9))) + 1
+    return obj.height_field(nx, ny)
+
+
+def _hfield_xml(obj: HapticObject, index: int, x0: float, spacing: float) -> tuple[str, str]:
+    """(asset xml, worldbody xml) for an object whose top varies in y: MuJoCo ``hfield`` tiles.
+
+    MuJoCo rescales each field's elevation data to [0, 1] and stacks it on a box ``base`` deep, so
+    a field's geom stands at its lowest sample ``h_min`` with elevation range ``h_max - h_min`` and
+    a base down to the table: the block's sides stay vertical. The top is cut into tiles of
+    :data:`HFIELD_TILE_CELLS` cells a side (sharing their border samples), because the engine's
+    broad phase then skips the tiles below a taxel: a third of the time of one field for the
+    same surface. A flat top, or a flat tile, is an exact ``box``.
+    """
+    hs = hfield_samples(obj, spacing)
+    lo, hi = float(hs.min()), float(hs.max())
+    if hi - lo <= 1e-9 * max(hi, 1e-3):  # a flat top: one box
+        size = _fmt([0.5 * obj.width, 0.5 * obj.depth, 0.5 * hi])
+        pos = _fmt([x0, 0.0, 0.5 * hi])
+        return (
+            "",
+            f'<geom name="obj{index}_box" class="object" type="box" size="{size}" pos="{pos}"/>',
+        )
+    ny, nx = hs.shape
+    xs = np.linspace(-0.5 * obj.width, 0.5 * obj.width, nx)
+    ys = np.linspace(-0.5 * obj.depth, 0.5 * obj.depth, ny)
+    cuts_x = np.unique(np.r_[np.arange(0, nx - 1, HFIELD_TILE_CELLS), nx - 1])
+    cuts_y = np.unique(np.r_[np.arange(0, ny - 1, HFIELD_TILE_CELLS), ny - 1])
+    assets, geoms = [], []
+    for a, (i0, i1) in enumerate(zip(cuts_x[:-1], cuts_x[1:], strict=True)):
+        for b, (j0, j1) in enumerate(zip(cuts_y[:-1], cuts_y[1:], strict=True)):
+            name = f"obj{index}_hfield_{a}_{b}"
+            tile = hs[j0 : j1 + 1, i0 : i1 + 1]
+            lo, hi = float(tile.min()), float(tile.max())
+            cx, hx = 0.5 * (xs[i0] + xs[i1]), 0.5 * (xs[i1] - xs[i0])
+            cy, hy = 0.5 * (ys[j0] + ys[j1]), 0.5 * (ys[j1] - ys[j0])
+            if hi - lo <= 1e-9 * max(hi, 1e-3):
+                size = _fmt([hx, hy, 0.5 * hi])
+                pos = _fmt([x0 + cx, cy, 0.5 * hi])
+                geoms.append(
+                    f'<geom name="{name}" class="object" type="box" size="{size}" pos="{pos}"/>'
+                )
+                continue
+            # MJCF lists the rows from +y down to -y (the first row is the image's top).
+            elevation = _fmt(np.flipud((tile - lo) / (hi - lo)))
+            base = max(lo, 1e-3)  # down to the table (MuJoCo wants > 0; nothing reaches below)
+            size = _fmt([hx, hy, hi - lo, base])
+            assets.append(
+                f'<hfield name="{name}" nrow="{tile.shape[0]}" ncol="{tile.shape[1]}" '
+                f'size="{size}" elevation="{elevation}"/>'
+            )
+            geoms.append(
+                f'<geom name="{name}" class="object" type="hfield" hfield="{name}" '
+                f'pos="{_fmt([x0 + cx, cy, lo])}"/>'
+            )
+    return "\n".join(assets), "\n".join(geoms)
+
+
+def _object_xml(
+    obj: HapticObject, index: int, x0: float, tolerance: float, spacing: float = 2e-3
+) -> tuple[str, str]:
     """(asset xml, worldbody xml) for object ``index`` centred at world x ``x0``."""
+    if obj.varies_in_y:
+        return _hfield_xml(obj, index, x0, spacing)
     assets, geoms = [], []
     half_d = 0.5 * obj.depth
     for k, top in enumerate(convex_slabs(object_polyline(obj, tolerance))):
@@ -362,12 +479,12 @@ def scene_xml(
 ) -> str:
     """The MJCF of the whole scene: table, objects in a row, the pad (see module doc)."""
     s = sensor or SensorConfig()
-    c = config or MujocoConfig()
+    c = (config or MujocoConfig()).resolved(objects, s)
     L, f, T = s.size, s.foam_thickness, s.housing_thickness
     r = c.taxel_radius
     assets, bodies = [], []
     for i, obj in enumerate(objects):
-        a, g = _object_xml(obj, i, i * c.object_spacing, c.curve_tolerance)
+        a, g = _object_xml(obj, i, i * c.object_spacing, c.curve_tolerance, c.hfield_spacing)
         assets.append(a)
         bodies.append(g)
     taxel_ref = _fmt(c.taxel_solref())
@@ -488,6 +605,88 @@ def _pad_outline(sensor: SensorConfig, config: MujocoConfig, spacing: float = 2.
     return np.concatenate(parts)
 
 
+#: Lifts tried before the start height of a general glance is bracketed; each clears the deepest
+#: contact found, so two or three suffice.
+_MAX_LIFTS = 50
+#: The start height of a general glance is found to this (m) from above, then ``clearance`` added.
+_CLEAR_TOLERANCE = 5.0e-6
+
+
+def _rotation(phi: float, phi_y: float) -> np.ndarray:
+    """The pad's rotation ``R_y(phi) R_x(phi_y)`` of issue 12's pose: a face point ``(u, v, 0)``
+    goes to ``(u cos phi - v sin phi_y sin phi, v cos phi_y, -u sin phi - v sin phi_y cos phi)``
+    (``R_x`` turns +v down for phi_y > 0, as ``R_y`` turns +u down for phi > 0)."""
+    cp, sp, cy, sy = math.cos(phi), math.sin(phi), math.cos(phi_y), math.sin(phi_y)
+    r_y = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    r_x = np.array([[1.0, 0.0, 0.0], [0.0, cy, sy], [0.0, -sy, cy]])
+    return r_y @ r_x
+
+
+def _quaternion(phi: float, phi_y: float) -> np.ndarray:
+    """The unit quaternion (w, x, y, z) of :func:`_rotation`."""
+    q = np.empty(4)
+    q_y = np.array([math.cos(phi / 2), 0.0, math.sin(phi / 2), 0.0])
+    q_x = np.array([math.cos(phi_y / 2), -math.sin(phi_y / 2), 0.0, 0.0])
+    mujoco.mju_mulQuat(q, q_y, q_x)
+    return q
+
+
+def _pad_points(
+    sensor: SensorConfig, config: MujocoConfig, spacing: float = 5.0e-4
+) -> tuple[np.ndarray, np.ndarray]:
+    """Points (K, 3) in pad coordinates on the edges and faces of the pad's boxes (housing; the
+    gazebo face), and the taxel spheres' centres (N*N, 3; empty for the gazebo read-out).
+
+    They give :meth:`MujocoSimulator.touch_estimate` its first guess; edges every ``spacing``,
+    faces every 4 ``spacing``.
+    """
+    L, f, T = sensor.size, sensor.foam_thickness, sensor.housing_thickness
+    boxes = [(f, f + T)] + ([(0.0, f)] if config.readout == "gazebo" else [])
+    parts = []
+
+    def axis_samples(a: float, b: float, step: float) -> np.ndarray:
+        return np.linspace(a, b, max(2, int(math.ceil((b - a) / step)) + 1))
+
+    for lo, hi in boxes:
+        span = [(-L / 2, L / 2), (-L / 2, L / 2), (lo, hi)]
+        for k in range(3):
+            i, j = (a for a in range(3) if a != k)
+            # The 4 edges along axis k, every ``spacing``.
+            line = axis_samples(*span[k], spacing)
+            for e1 in span[i]:
+                for e2 in span[j]:
+                    pts = np.zeros((len(line), 3))
+                    pts[:, k], pts[:, i], pts[:, j] = line, e1, e2
+                    parts.append(pts)
+            # The 2 faces normal to axis k, every 4 ``spacing``.
+            g1, g2 = np.meshgrid(
+                axis_samples(*span[i], 4 * spacing), axis_samples(*span[j], 4 * spacing)
+            )
+            for end in span[k]:
+                pts = np.zeros((g1.size, 3))
+                pts[:, i], pts[:, j], pts[:, k] = g1.ravel(), g2.ravel(), end
+                parts.append(pts)
+    points = np.concatenate(parts)
+    if config.readout != "taxels":
+        return points, np.zeros((0, 3))
+    r = config.taxel_radius
+    c = (np.arange(sensor.taxels) + 0.5) * sensor.pitch - 0.5 * L
+    cu, cv = np.meshgrid(c, c)
+    centres = np.stack([cu.ravel(), cv.ravel(), np.full(cu.size, r)], 1)
+    return points, centres
+
+
+def _check_world(sensor: SensorConfig, glance: GlanceConfig, objects: list[HapticObject]) -> None:
+    """The line glance's checks of the pad (:func:`ham.world.glance.check_pad`) for the paper's
+    kind of objects; for height fields only the foam's (a pad wider than such an object reads
+    nothing beside it, as a real pad would)."""
+    lines = [o for o in objects if not o.varies_in_y]
+    if lines:
+        check_pad(sensor, glance, lines)
+    else:
+        check_foam(sensor, glance)
+
+
 # --------------------------------------------------------------------------- simulator
 @dataclass
 class _Worker:
@@ -500,7 +699,8 @@ class MujocoSimulator:
     """Glances in the MuJoCo physics engine, behind the :class:`ham.world.glance.Simulator` interface.
 
     Args:
-        objects: the object set; object ``i`` stands at world x ``i * object_spacing``.
+        objects: the object set; object ``i`` stands at world x ``i * object_spacing``. Objects
+            whose top varies in y (height fields) become MuJoCo ``hfield`` geoms.
         sensor: the Myrmex geometry (taxels, pitch, foam and housing thickness); its
             ``postprocess`` (optional spread and quantization) is applied to every image.
         pose: the action-to-pose mapping, shared with the fast simulator.
@@ -538,14 +738,18 @@ class MujocoSimulator:
             raise HamError(
                 f"device = {device!r}: the MuJoCo simulator runs on the CPU; accepted: cpu"
             )
-        self.config = config
         self.objects = list(objects)
-        # The fast model shares the pose mapping and the sensor's post-processing.
-        self._fast = FastSimulator(self.objects, sensor, pose, glance, resolution=256)
-        self.sensor = self._fast.sensor
-        self.myrmex = self._fast.myrmex
-        self.pose = self._fast.pose
-        self.glance_config = self._fast.glance_config
+        self.myrmex = Myrmex(sensor)
+        self.sensor = self.myrmex.config
+        self.config = config = config.resolved(self.objects, self.sensor)
+        self.pose = pose or PoseConfig()
+        self.glance_config = glance or GlanceConfig()
+        _check_world(self.sensor, self.glance_config, self.objects)
+        # The fast simulator's pose mapping, in float32 as there (poses bit-identical).
+        f32 = dict(dtype=torch.float32)
+        self._half = torch.tensor([self.pose.half_width(o) for o in self.objects], **f32)
+        self._half_depth = torch.tensor([self.pose.half_depth(o) for o in self.objects], **f32)
+        self._fields = any(o.varies_in_y for o in self.objects)
         self.model = build_model(self.objects, self.sensor, config)
         m = self.model
         self._carriage = m.body("carriage").id
@@ -559,7 +763,13 @@ class MujocoSimulator:
                     self._geom_taxel[m.geom(f"taxel_{i}_{j}").id] = i * n + j
         else:
             self._geom_taxel[m.geom("face").id] = 0
+        # Pad geoms (taxels or face, housing): the contacts that tell whether the pad is clear.
+        pad_bodies = {self._pad, m.body("housing").id}
+        self._pad_geom = np.isin(m.geom_bodyid, list(pad_bodies))
         self._outline = _pad_outline(self.sensor, config)
+        self._points, self._sphere_centres = _pad_points(self.sensor, config)
+        # One contact per taxel on height fields; the gazebo face keeps its contact points.
+        self._thin_taxels = config.readout == "taxels" and config.hfield_contacts == "deepest"
         self._threads = config.threads or os.cpu_count() or 1
         self._workers: list[_Worker] = []
         self._pool: ThreadPoolExecutor | None = None
@@ -569,13 +779,32 @@ class MujocoSimulator:
     # ------------------------------------------------------------------ poses and geometry
     def poses(self, ids: torch.Tensor, q_x: torch.Tensor, q_phi: torch.Tensor):
         """Metric ``(x, phi)`` of the face centre: the fast simulator's mapping."""
-        return self._fast.poses(ids, q_x, q_phi)
+        phi = q_phi * self.pose.phi_max
+        x = q_x * self._half[ids] - self.pose.pivot_offset * torch.sin(phi)
+        return x, phi
+
+    def poses4(self, ids, q_x, q_phi, q_y, q_phi_y):
+        """Metric ``(x, y, phi, phi_y)`` of the face centre: the mapping of
+        :meth:`ham.world.extended_glance.ExtendedSimulator.poses`, ``y = q_y * depth / 2`` of the object, ``phi_y = q_phi_y * phi_max``; x and phi
+        as :meth:`poses`, the authors' pivot (``pivot_offset`` above the face, along its normal)
+        shifting x by ``-p sin(phi) cos(phi_y)`` and y by ``-p sin(phi_y)``."""
+        phi = q_phi * self.pose.phi_max
+        phi_y = q_phi_y * self.pose.phi_max
+        p = self.pose.pivot_offset
+        x = q_x * self._half[ids]
+        y = q_y * self._half_depth[ids]
+        if p != 0:
+            # With phi_y = 0 this is :meth:`poses` bit for bit (cos 0 = 1 exactly).
+            x = x - p * torch.sin(phi) * torch.cos(phi_y)
+            y = y - p * torch.sin(phi_y)
+        return x, y, phi, phi_y
 
     def first_touch(self, ids: np.ndarray, x: np.ndarray, phi: np.ndarray) -> np.ndarray:
         """Height (m) of the face centre at which the pad's boundary first meets the surface.
 
-        The pad's outline (spheres or face, housing) is sampled every 0.25 mm; the start height is
-        this plus ``clearance``, so a small under-estimate only costs a few steps of push-back.
+        For objects extruded along y and a pad not tilted about x: the pad's outline (spheres or
+        face, housing) is sampled every 0.25 mm; the start height is this plus ``clearance``, so a
+        small under-estimate only costs a few steps of push-back.
         """
         uv = self._outline
         out = np.empty(len(ids))
@@ -586,6 +815,65 @@ class MujocoSimulator:
             pz = -uv[None, :, 0] * s + uv[None, :, 1] * c
             out[sel] = (self.objects[int(k)].height_at(px) - pz).max(1)
         return out
+
+    def touch_estimate(self, obj: int, x: float, y: float, phi: float, phi_y: float) -> float:
+        """A first estimate of the face-centre height of the first touch for any pose: the
+        lowest point of every taxel sphere and points on the face and housing, each held above
+        the surface straight below it. Exact on flat ground; on slopes a sphere touches
+        higher, which :meth:`_clear_height` corrects with MuJoCo's own collision test."""
+        rot = _rotation(phi, phi_y)
+        o = self.objects[obj]
+        pts = self._points @ rot.T
+        est = float((o.surface(x + pts[:, 0], y + pts[:, 1]) - pts[:, 2]).max())
+        if len(self._sphere_centres):
+            c = self._sphere_centres @ rot.T
+            low = c[:, 2] - self.config.taxel_radius
+            est = max(est, float((o.surface(x + c[:, 0], y + c[:, 1]) - low).max()))
+        return est
+
+    def _penetration(self, m: mujoco.MjModel, d: mujoco.MjData, z: float) -> float:
+        """How far (m, an upper estimate) the pad at face-centre height ``z`` must rise to clear
+        every contact MuJoCo's collision finds there (0: none); the pose is already set."""
+        d.qpos[0] = z
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_collision(m, d)
+        ncon = d.ncon
+        if ncon == 0:
+            return 0.0
+        con = d.contact
+        geoms = con.geom[:ncon]
+        mine = self._pad_geom[geoms[:, 0]] | self._pad_geom[geoms[:, 1]]
+        dist = con.dist[:ncon]
+        sel = mine & (dist < 0)
+        if not sel.any():
+            return 0.0
+        # A penetration p along a normal n needs a vertical lift of p / |n_z|.
+        nz = np.maximum(np.abs(con.frame[:ncon, 2][sel]), 0.05)
+        return float((-dist[sel] / nz).max())
+
+    def _clear_height(self, m: mujoco.MjModel, d: mujoco.MjData, z: float) -> float:
+        """The lowest face-centre height (to 5 um, from above) at which the pad touches nothing,
+        starting from the estimate ``z``: lift by the penetration until clear, then bisect."""
+        low = None
+        for _ in range(_MAX_LIFTS):
+            lift = self._penetration(m, d, z)
+            if lift <= 0:
+                break
+            low, z = z, z + lift + 1e-6
+        else:
+            raise HamError(  # pragma: no cover - each lift clears the deepest contact
+                f"the pad found no clear start height above {z:.6f} m"
+            )
+        if low is not None:
+            high = z
+            while high - low > _CLEAR_TOLERANCE:
+                mid = 0.5 * (low + high)
+                if self._penetration(m, d, mid) > 0:
+                    low = mid
+                else:
+                    high = mid
+            z = high
+        return z
 
     # ------------------------------------------------------------------ threads
     def _ensure_workers(self) -> None:
@@ -612,27 +900,45 @@ class MujocoSimulator:
             pass
 
     # ------------------------------------------------------------------ glance
-    def glance(self, object_ids, q_x, q_phi) -> GlanceResult:
-        """A batch of glances on ``object_ids`` (B,) at normalized poses ``q_x``, ``q_phi`` (B,).
+    def glance(
+        self, object_ids, q_x, q_phi, q_y=None, q_phi_y=None, *, object_pose=None
+    ) -> GlanceResult:
+        """A batch of glances on ``object_ids`` (B,) at normalized poses ``q_x``, ``q_phi``
+        (B,) and, for the extended glance, ``q_y``, ``q_phi_y`` (B,; ``None``: 0).
 
         The batch is split over ``threads`` workers, each with its own model copy; results come back
         in input order. ``info`` holds ``status`` (0 settled, 1 blocked, 2 step limit, 3 unstable;
         names in ``STATUS_NAMES``) and ``steps`` per glance.
         """
+        if object_pose is not None:
+            raise HamError(
+                "object_pose: the MuJoCo simulator keeps every object at its place on the table; "
+                "accepted: None (random object poses need the fast extended simulator)"
+            )
         ids = as_object_ids(object_ids, len(self.objects))
         qx = as_action("q_x", q_x)
         qp = as_action("q_phi", q_phi)
+        extended = q_y is not None or q_phi_y is not None
+        qy = as_action("q_y", 0.0 if q_y is None else q_y)
+        qpy = as_action("q_phi_y", 0.0 if q_phi_y is None else q_phi_y)
         try:
-            ids, qx, qp = torch.broadcast_tensors(ids, qx, qp)
+            ids, qx, qp, qy, qpy = torch.broadcast_tensors(ids, qx, qp, qy, qpy)
         except RuntimeError:
+            lengths = [len(t) for t in (ids, qx, qp)]
+            names = "object ids, q_x and q_phi"
+            if extended:
+                lengths += [len(qy), len(qpy)]
+                names = "object ids, q_x, q_phi, q_y and q_phi_y"
             raise HamError(
-                f"object ids, q_x and q_phi must have equal lengths (or length 1), "
-                f"got {len(ids)}, {len(qx)}, {len(qp)}"
+                f"{names} must have equal lengths (or length 1), got "
+                f"{', '.join(str(v) for v in lengths)}"
             ) from None
-        x, phi = self.poses(ids, qx.float(), qp.float())
+        x, y, phi, phi_y = self.poses4(ids, qx.float(), qp.float(), qy.float(), qpy.float())
         ids_np = ids.numpy().astype(np.int64)
         x_np = x.double().numpy()
+        y_np = y.double().numpy()
         phi_np = phi.double().numpy()
+        phi_y_np = phi_y.double().numpy()
         b = len(ids_np)
         n = self.sensor.taxels
         out = {
@@ -643,7 +949,15 @@ class MujocoSimulator:
             "status": np.zeros(b, dtype=np.int64),
         }
         if b:
-            z0 = self.first_touch(ids_np, x_np, phi_np) + self.config.clearance
+            # Rows on height fields or tilted about x start from MuJoCo's own collision test.
+            varies = np.array([o.varies_in_y for o in self.objects])[ids_np]
+            general = varies | (phi_y_np != 0)
+            z0 = np.full(b, math.nan)
+            line = ~general
+            if line.any():
+                z0[line] = (
+                    self.first_touch(ids_np[line], x_np[line], phi_np[line]) + self.config.clearance
+                )
             self._ensure_workers()
             bounds = np.linspace(0, b, min(self._threads, b) + 1).astype(int)
             jobs = [
@@ -651,7 +965,7 @@ class MujocoSimulator:
                 for w in range(len(bounds) - 1)
                 if bounds[w + 1] > bounds[w]
             ]
-            args = (ids_np, x_np, phi_np, z0, out)
+            args = (ids_np, x_np, phi_np, z0, y_np, phi_y_np, general, out)
             if self._pool is None or len(jobs) == 1:
                 for worker, rows in jobs:
                     self._run_rows(worker, rows, *args)
@@ -662,30 +976,47 @@ class MujocoSimulator:
         failed = np.flatnonzero(status >= STEP_LIMIT)
         if len(failed) and self.config.on_failure == "raise":
             i = int(failed[0])
+            where = f"q_x = {float(qx[i]):.4f}, q_phi = {float(qp[i]):.4f}"
+            if extended:
+                where += f", q_y = {float(qy[i]):.4f}, q_phi_y = {float(qpy[i]):.4f}"
             raise HamError(
                 f"{len(failed)} MuJoCo glance(s) failed; first: object {int(ids_np[i])} at "
-                f"q_x = {float(qx[i]):.4f}, q_phi = {float(qp[i]):.4f}: {STATUS_NAMES[status[i]]} "
+                f"{where}: {STATUS_NAMES[status[i]]} "
                 f"after {int(out['steps'][i])} steps (max_steps = {self.config.max_steps})"
             )
         pressure = self.myrmex.postprocess(torch.from_numpy(out["pressure"]).float())
         force = torch.from_numpy(out["force"]).float()
         ok = status < UNSTABLE
+        z = torch.from_numpy(out["z"]).float()
         return GlanceResult(
             pressure=pressure,
             force=force,
-            z=torch.from_numpy(out["z"]).float(),
+            z=z,
             contact=torch.from_numpy(ok & (out["force"] > 0)),
             blocked=torch.from_numpy(status != SETTLED),
             x=x.float(),
             phi=phi.float(),
+            y=y.float(),
+            phi_y=phi_y.float(),
+            height=z.clone(),
             info={"status": torch.from_numpy(status), "steps": torch.from_numpy(out["steps"])},
         )
 
-    def _run_rows(self, worker: _Worker, rows: range, ids, x, phi, z0, out) -> None:
+    def _run_rows(
+        self, worker: _Worker, rows: range, ids, x, phi, z0, y, phi_y, general, out
+    ) -> None:
         with worker.lock:
             for i in rows:
                 p, force, z, steps, status = self._glance_one(
-                    worker.model, worker.data, int(ids[i]), float(x[i]), float(phi[i]), float(z0[i])
+                    worker.model,
+                    worker.data,
+                    int(ids[i]),
+                    float(x[i]),
+                    float(phi[i]),
+                    float(z0[i]),
+                    y=float(y[i]),
+                    phi_y=float(phi_y[i]),
+                    general=bool(general[i]),
                 )
                 out["pressure"][i] = p
                 out["force"][i] = force
@@ -693,14 +1024,37 @@ class MujocoSimulator:
                 out["steps"][i] = steps
                 out["status"][i] = status
 
+    def _set_pose(self, m: mujoco.MjModel, obj: int, x: float, y: float, phi: float, phi_y: float):
+        m.body_pos[self._carriage] = (self._x_offsets[obj] + x, y, 0.0)
+        if phi_y == 0:
+            m.body_quat[self._pad] = (math.cos(phi / 2), 0.0, math.sin(phi / 2), 0.0)
+        else:
+            m.body_quat[self._pad] = _quaternion(phi, phi_y)
+
     def _glance_one(
-        self, m: mujoco.MjModel, d: mujoco.MjData, obj: int, x: float, phi: float, z0: float
+        self,
+        m: mujoco.MjModel,
+        d: mujoco.MjData,
+        obj: int,
+        x: float,
+        phi: float,
+        z0: float,
+        *,
+        y: float = 0.0,
+        phi_y: float = 0.0,
+        general: bool = False,
     ):
-        """One glance on the worker's own model: pose pinned, force-controlled descent, read-out."""
+        """One glance on the worker's own model: pose pinned, force-controlled descent, read-out.
+
+        ``general``: ``z0`` is ignored; the start height is ``clearance`` above the first touch
+        that MuJoCo's collision test finds (height fields, pads tilted about x)."""
         c = self.config
         target = self.glance_config.force_threshold
-        m.body_pos[self._carriage] = (self._x_offsets[obj] + x, 0.0, 0.0)
-        m.body_quat[self._pad] = (math.cos(phi / 2), 0.0, math.sin(phi / 2), 0.0)
+        self._set_pose(m, obj, x, y, phi, phi_y)
+        if general:
+            mujoco.mj_resetData(m, d)
+            est = self.touch_estimate(obj, x, y, phi, phi_y)
+            z0 = self._clear_height(m, d, est) + c.clearance
         mujoco.mj_resetData(m, d)
         d.qpos[0] = z0
         d.qvel[0] = -c.approach_speed
@@ -709,8 +1063,13 @@ class MujocoSimulator:
         steps, status = 0, STEP_LIMIT
         h_tol = 1e-3 * target
         idle = 0  # consecutive checks with only the housing touching
+        thin = self.objects[obj].varies_in_y and self._thin_taxels
         while steps < c.max_steps:
-            mujoco.mj_step(m, d, nstep=c.check_every)
+            if thin:
+                for _ in range(c.check_every):
+                    self._step_one_contact_per_taxel(m, d)
+            else:
+                mujoco.mj_step(m, d, nstep=c.check_every)
             steps += c.check_every
             s_sum, h_sum, fz = d.sensordata[0], d.sensordata[1], abs(d.sensordata[4])
             v = d.qvel[0]
@@ -746,6 +1105,51 @@ class MujocoSimulator:
         pressure, total = self._read(m, d)
         return pressure, total, float(d.qpos[0]), steps, status
 
+    def _step_one_contact_per_taxel(self, m: mujoco.MjModel, d: mujoco.MjData) -> None:
+        """One ``mj_step`` in which each taxel keeps only its deepest contact
+        (:meth:`_one_contact_per_taxel` between collision and dynamics)."""
+        mujoco.mj_step1(m, d)
+        self._one_contact_per_taxel(m, d)
+        mujoco.mj_step2(m, d)
+
+    def _one_contact_per_taxel(self, m: mujoco.MjModel, d: mujoco.MjData) -> bool:
+        """Exclude every contact of a taxel but its deepest, and make the constraints again.
+
+        A height field is a mesh of triangle prisms, and MuJoCo collides a sphere with each prism
+        it reaches: a taxel resting near a vertex gets up to a dozen contacts, each a full spring,
+        so it would be many times stiffer than its neighbours. The others are marked as MuJoCo
+        marks contacts in the margin gap (``exclude = 1``) and lose their constraint address, so
+        neither the solver nor the sensors count them. Returns whether any was dropped; call
+        after the position stage (``mj_step1``, ``mj_fwdPosition``).
+        """
+        ncon = d.ncon
+        if ncon < 2:
+            return False
+        con = d.contact
+        geoms = con.geom[:ncon]
+        tax = np.maximum(self._geom_taxel[geoms[:, 0]], self._geom_taxel[geoms[:, 1]])
+        sel = np.flatnonzero(tax >= 0)
+        if len(sel) < 2:
+            return False
+        order = sel[np.lexsort((con.dist[sel], tax[sel]))]
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = tax[order[1:]] != tax[order[:-1]]
+        drop = order[~first]
+        if not len(drop):
+            return False
+        exclude = con.exclude[:ncon].copy()
+        exclude[drop] = 1
+        con.exclude[:ncon] = exclude
+        mujoco.mj_makeConstraint(m, d)
+        # The sensors read every contact with an address: clear the dropped ones'.
+        address = con.efc_address[:ncon].copy()
+        address[drop] = -1
+        con.efc_address[:ncon] = address
+        mujoco.mj_island(m, d)
+        mujoco.mj_projectConstraint(m, d)
+        mujoco.mj_fwdVelocity(m, d)
+        return True
+
     def _read(self, m: mujoco.MjModel, d: mujoco.MjData) -> tuple[np.ndarray, float]:
         """The image (Pa) from the last step's contacts, and their summed normal force (N)."""
         n = self.sensor.taxels
@@ -756,7 +1160,8 @@ class MujocoSimulator:
         geoms = con.geom[:ncon]
         adr = con.efc_address[:ncon]
         tax = np.maximum(self._geom_taxel[geoms[:, 0]], self._geom_taxel[geoms[:, 1]])
-        sel = (tax >= 0) & (adr >= 0)
+        # Contacts excluded from the constraints (one per taxel on height fields) carry no force.
+        sel = (tax >= 0) & (adr >= 0) & (con.exclude[:ncon] == 0)
         if not sel.any():
             return np.zeros((n, n)), 0.0
         fn = d.efc_force[adr[sel]]
@@ -776,23 +1181,47 @@ class MujocoSimulator:
         g = np.exp(-(du * du + dy * dy) / (2 * sig2)) / (2 * math.pi * sig2)
         return np.tensordot(fn, g, axes=1), total
 
-    def settled_scene(self, object_id: int, q_x: float, q_phi: float):
+    def settled_scene(
+        self,
+        object_id: int,
+        q_x: float,
+        q_phi: float,
+        q_y: float | None = None,
+        q_phi_y: float | None = None,
+    ):
         """One glance on a private model copy; returns ``(model, data, result)`` at its end.
 
         For drawing the scene (``ham render``) or inspecting contacts; the batch workers are untouched.
         """
-        res = self.glance([object_id], [q_x], [q_phi])  # validates the input
+        extra = () if q_y is None and q_phi_y is None else ([q_y or 0.0], [q_phi_y or 0.0])
+        res = self.glance([object_id], [q_x], [q_phi], *extra)  # validates the input
         m = copy.copy(self.model)
         d = mujoco.MjData(m)
         x, phi = float(res.x[0]), float(res.phi[0])
-        z0 = float(self.first_touch(np.array([object_id]), np.array([x]), np.array([phi]))[0])
-        self._glance_one(m, d, int(object_id), x, phi, z0 + self.config.clearance)
+        y, phi_y = float(res.y[0]), float(res.phi_y[0])
+        general = self.objects[int(object_id)].varies_in_y or phi_y != 0
+        z0 = math.nan
+        if not general:
+            z0 = float(self.first_touch(np.array([object_id]), np.array([x]), np.array([phi]))[0])
+            z0 += self.config.clearance
+        self._glance_one(m, d, int(object_id), x, phi, z0, y=y, phi_y=phi_y, general=general)
         mujoco.mj_forward(m, d)
+        thin = self.objects[int(object_id)].varies_in_y and self._thin_taxels
+        if thin and self._one_contact_per_taxel(m, d):
+            mujoco.mj_fwdActuation(m, d)
+            mujoco.mj_fwdAcceleration(m, d)
+            mujoco.mj_fwdConstraint(m, d)
+            mujoco.mj_sensorAcc(m, d)
         return m, d, res
 
     # ------------------------------------------------------------------ description
     def describe(self) -> dict:
         c = self.config
+        mj = c.to_dict()
+        if not self._fields:
+            # Only height fields use it: worlds of the paper's objects describe themselves (and
+            # their tables' attributes) as before.
+            del mj["hfield_spacing"], mj["hfield_contacts"]
         return {
             "simulator": self.name,
             "engine": f"mujoco {mujoco.__version__}",
@@ -800,7 +1229,7 @@ class MujocoSimulator:
             "sensor": self.sensor.to_dict(),
             "pose": asdict(self.pose),
             "glance": asdict(self.glance_config),
-            "mujoco": c.to_dict(),
+            "mujoco": mj,
             "taxel_solref": list(c.taxel_solref()),
             "taxel_solimp": list(c.taxel_solimp()),
             "threads": self._threads,
