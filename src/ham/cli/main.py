@@ -118,7 +118,12 @@ def cmd_table_build(args: argparse.Namespace) -> int:
     check_output(args.out, HDF5)
     world = world_from_args(args)
     out = build_table(
-        world, args.grid, args.out, progress=not args.quiet, command=command_line(args)
+        world,
+        args.grid,
+        args.out,
+        progress=not args.quiet,
+        command=command_line(args),
+        compression=args.compression,
     )
     print(f"wrote {out}")
     return 0
@@ -131,7 +136,7 @@ def cmd_table_info(args: argparse.Namespace) -> int:
     if args.json:
         print_json(info.to_dict())
         return 0
-    print(f"{info.path}: {len(info.objects)} objects x {info.grid} x {info.grid} glances")
+    print(f"{info.path}: {len(info.objects)} objects x {_grid_text(info)} glances")
     print(f"  objects:   {', '.join(info.objects)}")
     print(f"  simulator: {info.simulator.get('simulator', '?')}  source: {info.source}")
     from ham.world.sensor import SensorConfig
@@ -147,12 +152,20 @@ def cmd_table_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _grid_text(info) -> str:
+    """``201 x 201`` (the paper's), or ``21 x 21 x 9 x 9 (x,y,phi,phi_y)`` for other pose grids."""
+    text = " x ".join(map(str, info.grid_shape))
+    if tuple(info.pose_dims) != ("x", "phi"):
+        text += f" ({','.join(info.pose_dims)})"
+    return text
+
+
 def cmd_table_verify(args: argparse.Namespace) -> int:
     from ham.world.table import verify_table
 
     info = verify_table(args.file)
     print(
-        f"ok {args.file}: {len(info.objects)} objects x {info.grid} x {info.grid} glances, "
+        f"ok {args.file}: {len(info.objects)} objects x {_grid_text(info)} glances, "
         "finite non-negative pressures, checksum sha256 matches"
     )
     return 0
@@ -269,7 +282,12 @@ def build_parser() -> argparse.ArgumentParser:
     tsub = t.add_subparsers(dest="table_command", metavar="ACTION")
     t.set_defaults(func=lambda args: _need_action(t, "table_command", "ACTION"))
     p = tsub.add_parser("build", help="record a grid x grid table of glances per object")
-    p.add_argument("--grid", type=int, default=201, help="poses per axis, 2..2001 (default 201)")
+    p.add_argument("--grid", default="201",
+                   help="poses per axis, 2..2001 (default 201), or one per pose dim, e.g. "
+                   "21,21,9,9 with --pose-dims x,y,phi,phi_y")  # fmt: skip
+    p.add_argument("--compression", default="gzip", choices=("gzip", "lzf", "none"),
+                   help="of a table over other pose dims than x,phi (format 2): none writes a "
+                   "memory-mappable file (default gzip)")  # fmt: skip
     p.add_argument("--out", required=True, help="HDF5 file to write (atomically), .h5 or .hdf5")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_world_options(p)

@@ -70,6 +70,14 @@ class Partitions:
         if not (math.isfinite(tolerance) and tolerance >= 0):
             raise HamError(f"tolerance = {tolerance!r}; accepted: a finite number >= 0")
         k, g = table.n_objects, table.grid
+        dims = tuple(getattr(table, "pose_dims", ("x", "phi")))
+        shape = tuple(getattr(table, "grid_shape", (g, g)))
+        # Any two pose dims: the planners see grid poses, not what they mean.
+        if len(dims) != 2 or shape != (g, g) or table.pressure is None:
+            raise HamError(
+                f"a table over pose grid {'x'.join(map(str, shape))} ({','.join(dims)}); the "
+                "exact planners accept a square grid over two pose dims, held in memory"
+            )
         if k > MAX_OBJECTS:
             raise HamError(
                 f"the table has {k} objects; exact planners accept at most {MAX_OBJECTS}"
