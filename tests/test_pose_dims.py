@@ -266,3 +266,18 @@ def test_gym_env_height_observation():
         venv.step({"pose": np.zeros((3, 3)), "prediction": np.zeros(3, int)})
     with pytest.raises(HamError, match="height = 1; accepted: True or False"):
         HapticGlanceEnv(height=1)
+
+
+def test_baselines_can_tell_objects_apart_by_height(tmp_path):
+    from ham.learn.planners import Partitions, Planner
+
+    table = GlanceTable.load(build_table(WorldConfig(), 5, tmp_path / "p5.h5", progress=False))
+    plain = Planner(Partitions.from_table(table))
+    tall = Planner(Partitions.from_table(table, height=True))
+    # at every grid pose the height splits at least what the images split: a refinement
+    for a_t, a_p in zip(tall.parts.grid_action.ravel(), plain.parts.grid_action.ravel()):
+        t, q = tall.parts.labels[a_t], plain.parts.labels[a_p]
+        assert all(q[i] == q[j] for i in range(4) for j in range(4) if t[i] == t[j])
+    assert tall.accuracy("random", 1) > plain.accuracy("random", 1)
+    assert tall.accuracy("oracle", 1) >= plain.accuracy("oracle", 1)
+    assert table.height.shape == (4, 5, 5)

@@ -160,7 +160,7 @@ def plot_projections(heatmap_data: dict, out_png: str | os.PathLike) -> Path:
         f"accuracy {heatmap_data.get('accuracy', float('nan')):.3f})",
         fontsize=9,
     )
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.35 / fig.get_figheight()))
     return _save(fig, out_png)
 
 

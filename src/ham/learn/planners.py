@@ -61,9 +61,11 @@ class Partitions:
         return self.labels.shape[1]
 
     @classmethod
-    def from_table(cls, table, tolerance: float = 1e-6) -> Partitions:
+    def from_table(cls, table, tolerance: float = 1e-6, height: bool = False) -> Partitions:
         """Split each grid pose's objects by their L2-normalized images (the agent's input):
-        two images are equal when they differ by at most ``tolerance`` in L2 norm."""
+        two images are equal when they differ by at most ``tolerance`` in L2 norm. ``height``:
+        the glances' contact heights tell objects apart too (the HAM's ``height_input``: the
+        image and ``h / MAX_HEIGHT`` must both agree within ``tolerance``)."""
         from ham.world.sensor import normalize
         from ham.world.table import grid_values
 
@@ -83,6 +85,11 @@ class Partitions:
                 f"the table has {k} objects; exact planners accept at most {MAX_OBJECTS}"
             )
         p = normalize(table.pressure.double(), "l2")  # (K, g, g, D)
+        if height:
+            from ham.world.objects import MAX_HEIGHT
+
+            h = table.height.double().reshape(k, g, g, 1).to(p.device) / MAX_HEIGHT
+            p = torch.cat([p, h], -1)
         p = p.permute(1, 2, 0, 3).reshape(g * g, k, -1)
         same = (torch.cdist(p, p) <= tolerance).numpy()  # (P, K, K)
         # label = the first object equal to this one (exact equality makes this a partition)
