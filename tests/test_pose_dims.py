@@ -275,7 +275,8 @@ def test_baselines_can_tell_objects_apart_by_height(tmp_path):
     plain = Planner(Partitions.from_table(table))
     tall = Planner(Partitions.from_table(table, height=True))
     # at every grid pose the height splits at least what the images split: a refinement
-    for a_t, a_p in zip(tall.parts.grid_action.ravel(), plain.parts.grid_action.ravel()):
+    pairs = zip(tall.parts.grid_action.ravel(), plain.parts.grid_action.ravel(), strict=True)
+    for a_t, a_p in pairs:
         t, q = tall.parts.labels[a_t], plain.parts.labels[a_p]
         assert all(q[i] == q[j] for i in range(4) for j in range(4) if t[i] == t[j])
     assert tall.accuracy("random", 1) > plain.accuracy("random", 1)
