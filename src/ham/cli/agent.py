@@ -83,6 +83,9 @@ def add_commands(subparsers) -> None:
     p.add_argument("--eval-policy", choices=choices(TrainConfig, "eval_policy"),
                    help="location policy: mean poses or sampled (default: the run's)")  # fmt: skip
     p.add_argument("--json", metavar="FILE", help="also write the heat map data as JSON")
+    p.add_argument("--objects", metavar="SET",
+                   help="on other objects, one per class in the run's class order (e.g. "
+                   "composite:test); online runs only")  # fmt: skip
     p.set_defaults(func=cmd_heatmap)
 
 
