@@ -36,8 +36,8 @@ def test_glance_picture(ham_cli, tmp_path):
         ),
         (["glance", "--object", "sphere", "--x", "0", "--phi", "0"], "unknown object 'sphere'"),
         (
-            ["glance", "--object", "12", "--x", "0", "--phi", "0"],
-            "unknown object id 12; accepted: 0..7",
+            ["glance", "--object", "99", "--x", "0", "--phi", "0"],
+            "unknown object id 99; accepted: 0..40",
         ),
         (
             ["glance", "--object", "box", "--x", "0", "--phi", "0", "--simulator", "ode"],

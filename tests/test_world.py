@@ -191,8 +191,8 @@ def test_bad_glance_input_is_named(sim, call, match):
     "key, match",
     [
         ("nope", "unknown object 'nope'"),
-        (42, "unknown object id 42"),
-        ("99", "unknown object id 99"),
+        (9999, "unknown object id 9999"),
+        ("9998", "unknown object id 9998"),
     ],
 )
 def test_unknown_objects_are_named(key, match):

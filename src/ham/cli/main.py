@@ -42,36 +42,109 @@ _COMMAND_MODULES = (
 
 
 # --------------------------------------------------------------------------- objects
+def _object_from_file(args: argparse.Namespace):
+    """The one object of ``--image`` or ``--mesh`` (registered in this process only)."""
+    from ham.world import objects
+
+    if args.set is not None:
+        raise HamError("--set with --image/--mesh; accepted: one of them (the file is the set)")
+    if not args.name:
+        raise HamError("--image/--mesh needs --name NAME for the object")
+    if args.image:
+        size = {k: getattr(args, k) for k in ("width", "depth", "height")}
+        obj = objects.HapticObject.from_image(
+            args.name,
+            args.image,
+            description=f"from image {Path(args.image).name}",
+            **{k: v for k, v in size.items() if v is not None},
+        )
+    else:
+        grid = {k: getattr(args, k) for k in ("scale", "pitch")}
+        obj = objects.HapticObject.from_mesh(
+            args.name,
+            args.mesh,
+            description=f"from mesh {Path(args.mesh).name}",
+            **{k: v for k, v in grid.items() if v is not None},
+        )
+    objects.register(obj)
+    return [obj]
+
+
 def cmd_objects(args: argparse.Namespace) -> int:
     from ham.world import objects
 
     if args.out:
         check_output(args.out, PNG)
+    if args.export:
+        check_output(args.export, (".json",), what="--export")
+    if args.image and args.mesh:
+        raise HamError("--image and --mesh; accepted: one of them")
+    for flag, needs, given in (
+        ("--name", "--image or --mesh", args.image or args.mesh),
+        ("--width", "--image", args.image),
+        ("--depth", "--image", args.image),
+        ("--height", "--image", args.image),
+        ("--scale", "--mesh", args.mesh),
+        ("--pitch", "--mesh", args.mesh),
+        ("--samples", "--export", args.export),
+    ):
+        if getattr(args, flag[2:]) is not None and not given:
+            raise HamError(f"{flag} applies only with {needs}; accepted: {needs} {flag} ...")
     load_objects_file_arg(args)
-    objs = objects.resolve_set(args.set)
+    if args.image or args.mesh:
+        objs = _object_from_file(args)
+        spec = objs[0].name
+    else:
+        spec = "all" if args.set is None else args.set
+        objs = objects.resolve_set(spec)
+    member = objects.set_membership()
     rows = [
         {
             "id": objects.object_id(o.name),
             "name": o.name,
             "width": o.width,
+            "depth": o.depth,
             "height": o.height,
+            "varies_in_y": o.varies_in_y,
+            "sets": member.get(o.name, []),
             "description": o.description,
             "origin": objects.origin(o.name),
         }
         for o in objs
     ]
+    splits = objects.splits_of(spec)
     if args.out:
-        from ham.world.drawing import draw_objects
+        from ham.world.drawing import draw_objects, draw_objects_3d
 
-        draw_objects(objs, args.out)
+        view = args.view
+        if view == "auto":
+            view = "3d" if any(o.varies_in_y for o in objs) else "side"
+        if view == "3d":
+            draw_objects_3d(objs, args.out, title=f"Objects {spec}: top h(x, y) (cm)")
+        else:
+            draw_objects(objs, args.out)
+    if args.export:
+        samples = 129 if args.samples is None else args.samples
+        objects.write_objects_file(objs, args.export, samples=samples)
     if args.json:
         print_json(rows)
     else:
         for r in rows:
             mark = "" if r["origin"] == "built-in" else f" [{r['origin']}]"
-            print(f"{r['id']:>3}  {r['name']:<13} {r['description']}{mark}")
-        if args.out:
-            print(f"wrote {args.out}")
+            size = f"{r['width'] * 100:g} x {r['depth'] * 100:g} cm"
+            print(
+                f"{r['id']:>3}  {r['name']:<13} {size:<11} h {r['height'] * 100:4.2f} cm  "
+                f"{r['description']}{mark}"
+            )
+        for split, names in splits.items():
+            print(f"split {split}: {len(names)} objects: {', '.join(names)}")
+        if splits:
+            print(
+                "(object i of each split is an instance of class i: train on one, score on the other)"
+            )
+        for what, path in (("wrote", args.out), ("wrote", args.export)):
+            if path:
+                print(f"{what} {path}")
     return 0
 
 
@@ -81,6 +154,7 @@ def cmd_glance(args: argparse.Namespace) -> int:
 
     from ham.world import objects
     from ham.world.config import make_simulator
+    from ham.world.glance import POSE_DIMS
 
     if args.out:
         check_output(args.out, PNG)
@@ -89,11 +163,17 @@ def cmd_glance(args: argparse.Namespace) -> int:
     if args.objects is not None and obj not in world.resolve_objects():
         raise HamError(f"--object {args.object!r} is not in --objects {args.objects!r}")
     world = replace(world, objects=obj.name)
+    # A y or phi_y given takes the extended glance, whatever --pose-dims says.
+    asked = {"y": args.y != 0, "phi_y": args.phi_y != 0}
+    dims = [d for d in POSE_DIMS if d in world.pose_dims or asked.get(d, False)]
+    world = replace(world, pose_dims=tuple(dims))
     sim = make_simulator(world)
-    result = sim.glance([0], [args.x], [args.phi])
+    extra = {"q_y": [args.y], "q_phi_y": [args.phi_y]} if world.extended else {}
+    result = sim.glance([0], [args.x], [args.phi], **extra)
     data = result.to_json(0)
     data.update(object=obj.name, object_id=objects.object_id(obj.name), simulator=sim.name)
     data["q"] = [args.x, args.phi]
+    data.update(q_y=args.y, q_phi_y=args.phi_y, pose_dims=list(world.pose_dims))
     if args.out:
         from ham.world.drawing import draw_glance
 
@@ -101,11 +181,21 @@ def cmd_glance(args: argparse.Namespace) -> int:
     if args.json:
         print_json(data)
     else:
-        print(
-            f"{obj.name} at q = ({args.x:+.3f}, {args.phi:+.3f}) -> x = {data['x'] * 100:.2f} cm, "
-            f"phi = {math.degrees(data['phi']):.1f} deg: force {data['force']:.3f} N, "
-            f"z {data['z'] * 100:.3f} cm, contact {data['contact']}, blocked {data['blocked']}"
-        )
+        if world.extended:
+            print(
+                f"{obj.name} at q = (x {args.x:+.3f}, y {args.y:+.3f}, phi {args.phi:+.3f}, "
+                f"phi_y {args.phi_y:+.3f}) -> x = {data['x'] * 100:.2f} cm, "
+                f"y = {data['y'] * 100:.2f} cm, phi = {math.degrees(data['phi']):.1f} deg, "
+                f"phi_y = {math.degrees(data['phi_y']):.1f} deg: force {data['force']:.3f} N, "
+                f"height {data['height'] * 100:.3f} cm, contact {data['contact']}, "
+                f"blocked {data['blocked']}"
+            )
+        else:
+            print(
+                f"{obj.name} at q = ({args.x:+.3f}, {args.phi:+.3f}) -> x = {data['x'] * 100:.2f} "
+                f"cm, phi = {math.degrees(data['phi']):.1f} deg: force {data['force']:.3f} N, "
+                f"z {data['z'] * 100:.3f} cm, contact {data['contact']}, blocked {data['blocked']}"
+            )
         if args.out:
             print(f"wrote {args.out}")
     return 0
@@ -258,10 +348,30 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"ham {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
-    p = sub.add_parser("objects", help="list the objects (and draw their profiles)")
-    p.add_argument("--set", default="all", help="paper, mhsb, all (default) or names/ids")
+    p = sub.add_parser("objects", help="list the objects (and draw them)")
+    p.add_argument(
+        "--set",
+        help="paper, mhsb, curvature2d, composite, composite:train, composite:test, "
+        "all (default) or names/ids",
+    )
     p.add_argument("--json", action="store_true")
-    p.add_argument("--out", help="PNG of the side profiles")
+    p.add_argument("--out", help="PNG: side profiles, or shaded 3-D tops (see --view)")
+    p.add_argument(
+        "--view", choices=("auto", "side", "3d"), default="auto",
+        help="picture: side profiles or 3-D tops (auto: 3-D when an object varies in y)",
+    )  # fmt: skip
+    p.add_argument("--image", help="one object from a grey-scale PNG (needs --name)")
+    p.add_argument("--mesh", help="one object from the top of an STL/OBJ/PLY mesh (needs --name)")
+    p.add_argument("--name", help="the --image/--mesh object's name")
+    p.add_argument("--width", type=finite_float, help="--image: x extent (m; 0.09)")
+    p.add_argument("--depth", type=finite_float, help="--image: y extent (m; 0.09)")
+    p.add_argument("--height", type=finite_float, help="--image: white's height (m; 0.045)")
+    p.add_argument("--scale", type=finite_float, help="--mesh: metres per mesh unit (1)")
+    p.add_argument("--pitch", type=finite_float, help="--mesh: sample step (m; 0.0005)")
+    p.add_argument(
+        "--export", help="write the objects as a self-contained JSON objects file (height_field)"
+    )
+    p.add_argument("--samples", type=int, help="--export: samples along the longer side (129)")
     add_objects_file_option(p)
     p.set_defaults(func=cmd_objects)
 
@@ -273,7 +383,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--phi", type=finite_float, required=True, help="normalized angle q_phi in [-1, 1]"
     )
-    p.add_argument("--json", action="store_true", help="print the result as JSON (raw pressure)")
+    p.add_argument(
+        "--y",
+        type=finite_float,
+        default=0.0,
+        help="normalized position q_y in [-1, 1] (default 0; not 0: the extended glance)",
+    )
+    p.add_argument(
+        "--phi-y",
+        type=finite_float,
+        default=0.0,
+        help="normalized tilt about x, q_phi_y in [-1, 1] (default 0; not 0: the extended glance)",
+    )
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="print the result as JSON (raw pressure; height, y, phi_y)",
+    )
     p.add_argument("--out", help="PNG: the pad over the profile and its N x N image")
     add_world_options(p)
     p.set_defaults(func=cmd_glance)

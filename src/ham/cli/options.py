@@ -8,7 +8,7 @@ import shlex
 import sys
 
 from ham.errors import HamError
-from ham.world.glance import POSE_PRESETS
+from ham.world.glance import PAPER_POSE_DIMS, POSE_PRESETS, check_pose_dims
 from ham.world.sensor import READOUTS
 
 
@@ -89,6 +89,13 @@ def add_world_options(p: argparse.ArgumentParser, *, objects: bool = True) -> No
         choices=POSE_PRESETS,
         help="pose mapping: paper (phi = q*pi/2, default) or authors (phi = q*0.3pi, pivot shift)",
     )
+    p.add_argument(
+        "--pose-dims",
+        default=None,
+        metavar="DIMS",
+        help="pose dimensions the glance takes, a comma list in the order x,y,phi,phi_y "
+        "(default: x,phi, the paper's; y or phi_y pick the extended glance)",
+    )
     add_sensor_options(p)
 
 
@@ -139,6 +146,7 @@ def world_from_args(args: argparse.Namespace, objects: str | None = None):
                 "model has no contact points to spread; for a Gazebo-like blur use --spread-sigma 0.005"
             )
         mujoco["readout"] = "gazebo"
+    dims = getattr(args, "pose_dims", None)
     return WorldConfig(
         objects=objects,
         simulator=args.simulator,
@@ -146,6 +154,7 @@ def world_from_args(args: argparse.Namespace, objects: str | None = None):
         pose=PoseConfig.preset(args.pose),
         mujoco=mujoco,
         objects_file=record,
+        pose_dims=PAPER_POSE_DIMS if dims is None else check_pose_dims(dims, "--pose-dims"),
     )
 
 

@@ -3,7 +3,10 @@
 ``WorldConfig`` is the one config object for everything a glance depends on; it is saved beside
 every table and run. ``make_simulator`` builds the simulator it names:
 
-* ``fast``: the vectorized foam-contact model (:class:`ham.world.glance.FastSimulator`), CPU or CUDA;
+* ``fast``: the vectorized foam-contact model, CPU or CUDA: the paper's line glance
+  (:class:`ham.world.glance.FastSimulator`), or the extended glance on height fields
+  (:class:`ham.world.extended_glance.ExtendedSimulator`) when ``pose_dims`` has ``y`` or
+  ``phi_y`` or an object varies in y;
 * ``mujoco``: the MuJoCo physics engine (:mod:`ham.world.mujoco_sim`), when installed.
 
 Third parties add a simulator with :func:`register_simulator`.
@@ -16,7 +19,15 @@ from dataclasses import asdict, dataclass, field
 
 from ham.errors import HamError, check_known_fields
 from ham.world import objects as _objects
-from ham.world.glance import FastSimulator, GlanceConfig, PoseConfig, Simulator
+from ham.world.extended_glance import ExtendedSimulator
+from ham.world.glance import (
+    PAPER_POSE_DIMS,
+    FastSimulator,
+    GlanceConfig,
+    PoseConfig,
+    Simulator,
+    check_pose_dims,
+)
 from ham.world.objects import HapticObject
 from ham.world.sensor import MAX_FOAM_STIFFNESS, SensorConfig
 
@@ -27,6 +38,11 @@ class WorldConfig:
 
     ``mujoco`` holds :class:`ham.world.mujoco_sim.MujocoConfig` overrides (e.g. ``{"readout": "gazebo"}``)
     for the MuJoCo simulator; the fast simulator ignores it.
+
+    ``pose_dims`` are the pose dimensions the agent controls, a subset of
+    :data:`ham.world.glance.POSE_DIMS` in canonical order (``x, y, phi, phi_y``); the paper's
+    ``("x", "phi")`` by default. Dimensions not enabled are 0 (pose centre, no tilt). :meth:`to_dict`
+    leaves the default out, so the paper's world saves the same dict as before the extended glance.
 
     ``objects_file`` records the user's objects file (``--objects-file``) as
     ``{"name", "sha256", "source"}`` (:func:`ham.world.objects.read_objects_file`): a world loaded
@@ -41,6 +57,7 @@ class WorldConfig:
     glance: GlanceConfig = field(default_factory=GlanceConfig)
     mujoco: dict = field(default_factory=dict)
     objects_file: dict | None = None
+    pose_dims: tuple[str, ...] = PAPER_POSE_DIMS
 
     def register_objects(self) -> list[str]:
         """Register the recorded objects file's objects (once per process); their names."""
@@ -57,6 +74,7 @@ class WorldConfig:
                 )
         if self.objects_file is not None:
             _objects.check_record(self.objects_file)
+        object.__setattr__(self, "pose_dims", check_pose_dims(self.pose_dims, "world pose_dims"))
         # The foam must carry the glance's stop force on the whole face before it is compressed
         # through: softer, and even the flat box blocks the pad with no 2 N reading.
         s, need = self.sensor, self.glance.force_threshold
@@ -75,8 +93,19 @@ class WorldConfig:
         self.register_objects()
         return _objects.resolve_set(self.objects)
 
+    @property
+    def extended(self) -> bool:
+        """Whether glances need the extended glance: y or phi_y enabled, or a height field."""
+        if {"y", "phi_y"} & set(self.pose_dims):
+            return True
+        return any(o.varies_in_y for o in self.resolve_objects())
+
     def to_dict(self) -> dict:
-        return asdict(self)
+        d = asdict(self)
+        d["pose_dims"] = list(self.pose_dims)
+        if self.pose_dims == PAPER_POSE_DIMS:  # the paper's world: the dict saved before
+            del d["pose_dims"]
+        return d
 
     @classmethod
     def from_dict(cls, d: dict) -> WorldConfig:
@@ -103,6 +132,7 @@ class WorldConfig:
             simulator=d.get("simulator", "fast"),
             mujoco=dict(mujoco),
             objects_file=d.get("objects_file"),
+            pose_dims=d.get("pose_dims", PAPER_POSE_DIMS),
             **parts,
         )
         world.register_objects()
@@ -125,10 +155,18 @@ def simulator_names() -> list[str]:
 def make_simulator(
     config: WorldConfig | None = None, *, device: str = "cpu", **kwargs
 ) -> Simulator:
-    """The simulator ``config.simulator`` over ``config``'s objects."""
+    """The simulator ``config.simulator`` over ``config``'s objects.
+
+    ``fast`` is the paper's line glance, or the extended glance when ``config.extended``
+    (``pose_dims`` with y or phi_y, or an object that varies in y).
+    """
     config = config or WorldConfig()
     objs = config.resolve_objects()
     name = config.simulator
+    if name == "fast" and config.extended:
+        return ExtendedSimulator(
+            objs, config.sensor, config.pose, config.glance, device=device, **kwargs
+        )
     if name == "fast":
         return FastSimulator(
             objs, config.sensor, config.pose, config.glance, device=device, **kwargs

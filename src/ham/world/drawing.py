@@ -44,11 +44,12 @@ def draw_objects(objs: list[HapticObject], out: str | os.PathLike) -> Path:
     fig, axes = plt.subplots(rows, cols, figsize=(3.0 * cols, 2.3 * rows), squeeze=False)
     from ham.world.objects import object_id
 
+    reach = max(6.0, 50 * max(o.width for o in objs) + 1.5)  # cm: 6 for the 9 cm blocks
     for ax, obj in zip(axes.flat, objs, strict=False):
         ax.axhline(0, color="0.4", lw=2)
         _solid(ax, obj)
         ax.set_title(f"{object_id(obj.name)}: {obj.name}", fontsize=10)
-        ax.set_xlim(-6, 6)
+        ax.set_xlim(-reach, reach)
         ax.set_ylim(-0.5, 6)
         ax.set_aspect("equal")
         ax.set_xlabel("x (cm)")
@@ -118,4 +119,53 @@ def draw_table_grid(
             if i == 0:
                 ax.set_ylabel(f"q_phi={q[1][j]:+.2f}", fontsize=7)
     fig.suptitle(title, fontsize=10)
+    return _save(fig, out)
+
+
+def draw_objects_3d(
+    objs: list[HapticObject], out: str | os.PathLike, title: str | None = None
+) -> Path:
+    """Each object's top ``h(x, y)`` as a shaded 3-D surface (one panel each, ids and names),
+    with its walls down to the table; all panels share one scale (cm)."""
+    from matplotlib.colors import LightSource
+    from matplotlib.ticker import MaxNLocator
+
+    from ham.world.objects import object_id
+
+    n = len(objs)
+    cols = min(n, 4)
+    rows = math.ceil(n / cols)
+    fig = plt.figure(figsize=(3.2 * cols, 2.9 * rows))
+    half = 50 * max(max(o.width, o.depth) for o in objs)  # cm
+    top = 100 * max(o.height for o in objs)
+    light = LightSource(azdeg=315, altdeg=45)
+    for k, obj in enumerate(objs):
+        ax = fig.add_subplot(rows, cols, k + 1, projection="3d")
+        # 2 mm samples plus one just beyond each side, where the table (0) makes the walls; at
+        # most 61 a side, 25 in a figure of more than 12 panels (rendering time grows with both).
+        most = 61 if n <= 12 else 25
+        nx = min(most, max(2, round(obj.width / 0.002) + 1))
+        ny = min(most, max(2, round(obj.depth / 0.002) + 1))
+        hw, hd = 0.5 * obj.width, 0.5 * obj.depth
+        xs = np.concatenate([[-hw - 1e-9], np.linspace(-hw, hw, nx), [hw + 1e-9]])
+        ys = np.concatenate([[-hd - 1e-9], np.linspace(-hd, hd, ny), [hd + 1e-9]])
+        gx, gy = np.meshgrid(xs, ys)
+        z = obj.surface(gx, gy) * 100
+        rgb = light.shade(z, cmap=plt.cm.copper, vert_exag=3, blend_mode="soft", vmin=0, vmax=top)
+        ax.plot_surface(
+            gx * 100, gy * 100, z, facecolors=rgb, rstride=1, cstride=1, linewidth=0,
+            antialiased=False, shade=False,
+        )  # fmt: skip
+        ax.set_xlim(-half, half)
+        ax.set_ylim(-half, half)
+        ax.set_zlim(0, top)
+        ax.set_box_aspect((1, 1, max(top / (2 * half), 0.15)))
+        ax.view_init(elev=35, azim=-60)
+        ax.set_title(f"{object_id(obj.name)}: {obj.name}", fontsize=9)
+        ax.tick_params(labelsize=6, pad=0)
+        ax.zaxis.set_major_locator(MaxNLocator(3))
+        ax.set_xlabel("x (cm)", fontsize=7, labelpad=-4)
+        ax.set_ylabel("y (cm)", fontsize=7, labelpad=-4)
+    fig.suptitle(title or "Objects: top h(x, y) (cm)", fontsize=11)
+    fig.tight_layout()
     return _save(fig, out)

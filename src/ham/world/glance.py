@@ -50,6 +50,30 @@ AUTHORS_ZONE_WIDTHS: dict[str, float] = {
 #: The pose mappings ``PoseConfig.preset`` knows: the paper's and the authors' code's.
 POSE_PRESETS: tuple[str, ...] = ("paper", "authors")
 
+#: The pose dimensions of the extended glance in canonical order (the paper's Discussion:
+#: ``g: (x, phi_x, phi_y) -> (p, h)``, with y added): ``phi`` is the paper's tilt (phi_x, about the
+#: y axis), ``phi_y`` tilts about the x axis. The paper's glance uses ``("x", "phi")``.
+POSE_DIMS: tuple[str, ...] = ("x", "y", "phi", "phi_y")
+#: The paper's pose dimensions, the default of :attr:`ham.world.config.WorldConfig.pose_dims`.
+PAPER_POSE_DIMS: tuple[str, ...] = ("x", "phi")
+
+
+def check_pose_dims(dims: object, what: str = "pose_dims") -> tuple[str, ...]:
+    """``dims`` as a tuple if it is a non-empty subset of :data:`POSE_DIMS` in canonical order
+    (a comma string ``"x,y,phi,phi_y"`` or a sequence of names), else a :class:`HamError`."""
+    rule = f"accepted: a non-empty subset of {','.join(POSE_DIMS)} in that order"
+    if isinstance(dims, str):
+        dims = tuple(p.strip() for p in dims.split(","))
+    if not isinstance(dims, (tuple, list)) or not dims:
+        raise HamError(f"{what} = {dims!r}; {rule}")
+    for d in dims:
+        if d not in POSE_DIMS:
+            raise HamError(f"{what}: unknown pose dimension {d!r}; {rule}")
+    dims = tuple(dims)
+    if len(set(dims)) != len(dims) or list(dims) != sorted(dims, key=POSE_DIMS.index):
+        raise HamError(f"{what} = {','.join(dims)!r}; {rule} (each once)")
+    return dims
+
 
 @dataclass(frozen=True)
 class PoseConfig:
@@ -95,6 +119,10 @@ class PoseConfig:
             return 0.5 * AUTHORS_ZONE_WIDTHS[obj.name]
         return self.zone_half_width if self.zone_half_width is not None else 0.5 * obj.width
 
+    def half_depth(self, obj: HapticObject) -> float:
+        """``y = q_y * half_depth``: half the object's depth (the zone spans the base in y)."""
+        return 0.5 * obj.depth
+
 
 @dataclass(frozen=True)
 class GlanceConfig:
@@ -128,6 +156,10 @@ class GlanceResult:
         blocked: ``(B,)`` whether a rigid part stopped the pad before the force threshold.
         x: ``(B,)`` face centre x in the object's frame (m).
         phi: ``(B,)`` rotation about y (rad).
+        y: ``(B,)`` face centre y (m); zeros for the paper's glance (``None`` given: zeros).
+        phi_y: ``(B,)`` rotation about x (rad); zeros for the paper's glance.
+        height: ``(B,)`` the contact height h of the extended glance ``g -> (p, h)``: the face
+            centre's height at the end of the glance (m), i.e. ``z`` (``None`` given: ``z``).
     """
 
     pressure: torch.Tensor
@@ -138,12 +170,21 @@ class GlanceResult:
     x: torch.Tensor
     phi: torch.Tensor
     info: dict = field(default_factory=dict)
+    y: torch.Tensor | None = None
+    phi_y: torch.Tensor | None = None
+    height: torch.Tensor | None = None
+
+    def __post_init__(self) -> None:
+        # Simulators of the paper's glance give no y, phi_y or height: the pose centre, no tilt.
+        if self.y is None:
+            self.y = torch.zeros_like(self.x)
+        if self.phi_y is None:
+            self.phi_y = torch.zeros_like(self.phi)
+        if self.height is None:
+            self.height = self.z
 
     def numpy(self) -> dict[str, np.ndarray]:
-        return {
-            k: getattr(self, k).detach().cpu().numpy()
-            for k in ("pressure", "force", "z", "contact", "blocked", "x", "phi")
-        }
+        return {k: getattr(self, k).detach().cpu().numpy() for k in _FIELDS}
 
     def to_json(self, i: int = 0) -> dict:
         """Glance ``i`` as a JSON-ready dict (raw pressure as N nested lists of N)."""
@@ -151,10 +192,13 @@ class GlanceResult:
             "pressure": self.pressure[i].double().cpu().tolist(),
             "force": float(self.force[i]),
             "z": float(self.z[i]),
+            "height": float(self.height[i]),
             "contact": bool(self.contact[i]),
             "blocked": bool(self.blocked[i]),
             "x": float(self.x[i]),
+            "y": float(self.y[i]),
             "phi": float(self.phi[i]),
+            "phi_y": float(self.phi_y[i]),
         }
 
 
@@ -164,9 +208,28 @@ class Simulator(Protocol):
     name: str
     objects: list[HapticObject]
 
-    def glance(self, object_ids, q_x, q_phi) -> GlanceResult: ...
+    def glance(self, object_ids, q_x, q_phi, q_y=None, q_phi_y=None) -> GlanceResult: ...
 
     def describe(self) -> dict: ...
+
+
+def glance_at(sim: Simulator, object_ids, q, dims=PAPER_POSE_DIMS) -> GlanceResult:
+    """Glances of ``sim`` at normalized poses ``q`` (B, k) whose columns are the pose dimensions
+    ``dims`` (a subset of :data:`POSE_DIMS` in canonical order); the others are 0 (pose centre,
+    no tilt). ``q_y``/``q_phi_y`` are passed only when ``dims`` has them, so that a simulator of
+    the paper's glance takes ``dims = ("x", "phi")``."""
+    dims = check_pose_dims(dims, "dims")
+    qt = torch.as_tensor(q)
+    if qt.dim() == 1 and len(dims) == 1:
+        qt = qt[:, None]
+    if qt.dim() != 2 or qt.shape[1] != len(dims):
+        raise HamError(
+            f"q of shape {tuple(qt.shape)} for dims {','.join(dims)}; accepted: (B, {len(dims)})"
+        )
+    cols = {d: qt[:, i] for i, d in enumerate(dims)}
+    zero = torch.zeros(qt.shape[0], dtype=qt.dtype if qt.is_floating_point() else torch.float64)
+    extra = {f"q_{d}": cols[d] for d in ("y", "phi_y") if d in cols}
+    return sim.glance(object_ids, cols.get("x", zero), cols.get("phi", zero), **extra)
 
 
 # --------------------------------------------------------------------------- input checks
@@ -178,6 +241,17 @@ def as_action(name: str, q, device: torch.device | str = "cpu") -> torch.Tensor:
         v = t[bad][0].item()
         raise HamError(f"{name} = {v!r} is outside the accepted range [-1, 1]")
     return t
+
+
+def refuse_extended_pose(q_y, q_phi_y, device: torch.device | str = "cpu") -> None:
+    """The paper's glance takes ``q_y``/``q_phi_y`` only as ``None`` or 0; else a clear error."""
+    for name, q in (("q_y", q_y), ("q_phi_y", q_phi_y)):
+        if q is not None and bool((as_action(name, q, device) != 0).any()):
+            raise HamError(
+                f"{name} = {q!r} is not 0: the paper's glance (pose x, phi) takes no {name[2:]}; "
+                "accepted: pose_dims with y or phi_y, which pick the extended glance "
+                "(--pose-dims x,y,phi,phi_y)"
+            )
 
 
 def as_object_ids(ids, n_objects: int, device: torch.device | str = "cpu") -> torch.Tensor:
@@ -205,7 +279,8 @@ def check_pad(sensor: SensorConfig, glance: GlanceConfig, objects: list[HapticOb
     if flat2d:
         raise HamError(
             f"object {flat2d[0]!r} varies in y (a height field); the paper's glance model takes "
-            "objects extruded along y only; accepted: the paper's objects, profiles and polylines"
+            "objects extruded along y only; accepted: the paper's objects, profiles and polylines "
+            "(the extended glance, ham.world.extended_glance, takes height fields)"
         )
     depth = min(o.depth for o in objects)
     if sensor.size > depth * (1 + 1e-9):
@@ -214,6 +289,11 @@ def check_pad(sensor: SensorConfig, glance: GlanceConfig, objects: list[HapticOb
             f"the pad ({sensor.describe()}) is wider than object {narrow.name!r} is deep "
             f"({depth * 100:g} cm); accepted: taxels * pitch <= {depth:g} m"
         )
+    check_foam(sensor, glance)
+
+
+def check_foam(sensor: SensorConfig, glance: GlanceConfig) -> None:
+    """Refuse a pad whose foam cannot carry the stop force on a flat top (see :func:`check_pad`)."""
     flat = glance.force_threshold / (sensor.foam_stiffness * sensor.size**2)
     if flat >= sensor.foam_thickness:
         least = math.sqrt(glance.force_threshold / (sensor.foam_stiffness * sensor.foam_thickness))
@@ -358,8 +438,14 @@ class FastSimulator:
         return x, phi
 
     # ------------------------------------------------------------------ glance
-    def glance(self, object_ids, q_x, q_phi) -> GlanceResult:
-        """A batch of glances on ``object_ids`` (B,) at normalized poses ``q_x``, ``q_phi`` (B,)."""
+    def glance(self, object_ids, q_x, q_phi, q_y=None, q_phi_y=None) -> GlanceResult:
+        """A batch of glances on ``object_ids`` (B,) at normalized poses ``q_x``, ``q_phi`` (B,).
+
+        ``q_y`` and ``q_phi_y`` (the extended glance's pose) must be ``None`` or 0: this is the
+        paper's line glance, whose pad rows all lie on the object at y = 0; other poses take the
+        extended glance (:class:`ham.world.extended_glance.ExtendedSimulator`).
+        """
+        refuse_extended_pose(q_y, q_phi_y, self.device)
         ids = as_object_ids(object_ids, len(self.objects), self.device)
         qx = as_action("q_x", q_x, self.device).float()
         qp = as_action("q_phi", q_phi, self.device).float()
@@ -530,7 +616,7 @@ class FastSimulator:
         }
 
 
-_FIELDS = ("pressure", "force", "z", "contact", "blocked", "x", "phi")
+_FIELDS = ("pressure", "force", "z", "contact", "blocked", "x", "phi", "y", "phi_y", "height")
 
 
 class _Workspace:
@@ -548,11 +634,17 @@ class _Workspace:
 
 
 def _contiguous_strides(shape: tuple) -> tuple:
-    return (shape[1], 1) if len(shape) == 2 else (1,)
+    if len(shape) == 2:  # the common case, kept cheap
+        return (shape[1], 1)
+    strides, step = [], 1
+    for n in reversed(shape):
+        strides.append(step)
+        step *= n
+    return tuple(reversed(strides))
 
 
 def _solve_stop_height(
-    e: torch.Tensor, target: float, work: _Workspace | None = None
+    e: torch.Tensor, target: float, work: _Workspace | None = None, z0: torch.Tensor | None = None
 ) -> torch.Tensor:
     """The height z with ``sum_k max(0, e_k - z) = target`` for each row of ``e`` (B, K).
 
@@ -561,11 +653,15 @@ def _solve_stop_height(
     active set stops changing: at most K iterations, usually 3-6.
 
     ``work``: a workspace for the temporaries (its ``t``, ``d``, ``f`` and ``a`` buffers).
+    ``z0``: another lower bound of the root (B,), if known: e.g. the root over a subset of the
+    points (any subset's root lies below: its force is never more at the same height).
     """
     if work is None:
         work = _Workspace(e.numel(), e.device)
     # Two lower bounds of the root: one point carries everything, or all points press equally.
     z = torch.maximum(e.amax(1) - target, (e.sum(1) - target) / e.shape[1])
+    if z0 is not None:
+        z = torch.maximum(z, z0)
     rows, ez, zz = None, e, z
     spare = ("f", "a")  # the rows still moving are copied back and forth between these
     for it in range(e.shape[1] + 1):

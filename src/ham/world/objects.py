@@ -21,7 +21,14 @@ The default set ``paper`` holds the paper's four objects in the paper's order:
 ====  ===========  ============================================================
 
 Four MHSB-like shapes (ids 4..7) ship for experiments beyond the paper: ``ridge``,
-``trough``, ``step`` and ``double_ridge``. Users add their own with :func:`register`
+``trough``, ``step`` and ``double_ridge``. The paper's next world adds objects whose top varies in
+x and y (height fields, :meth:`HapticObject.from_surface`): the set ``curvature2d`` (ids 8..16:
+flats of two heights, cylinders along x and y, dome, saddle, bowl, pyramid, cone) and the set
+``composite`` (ids 17..28; 16 x 16 cm bases whose four 8 x 8 cm slots carry an edge, a flat, a
+bump and a dimple in 12 arrangements) with its splits ``composite:train`` (= ``composite``) and
+``composite:test`` (ids 29..40: the same arrangements built with other geometry; object i of each
+split is arrangement i). Height fields also come from grey-scale images
+(:meth:`HapticObject.from_image`) and the tops of triangle meshes (:meth:`HapticObject.from_mesh`). Users add their own with :func:`register`
 and the constructors :meth:`HapticObject.from_function`, :meth:`HapticObject.from_polyline`
 and :meth:`HapticObject.from_heightmap`, in their own program or in an *objects file*
 (``--objects-file FILE`` on the command line, :func:`load_objects_file`): a self-contained Python
@@ -32,7 +39,9 @@ re-registers the same objects wherever it is loaded (:func:`load_objects`), in a
 
 from __future__ import annotations
 
+import functools
 import hashlib
+import itertools
 import json
 import math
 import re
@@ -357,6 +366,96 @@ class HapticObject:
         return cls.from_surface(name, surface, width=width, depth=depth, description=description)
 
     @classmethod
+    def from_image(
+        cls,
+        name: str,
+        image: str | Path | np.ndarray,
+        *,
+        width: float = BLOCK_SIZE,
+        depth: float = BLOCK_SIZE,
+        height: float = BLOCK_HEIGHT,
+        description: str = "",
+    ) -> HapticObject:
+        """An object from a grey-scale image: grey level ``g`` in ``[0, 1]`` becomes the height
+        ``g * height`` (black = the table, white = ``height``), bilinear between pixels.
+
+        ``image`` is a PNG file or an array ``(rows, cols)`` of grey levels in ``[0, 1]`` (an
+        RGB/RGBA array or PNG is accepted when its colour channels are equal and it is opaque).
+        The picture spans the base as seen from above: its columns run along +x (``width``), its
+        top row lies at ``y = +depth/2`` and its bottom row at ``y = -depth/2``.
+        """
+        check_name(name)
+        what = "image"
+        if isinstance(image, (str, Path)):
+            what = f"image {str(image)!r}"
+            grey = _read_png(name, Path(image))
+        else:
+            try:
+                grey = np.asarray(image, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise HamError(
+                    f"object {name!r}: image of type {type(image).__name__}; accepted: a PNG file "
+                    "or an array (rows, cols) of grey levels in [0, 1]"
+                ) from None
+        grey = _grey_levels(name, what, grey)
+        h = height
+        number = isinstance(h, (int, float, np.integer, np.floating)) and not isinstance(h, bool)
+        if not (number and math.isfinite(h) and 0 < h <= MAX_HEIGHT):
+            raise HamError(
+                f"object {name!r}: image height = {h!r}; accepted: a number in "
+                f"(0, {MAX_HEIGHT}] (m), the height of white"
+            )
+        # Row 0 of a picture is its top: the far side of the base, +y.
+        return cls.from_height_field(
+            name, grey[::-1] * float(h), width=width, depth=depth, description=description
+        )
+
+    @classmethod
+    def from_mesh(
+        cls,
+        name: str,
+        mesh: str | Path | object,
+        *,
+        scale: float = 1.0,
+        pitch: float = 0.0005,
+        description: str = "",
+    ) -> HapticObject:
+        """An object whose top is the top of a triangle mesh (an STL/OBJ/PLY file or a
+        ``trimesh.Trimesh``), seen from above.
+
+        The mesh is scaled by ``scale`` (mesh units to metres: 0.001 for a file in mm), its
+        lowest point set on the table and its x-y bounding box centred on the base, which it spans
+        (``width`` x ``depth``). The top ``h(x, y)`` is the highest point of any triangle above
+        ``(x, y)``, sampled every ``pitch`` metres (:func:`mesh_top`), bilinear between samples;
+        a point of the base under no triangle is the table (0).
+        """
+        check_name(name)
+        for what, value, top in (("scale", scale, math.inf), ("pitch", pitch, 0.01)):
+            ok = isinstance(value, (int, float, np.integer, np.floating))
+            if not ok or isinstance(value, bool) or not (math.isfinite(value) and 0 < value <= top):
+                raise HamError(
+                    f"object {name!r}: mesh {what} = {value!r}; accepted: a finite number > 0"
+                    + (f" and <= {top} (m)" if math.isfinite(top) else "")
+                )
+        tris = _mesh_triangles(name, mesh) * float(scale)
+        lo, hi = tris.reshape(-1, 3).min(0), tris.reshape(-1, 3).max(0)
+        width = _check_size(name, "mesh width (x extent * scale)", float(hi[0] - lo[0]))
+        depth = _check_size(name, "mesh depth (y extent * scale)", float(hi[1] - lo[1]))
+        tris = tris - np.array([0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), lo[2]])
+        nx = max(2, math.ceil(width / pitch) + 1)
+        ny = max(2, math.ceil(depth / pitch) + 1)
+        if nx * ny > MAX_FIELD_SAMPLES:
+            raise HamError(
+                f"object {name!r}: mesh pitch = {pitch!r} m gives {ny} x {nx} samples over "
+                f"{width:.4g} x {depth:.4g} m; accepted: at most {MAX_FIELD_SAMPLES} samples "
+                "(a larger pitch)"
+            )
+        xs = np.linspace(-0.5 * width, 0.5 * width, nx)
+        ys = np.linspace(-0.5 * depth, 0.5 * depth, ny)
+        top = mesh_top(tris, xs, ys)
+        return cls.from_height_field(name, top, width=width, depth=depth, description=description)
+
+    @classmethod
     def from_heightmap(
         cls,
         name: str,
@@ -377,6 +476,154 @@ class HapticObject:
         width = _check_size(name, "width", width)
         xs = np.linspace(-0.5 * width, 0.5 * width, len(hs))
         return cls.from_polyline(name, np.stack([xs, hs], 1), depth=depth, description=description)
+
+
+#: Most pixels (rows x cols) of an image object, and most samples of a mesh's top: beyond that the
+#: bilinear surface only costs memory (a 1025 x 1025 field is 8 MB).
+MAX_FIELD_SAMPLES = 1025 * 1025
+
+
+def _read_png(name: str, path: Path) -> np.ndarray:
+    """The pixels of the PNG ``path`` as floats in [0, 1] (matplotlib's reader)."""
+    import matplotlib.image as mpimg
+
+    if path.suffix.lower() != ".png":
+        raise HamError(f"object {name!r}: image {str(path)!r}; accepted: a .png file")
+    if not path.is_file():
+        raise HamError(f"object {name!r}: image {str(path)!r} does not exist")
+    try:
+        pixels = mpimg.imread(path, format="png")
+    except Exception as exc:  # noqa: BLE001 - any failure of the reader is a bad file
+        raise HamError(
+            f"object {name!r}: cannot read image {str(path)!r} as a PNG: {_one_line(exc)}"
+        ) from None
+    # matplotlib reads every PNG (8- or 16-bit, grey or colour) as floats in [0, 1]
+    return np.asarray(pixels, dtype=np.float64)
+
+
+def _grey_levels(name: str, what: str, pixels: np.ndarray) -> np.ndarray:
+    """``(rows, cols)`` grey levels in [0, 1] from a grey, or grey-valued opaque RGB(A), array."""
+    rule = "accepted: grey levels in [0, 1], an array (rows, cols) or a grey RGB(A) image"
+    if pixels.ndim == 3 and pixels.shape[2] in (3, 4):
+        if pixels.shape[2] == 4:
+            alpha = pixels[..., 3]
+            if np.any(alpha != alpha.flat[0]) or alpha.flat[0] not in (1.0, 255.0):
+                raise HamError(f"object {name!r}: {what} has transparent pixels; {rule}, opaque")
+            pixels = pixels[..., :3]
+        rgb = pixels
+        if np.any(rgb[..., 0] != rgb[..., 1]) or np.any(rgb[..., 0] != rgb[..., 2]):
+            i = np.unravel_index(int(np.argmax(np.any(rgb != rgb[..., :1], axis=2))), rgb.shape[:2])
+            raise HamError(
+                f"object {name!r}: {what} has colour at row {i[0]}, column {i[1]} "
+                f"(RGB {tuple(float(v) for v in rgb[i])}); {rule}, not colour"
+            )
+        pixels = rgb[..., 0]
+    if pixels.ndim != 2 or min(pixels.shape) < 2:
+        raise HamError(f"object {name!r}: {what} of shape {pixels.shape}; {rule}, >= 2 x 2 pixels")
+    if pixels.size > MAX_FIELD_SAMPLES:
+        raise HamError(
+            f"object {name!r}: {what} has {pixels.shape[0]} x {pixels.shape[1]} pixels; "
+            f"accepted: at most {MAX_FIELD_SAMPLES} pixels (e.g. 1025 x 1025)"
+        )
+    bad = ~np.isfinite(pixels) | (pixels < 0) | (pixels > 1)
+    if np.any(bad):
+        i = np.unravel_index(int(np.argmax(bad)), pixels.shape)
+        raise HamError(
+            f"object {name!r}: {what} grey level {float(pixels[i]):.6g} at row {i[0]}, "
+            f"column {i[1]}; {rule}"
+        )
+    return pixels
+
+
+def _mesh_triangles(name: str, mesh: object) -> np.ndarray:
+    """The triangles ``(T, 3, 3)`` of a mesh file (through trimesh) or of a ``trimesh.Trimesh``."""
+    import trimesh
+
+    what = "mesh"
+    if isinstance(mesh, (str, Path)):
+        path = Path(mesh)
+        what = f"mesh {str(path)!r}"
+        if path.suffix.lower() not in MESH_SUFFIXES:
+            raise HamError(f"object {name!r}: {what}; accepted: a {'/'.join(MESH_SUFFIXES)} file")
+        if not path.is_file():
+            raise HamError(f"object {name!r}: {what} does not exist")
+        try:
+            mesh = trimesh.load(path, force="mesh")
+        except Exception as exc:  # noqa: BLE001 - any failure of the reader is a bad file
+            raise HamError(f"object {name!r}: cannot read {what}: {_one_line(exc)}") from None
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise HamError(
+            f"object {name!r}: mesh of type {type(mesh).__name__}; accepted: an "
+            f"{'/'.join(MESH_SUFFIXES)} file or a trimesh.Trimesh"
+        )
+    tris = np.asarray(mesh.triangles, dtype=np.float64).reshape(-1, 3, 3)
+    if len(tris) == 0:
+        raise HamError(f"object {name!r}: {what} has no triangles; accepted: a triangle mesh")
+    if not np.all(np.isfinite(tris)):
+        raise HamError(f"object {name!r}: {what} has non-finite vertices; accepted: finite ones")
+    return tris
+
+
+#: Mesh files :meth:`HapticObject.from_mesh` reads (through trimesh).
+MESH_SUFFIXES = (".stl", ".obj", ".ply")
+
+
+def mesh_top(triangles: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """The highest point of ``triangles`` (T, 3, 3) above each grid point: array (ny, nx), 0
+    where no triangle lies above.
+
+    A vectorized rasterization (no ray-casting library): each non-vertical triangle is the plane
+    ``z = a x + b y + c`` over its projection; every grid point in its bounding box is tested with
+    the three edge functions (1e-9 m tolerance, so points on shared edges and on the base's
+    border are covered) and the grid keeps the highest z. Work is the summed bounding-box areas,
+    done in chunks of at most 4M (point, triangle) pairs.
+    """
+    xs = np.asarray(xs, dtype=np.float64)
+    ys = np.asarray(ys, dtype=np.float64)
+    nx, ny = len(xs), len(ys)
+    top = np.zeros(ny * nx)
+    p0, p1, p2 = triangles[:, 0], triangles[:, 1], triangles[:, 2]
+    # signed doubled area of the projection; vertical triangles (area 0) hold no top point.
+    area = (p1[:, 0] - p0[:, 0]) * (p2[:, 1] - p0[:, 1]) - (p2[:, 0] - p0[:, 0]) * (
+        p1[:, 1] - p0[:, 1]
+    )
+    keep = np.abs(area) > 1e-18
+    p0, p1, p2, area = p0[keep], p1[keep], p2[keep], area[keep]
+    tol = 1e-9
+    lo = np.minimum(np.minimum(p0, p1), p2)
+    hi = np.maximum(np.maximum(p0, p1), p2)
+    i0 = np.searchsorted(xs, lo[:, 0] - tol, side="left")
+    i1 = np.searchsorted(xs, hi[:, 0] + tol, side="right")
+    j0 = np.searchsorted(ys, lo[:, 1] - tol, side="left")
+    j1 = np.searchsorted(ys, hi[:, 1] + tol, side="right")
+    wi = np.maximum(i1 - i0, 0)
+    counts = wi * np.maximum(j1 - j0, 0)
+    chunk = 4_000_000
+    start = 0
+    cum = np.cumsum(counts)
+    while start < len(counts):
+        base = cum[start - 1] if start else 0
+        stop = max(start + 1, int(np.searchsorted(cum, base + chunk, side="right")))
+        t = np.repeat(np.arange(start, stop), counts[start:stop])
+        if len(t):
+            k = np.arange(len(t)) - np.repeat(
+                cum[start:stop] - counts[start:stop] - base, counts[start:stop]
+            )
+            ii = i0[t] + k % wi[t]
+            jj = j0[t] + k // wi[t]
+            px, py = xs[ii], ys[jj]
+            a, b, c, s = p0[t], p1[t], p2[t], np.sign(area[t])
+            # barycentric weights (scaled by the signed area, made positive inside)
+            w0 = s * ((b[:, 0] - px) * (c[:, 1] - py) - (c[:, 0] - px) * (b[:, 1] - py))
+            w1 = s * ((c[:, 0] - px) * (a[:, 1] - py) - (a[:, 0] - px) * (c[:, 1] - py))
+            w2 = s * ((a[:, 0] - px) * (b[:, 1] - py) - (b[:, 0] - px) * (a[:, 1] - py))
+            # edge tolerance in area units: tol times the edge length
+            e = tol * np.abs(area[t]) ** 0.5 + 1e-30
+            inside = (w0 >= -e) & (w1 >= -e) & (w2 >= -e)
+            z = (w0 * a[:, 2] + w1 * b[:, 2] + w2 * c[:, 2]) / np.abs(area[t])
+            np.maximum.at(top, (jj * nx + ii)[inside], z[inside])
+        start = stop
+    return top.reshape(ny, nx)
 
 
 def _check_heights(name: str, xs: np.ndarray, hs: np.ndarray, ys: np.ndarray | None = None) -> None:
@@ -466,6 +713,173 @@ def _builtin() -> list[HapticObject]:
     ]
 
 
+# --------------------------------------------------------------------------- curvature2d
+# The paper's next world: tops that curve in x and y. Every object stands on a 9 x 9 cm base
+# (wider than the 8 cm pad) and on a plinth of at least 2 cm, so that a glance feels the top.
+_P = 0.02  # plinth (m)
+
+
+def _arc(t: np.ndarray, radius: float) -> np.ndarray:
+    """A circular arc of ``radius`` over ``t``, 0 at ``|t| = a`` (the base's edge)."""
+    return np.sqrt(np.clip(radius**2 - t**2, 0.0, None)) - math.sqrt(radius**2 - _A**2)
+
+
+def _curvature2d() -> list[tuple[str, Callable[[], HapticObject]]]:
+    r_cyl, r_dome, k_saddle, slope = 0.06, 0.07, 0.015 / _A**2, 0.5
+    corner = math.sqrt(r_dome**2 - 2 * _A**2)  # the dome's sphere at the base's corners
+
+    def flat(h: float):
+        return lambda x, y: np.full_like(x, h)
+
+    spec = [
+        ("flat_low", flat(0.03), "flat top at 3 cm (differs from flat_high only in height)"),
+        ("flat_high", flat(0.05), "flat top at 5 cm (differs from flat_low only in height)"),
+        (
+            "cylinder_x",
+            lambda x, y: _P + _arc(y, r_cyl) + 0 * x,
+            "half cylinder, axis along x (R = 6 cm): curved in y, straight in x",
+        ),
+        (
+            "cylinder_y",
+            lambda x, y: _P + _arc(x, r_cyl) + 0 * y,
+            "half cylinder, axis along y (R = 6 cm): curved in x, straight in y",
+        ),
+        (
+            "dome",
+            lambda x, y: _P + np.sqrt(np.clip(r_dome**2 - x**2 - y**2, 0, None)) - corner,
+            "spherical dome (R = 7 cm), convex in x and y",
+        ),
+        (
+            "saddle",
+            lambda x, y: 0.04 + k_saddle * (x**2 - y**2),
+            "saddle: rises along x, falls along y (1.5 cm at the edges' midpoints)",
+        ),
+        (
+            "bowl",
+            lambda x, y: _P + r_dome - np.sqrt(np.clip(r_dome**2 - x**2 - y**2, 0, None)),
+            "spherical bowl (R = 7 cm), concave in x and y",
+        ),
+        (
+            "pyramid",
+            lambda x, y: _P + slope * (_A - np.maximum(np.abs(x), np.abs(y))),
+            "square pyramid (26.6 deg faces): four ridges meeting at an apex",
+        ),
+        (
+            "cone",
+            lambda x, y: _P + slope * np.clip(_A - np.hypot(x, y), 0, None),
+            "round cone (26.6 deg) on the plinth: a point, no ridges",
+        ),
+    ]
+    return [
+        (n, functools.partial(HapticObject.from_surface, n, f, description=d)) for n, f, d in spec
+    ]
+
+
+# --------------------------------------------------------------------------- composite
+#: Edge of a composite object's square base (m): four 8 x 8 cm slots, each the pad's size.
+COMPOSITE_SIZE = 0.16
+#: Local features of a composite object, one per slot: letter -> what it is.
+COMPOSITE_FEATURES = {
+    "E": "edge (a ridge along y)",
+    "F": "flat",
+    "V": "convex bump",
+    "C": "concave dimple",
+}
+#: The four slots (letters of a code, in order) and their centres (m).
+COMPOSITE_SLOTS = {
+    "NW": (-0.04, 0.04),
+    "NE": (0.04, 0.04),
+    "SW": (-0.04, -0.04),
+    "SE": (0.04, -0.04),
+}
+
+
+def composite_codes() -> list[str]:
+    """The 12 arrangements: the even permutations of ``EFVC`` over the slots NW, NE, SW, SE.
+
+    Every object carries each feature once, so one glance at a slot tells only that slot's feature
+    (3 arrangements remain); two slots determine the arrangement (the odd completion is not in
+    the set). Listed in lexicographic order of the permutations.
+    """
+    codes = []
+    for perm in itertools.permutations(range(4)):
+        inversions = sum(perm[i] > perm[j] for i in range(4) for j in range(i + 1, 4))
+        if inversions % 2 == 0:
+            codes.append("".join("EFVC"[k] for k in perm))
+    return codes
+
+
+@dataclass(frozen=True)
+class _FeatureSizes:
+    """One instance's geometry (m): the plinth, the features' sizes and their shift in a slot."""
+
+    plinth: float
+    ridge_height: float
+    ridge_half_width: float
+    ridge_half_length: float
+    bump_height: float
+    bump_radius: float
+    dimple_depth: float
+    dimple_radius: float
+    shift: tuple[float, float]
+
+
+#: Instance 1 (``composite:train``) and instance 2 (``composite:test``): same arrangements,
+#: other plinth, feature sizes and positions within the slots.
+_INSTANCES = {
+    1: _FeatureSizes(0.020, 0.015, 0.015, 0.030, 0.015, 0.028, 0.012, 0.028, (0.0, 0.0)),
+    2: _FeatureSizes(0.025, 0.012, 0.012, 0.026, 0.011, 0.024, 0.010, 0.025, (0.004, -0.003)),
+}
+
+
+_FEATURE_WORDS = {"E": "edge", "F": "flat", "V": "bump", "C": "dimple"}
+
+
+def _composite_surface(code: str, s: _FeatureSizes) -> SurfaceFn:
+    features = list(zip(code, COMPOSITE_SLOTS.values(), strict=True))
+
+    def surface(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        h = np.full(np.shape(x), s.plinth)
+        for letter, (cx, cy) in features:
+            u, v = x - cx - s.shift[0], y - cy - s.shift[1]
+            if letter == "E":
+                ridge = s.ridge_height * np.clip(1 - np.abs(u) / s.ridge_half_width, 0, None)
+                h = h + np.where(np.abs(v) <= s.ridge_half_length, ridge, 0.0)
+            elif letter == "V":
+                h = h + s.bump_height * np.clip(1 - (u**2 + v**2) / s.bump_radius**2, 0, None)
+            elif letter == "C":
+                h = h - s.dimple_depth * np.clip(1 - (u**2 + v**2) / s.dimple_radius**2, 0, None)
+        return h
+
+    return surface
+
+
+def composite_name(code: str, instance: int) -> str:
+    """``comp_<code>_<instance>``, e.g. ``comp_EFVC_1``."""
+    return f"comp_{code}_{instance}"
+
+
+def _composite() -> list[tuple[str, Callable[[], HapticObject]]]:
+    out = []
+    for instance, sizes in _INSTANCES.items():
+        for code in composite_codes():
+            where = ", ".join(
+                f"{slot} {_FEATURE_WORDS[code[i]]}" for i, slot in enumerate(COMPOSITE_SLOTS)
+            )
+            split = "train" if instance == 1 else "test"
+            name = composite_name(code, instance)
+            make = functools.partial(
+                HapticObject.from_surface,
+                name,
+                _composite_surface(code, sizes),
+                width=COMPOSITE_SIZE,
+                depth=COMPOSITE_SIZE,
+                description=f"instance {instance} ({split}): {where}",
+            )
+            out.append((name, make))
+    return out
+
+
 # --------------------------------------------------------------------------- registry
 _REGISTRY: dict[str, HapticObject] = {}
 _ORDER: list[str] = []
@@ -473,6 +887,8 @@ _ORDER: list[str] = []
 _ORIGIN: dict[str, str] = {}
 #: Objects files loaded in this process: sha256 -> the names they registered (loading is idempotent).
 _FILES: dict[str, tuple[str, ...]] = {}
+#: Built-in objects registered by name and built on first use (:func:`get`): name -> constructor.
+_LAZY: dict[str, Callable[[], HapticObject]] = {}
 #: While an objects file runs: (its name, its sha256, the names it registered so far).
 _LOADING: tuple[str, str, list[str]] | None = None
 
@@ -481,6 +897,10 @@ OBJECT_SETS: dict[str, tuple[str, ...]] = {
     "paper": ("box", "ramp_up", "convex", "ramp_down"),
     "mhsb": ("ridge", "trough", "step", "double_ridge"),
 }
+#: Named splits of a set (``SET:SPLIT`` in :func:`resolve_set`): lists of one length whose
+#: i-th objects are instances of one class (label i), so a classifier trained on one split
+#: is scored on the other.
+SET_SPLITS: dict[str, dict[str, tuple[str, ...]]] = {}
 
 
 def register(obj: HapticObject, *, replace: bool = False) -> int:
@@ -491,7 +911,8 @@ def register(obj: HapticObject, *, replace: bool = False) -> int:
     """
     if not isinstance(obj, HapticObject):
         raise HamError(f"register() takes a HapticObject, got {type(obj).__name__}")
-    if obj.name in _REGISTRY and (not replace or _LOADING is not None):
+    known = obj.name in _REGISTRY or obj.name in _LAZY
+    if known and (not replace or _LOADING is not None):
         raise HamError(
             f"object name {obj.name!r} is already registered "
             f"({_ORIGIN.get(obj.name, 'by the program')}); choose another name"
@@ -506,8 +927,9 @@ def register(obj: HapticObject, *, replace: bool = False) -> int:
         _ORIGIN[obj.name] = f"objects file {_LOADING[0]!r}"
     else:
         _ORIGIN[obj.name] = "by the program"
-    if obj.name not in _REGISTRY:
+    if not known:
         _ORDER.append(obj.name)
+    _LAZY.pop(obj.name, None)
     _REGISTRY[obj.name] = obj
     return _ORDER.index(obj.name)
 
@@ -525,7 +947,7 @@ def names() -> list[str]:
 
 def object_id(name: str) -> int:
     """The stable registry id of ``name``."""
-    if name not in _REGISTRY:
+    if name not in _REGISTRY and name not in _LAZY:
         raise HamError(f"unknown object {name!r}; known: {', '.join(_ORDER)}")
     return _ORDER.index(name)
 
@@ -537,7 +959,9 @@ def get(key: str | int) -> HapticObject:
     if isinstance(key, (int, np.integer)) and not isinstance(key, bool):
         if not 0 <= key < len(_ORDER):
             raise HamError(f"unknown object id {key}; accepted: 0..{len(_ORDER) - 1}")
-        return _REGISTRY[_ORDER[key]]
+        key = _ORDER[key]
+    if isinstance(key, str) and key in _LAZY:
+        _REGISTRY[key] = _LAZY.pop(key)()
     if isinstance(key, str) and key in _REGISTRY:
         return _REGISTRY[key]
     raise HamError(
@@ -545,17 +969,57 @@ def get(key: str | int) -> HapticObject:
     )
 
 
+def set_names() -> list[str]:
+    """What :func:`resolve_set` accepts by name: the sets, their ``SET:SPLIT`` splits, ``all``."""
+    splits = [f"{s}:{p}" for s, parts in SET_SPLITS.items() for p in parts]
+    return [*OBJECT_SETS, *splits, "all"]
+
+
+def set_membership() -> dict[str, list[str]]:
+    """name -> the named sets and splits that hold it (``all`` left out)."""
+    out: dict[str, list[str]] = {}
+    for set_name in set_names()[:-1]:
+        for n in _set_members(set_name):
+            out.setdefault(n, []).append(set_name)
+    return out
+
+
+def _set_members(set_name: str) -> tuple[str, ...]:
+    if set_name in OBJECT_SETS:
+        return OBJECT_SETS[set_name]
+    base, _, split = set_name.partition(":")
+    return SET_SPLITS[base][split]
+
+
+def splits_of(spec: object) -> dict[str, tuple[str, ...]]:
+    """The splits ``SET:SPLIT`` -> names of the set ``spec`` names (``composite`` or one of its
+    splits); empty for other sets and lists."""
+    if not isinstance(spec, str):
+        return {}
+    base = spec.partition(":")[0]
+    return {f"{base}:{k}": v for k, v in SET_SPLITS.get(base, {}).items()}
+
+
 def resolve_set(spec: str | Sequence[str | int]) -> list[HapticObject]:
-    """Objects of a named set (``paper``, ``mhsb``, ``all``) or a comma list of names/ids."""
+    """Objects of a named set (``paper``, ``mhsb``, ``curvature2d``, ``composite``, ``all``), a
+    split ``SET:SPLIT`` (``composite:train``, ``composite:test``) or a comma list of names/ids."""
     if isinstance(spec, str):
         if spec == "all":
             return [get(n) for n in _ORDER]
         if spec in OBJECT_SETS:
             return [get(n) for n in OBJECT_SETS[spec]]
+        if ":" in spec and "," not in spec:
+            set_name, _, split = spec.partition(":")
+            if split in SET_SPLITS.get(set_name, {}):
+                return [get(n) for n in SET_SPLITS[set_name][split]]
+            raise HamError(
+                f"unknown object set split {spec!r}; accepted: "
+                + ", ".join(f"{s}:{p}" for s, parts in SET_SPLITS.items() for p in parts)
+            )
         parts = [p.strip() for p in spec.split(",") if p.strip()]
         if not parts:
             raise HamError(
-                f"empty object set {spec!r}; accepted: {', '.join(OBJECT_SETS)}, all, or names"
+                f"empty object set {spec!r}; accepted: {', '.join(set_names())}, or names"
             )
         spec = parts
     objs = [get(k) for k in spec]
@@ -689,28 +1153,40 @@ def _run_python(name: str, source: str) -> None:
 
 
 def _register_data(name: str, source: str) -> None:
-    """JSON/TOML: ``objects = [{name, polyline | heightmap, width?, depth?, description?}, ...]``."""
+    """JSON/TOML: ``objects = [{name, polyline | heightmap | height_field, width?, depth?,
+    description?}, ...]``; a path to an image or mesh is refused (only this text is recorded)."""
     try:
         data = json.loads(source) if name.lower().endswith(".json") else tomllib.loads(source)
     except (ValueError, tomllib.TOMLDecodeError) as exc:
         raise HamError(f"objects file {name!r} is not valid: {_one_line(exc)}") from None
     entries = data.get("objects") if isinstance(data, dict) else None
+    shapes = ("polyline", "heightmap", "height_field")
     if not isinstance(entries, list):
         raise HamError(
             f"objects file {name!r}: accepted: a top-level list 'objects' of tables "
-            "{name, polyline | heightmap, width, depth, description}"
+            "{name, polyline | heightmap | height_field, width, depth, description}"
         )
-    allowed = {"name", "polyline", "heightmap", "width", "depth", "description"}
+    allowed = {"name", *shapes, "width", "depth", "description"}
     for i, e in enumerate(entries):
         if not isinstance(e, dict) or "name" not in e:
             raise HamError(f"objects file {name!r}: objects[{i}] needs a name")
+        for key in ("image", "mesh"):
+            if key in e:
+                raise HamError(
+                    f"objects file {name!r}: objects[{i}] ({e['name']!r}) names the {key} file "
+                    f"{e[key]!r}; a world records only the objects file's text, so a path to "
+                    "another file would not travel with a table or run; accepted: the heights "
+                    "embedded as height_field (ham.world.objects.write_objects_file, or "
+                    f"`ham objects --{key} FILE --name NAME --export OUT.json`)"
+                )
         unknown = sorted(set(e) - allowed)
-        shape = [k for k in ("polyline", "heightmap") if k in e]
+        shape = [k for k in shapes if k in e]
         if unknown or len(shape) != 1:
             raise HamError(
                 f"objects file {name!r}: objects[{i}] ({e['name']!r}) has "
                 + (f"unknown keys {unknown}" if unknown else f"shape keys {shape}")
-                + f"; accepted: one of polyline, heightmap, and {sorted(allowed - {'polyline', 'heightmap'})}"
+                + f"; accepted: one of {', '.join(shapes)}, and "
+                + f"{sorted(allowed - set(shapes))}"
             )
         kw = {k: e[k] for k in ("depth", "description") if k in e}
         try:
@@ -718,15 +1194,70 @@ def _register_data(name: str, source: str) -> None:
                 if "width" in e:
                     raise HamError(f"object {e['name']!r}: a polyline's width is its x span")
                 obj = HapticObject.from_polyline(e["name"], e["polyline"], **kw)
-            else:
+            elif "heightmap" in e:
                 obj = HapticObject.from_heightmap(
                     e["name"], e["heightmap"], width=e.get("width", BLOCK_SIZE), **kw
+                )
+            else:
+                obj = HapticObject.from_height_field(
+                    e["name"], e["height_field"], width=e.get("width", BLOCK_SIZE), **kw
                 )
             register(obj)
         except HamError as exc:
             raise HamError(f"objects file {name!r}: {exc}") from None
 
 
+def objects_file_entry(obj: HapticObject, samples: int = 129) -> dict:
+    """An objects-file entry for ``obj``: its top as ``height_field``, ``samples`` points along
+    the longer side of its base (spacing kept equal along the shorter), rounded to 0.1 um.
+
+    This embeds any object (an image's, a mesh's, a function's) in a self-contained JSON/TOML
+    objects file (:func:`write_objects_file`); between samples the file's object is bilinear.
+    """
+    if not isinstance(samples, int) or isinstance(samples, bool) or not 2 <= samples <= 1025:
+        raise HamError(f"height field samples = {samples!r}; accepted: an integer 2..1025")
+    longer = max(obj.width, obj.depth)
+    nx = max(2, round((samples - 1) * obj.width / longer) + 1)
+    ny = max(2, round((samples - 1) * obj.depth / longer) + 1)
+    field = np.round(obj.height_field(nx, ny), 7)
+    entry = {"name": obj.name, "height_field": field.tolist(), "width": obj.width}
+    entry["depth"] = obj.depth
+    if obj.description:
+        entry["description"] = obj.description
+    return entry
+
+
+def write_objects_file(objs: Sequence[HapticObject], path: str | Path, samples: int = 129) -> Path:
+    """Write ``objs`` as a self-contained JSON objects file of ``height_field`` entries
+    (atomically); ``--objects-file PATH`` then registers them in any process."""
+    from ham.world.files import atomic_write, check_output
+
+    p = check_output(path, (".json",), what="objects file")
+    if not objs:
+        raise HamError("write_objects_file: no objects; accepted: one or more HapticObjects")
+    entries = [objects_file_entry(o, samples) for o in objs]
+    text = json.dumps({"objects": entries}, separators=(",", ":")) + "\n"
+    return atomic_write(
+        p, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"), what="objects file"
+    )
+
+
 for _obj in _builtin():
     register(_obj)
     _ORIGIN[_obj.name] = "built-in"
+# The paper's next world, registered after the 8 line objects so that their ids stay.
+# They are built (and checked) on first use: checking 33 surfaces on 513 x 513 points costs
+# about 0.8 s, which every `ham` command would pay at import.
+_c2d = _curvature2d()
+_comp = _composite()
+for _name, _make in _c2d + _comp:
+    _LAZY[_name] = _make
+    _ORDER.append(_name)
+    _ORIGIN[_name] = "built-in"
+OBJECT_SETS["curvature2d"] = tuple(n for n, _ in _c2d)
+SET_SPLITS["composite"] = {
+    "train": tuple(composite_name(c, 1) for c in composite_codes()),
+    "test": tuple(composite_name(c, 2) for c in composite_codes()),
+}
+OBJECT_SETS["composite"] = SET_SPLITS["composite"]["train"]
+del _c2d, _comp, _name, _make

@@ -1,0 +1,296 @@
+"""The extended glance g: (x, y, phi, phi_y) -> (p, h) on height-field objects."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from ham.errors import HamError
+from ham.world import objects
+from ham.world.config import WorldConfig, make_simulator
+from ham.world.extended_glance import ExtendedSimulator
+from ham.world.glance import POSE_DIMS, FastSimulator, glance_at
+from ham.world.objects import HapticObject
+
+# The paper's objects and the mhsb ones (trough and double_ridge with the line glance's feature
+# points, which the extended glance carries over as lines along y).
+EXTRUDED = objects.resolve_set("paper") + objects.resolve_set("mhsb")
+
+
+def _dome(x, y):
+    return 0.03 - 3.0 * (x**2 + y**2)
+
+
+DOME = HapticObject.from_surface("t_dome", _dome)
+CYL_X = HapticObject.from_surface("t_cyl_x", lambda x, y: 0.02 + np.sqrt(0.05**2 - y**2) - 0.04)
+CYL_Y = HapticObject.from_surface("t_cyl_y", lambda x, y: 0.02 + np.sqrt(0.05**2 - x**2) - 0.04)
+SLOPE_Y = HapticObject.from_surface("t_slope_y", lambda x, y: 0.03 + 0.2 * y)
+
+
+@pytest.fixture(scope="module")
+def paper_pair():
+    return FastSimulator(EXTRUDED), ExtendedSimulator(EXTRUDED)
+
+
+def test_agrees_with_the_line_glance_on_extruded_objects(paper_pair):
+    fast, ext = paper_pair
+    g = torch.Generator().manual_seed(0)
+    n = 3000
+    ids = torch.randint(0, len(EXTRUDED), (n,), generator=g)
+    qx, qp = torch.rand(n, generator=g) * 2 - 1, torch.rand(n, generator=g) * 2 - 1
+    a = fast.glance(ids, qx, qp)
+    b = ext.glance(ids, qx, qp, torch.zeros(n), torch.zeros(n))
+    assert float((a.z - b.z).abs().max()) < 2e-6  # within 2 micrometres (measured: 0.5 um)
+    assert ext.features == fast.features and sum(fast.features) > 0
+    assert torch.equal(a.blocked, b.blocked) and torch.equal(a.contact, b.contact)
+    assert float((a.force - b.force).abs().max()) < 1e-3
+    assert float((a.pressure - b.pressure).abs().max()) < 5.0  # Pa, of up to thousands
+    touched = a.force > 0
+    pa, pb = a.pressure[touched].reshape(-1, 256), b.pressure[touched].reshape(-1, 256)
+    corr = torch.nn.functional.cosine_similarity(pa, pb, dim=1)
+    assert float(corr.min()) > 0.999
+    assert torch.equal(b.height, b.z) and torch.equal(b.y, torch.zeros(n))
+
+
+def _brute_stop_height(obj, x, y, phi, phi_y, sim):
+    """The stop height from the object's own surface in float64: read-out points, then the exact
+    root of the piecewise-linear force by sorting."""
+    u = sim._u.double().numpy()[None, :]
+    v = sim._v.double().numpy()[:, None]
+    cp, sp, cy, sy = math.cos(phi), math.sin(phi), math.cos(phi_y), math.sin(phi_y)
+    dx = u * cp - v * sy * sp
+    dy = v * cy + 0 * u
+    dz = -u * sp - v * sy * cp
+    e = np.sort((obj.surface(x + dx, y + dy) - dz).ravel())[::-1]
+    target = sim.glance_config.force_threshold / sim._c0
+    csum = np.cumsum(e)
+    for k in range(1, len(e) + 1):
+        z = (csum[k - 1] - target) / k
+        if k == len(e) or z >= e[k]:
+            return z
+
+
+@pytest.mark.parametrize(
+    ("q", "obj"),
+    [
+        ((0.0, 0.0, 0.0, 0.0), DOME),
+        ((0.3, -0.4, 0.1, 0.2), DOME),
+        ((-0.5, 0.6, -0.2, 0.3), DOME),
+        ((0.2, 0.1, 0.0, -0.25), SLOPE_Y),
+        ((0.1, -0.3, 0.15, 0.1), CYL_X),
+    ],
+)
+def test_stop_height_is_exact_on_height_fields(q, obj):
+    sim = ExtendedSimulator([obj])
+    qx, qy, qp, qpy = q
+    r = sim.glance([0], [qx], [qp], [qy], [qpy])
+    assert not bool(r.blocked[0]) and float(r.force[0]) == pytest.approx(2.0, abs=1e-4)
+    assert float(r.x[0]) == pytest.approx(qx * 0.045, abs=1e-7)
+    assert float(r.y[0]) == pytest.approx(qy * 0.045, abs=1e-7)
+    assert float(r.phi_y[0]) == pytest.approx(qpy * math.pi / 2, abs=1e-6)
+    z = _brute_stop_height(
+        obj, float(r.x[0]), float(r.y[0]), float(r.phi[0]), float(r.phi_y[0]), sim
+    )
+    assert float(r.height[0]) == pytest.approx(z, abs=3e-6)  # the bilinear 0.2 mm map
+
+
+def test_dome_image_is_round_at_the_top():
+    sim = ExtendedSimulator([DOME], rows_per_taxel=4)
+    r = sim.glance([0], [0.0], [0.0], [0.0], [0.0])
+    img = r.pressure[0]
+    assert torch.allclose(img, img.T, atol=1e-3 * float(img.max()))  # round: as wide in u as in v
+    assert float(img[7:9, 7:9].min()) == pytest.approx(float(img.max()), rel=1e-5)  # centre
+    assert float(img[0, 0]) == 0.0 and float(img[7, 0]) == 0.0  # a small patch, not the whole pad
+    assert float(r.height[0]) < 0.03 and float(r.height[0]) > 0.0295
+
+
+def test_tilt_about_x_is_the_tilt_about_y_transposed():
+    # The cylinder along x under phi_y is the cylinder along y under phi, seen transposed.
+    sim = ExtendedSimulator([CYL_X, CYL_Y], rows_per_taxel=4)
+    a = sim.glance([1], [0.2], [0.3], [0.0], [0.0])
+    b = sim.glance([0], [0.0], [0.0], [0.2], [-0.3])
+    # (u, v) -> (v, u) maps +phi (lowers +u) to +phi_y (lowers +v); x -> y as well
+    b2 = sim.glance([0], [0.0], [0.0], [0.2], [0.3])
+    assert float(a.z[0]) == pytest.approx(float(b2.z[0]), abs=1e-6)
+    assert torch.allclose(a.pressure[0], b2.pressure[0].T, atol=1.0)
+    assert float(b.z[0]) != pytest.approx(float(b2.z[0]), abs=1e-4)  # the sign matters
+
+
+def test_object_pose_rotates_and_shifts_the_object():
+    sim = ExtendedSimulator([CYL_X, CYL_Y], rows_per_taxel=4)
+    plain = sim.glance([1], [0.3], [0.2], [0.0], [0.0])
+    turned = sim.glance([0], [0.3], [0.2], [0.0], [0.0], object_pose=([math.pi / 2], [0.0], [0.0]))
+    assert float(turned.z[0]) == pytest.approx(float(plain.z[0]), abs=2e-6)
+    assert torch.allclose(turned.pressure[0], plain.pressure[0], atol=2.0)
+    # Shifting the dome by (dx, dy) is glancing at the pose shifted the other way.
+    sim = ExtendedSimulator([DOME])
+    a = sim.glance([0], [0.0], [0.1], [0.0], [0.0], object_pose=(0.0, -0.009, 0.0045))
+    b = sim.glance([0], [0.2], [0.1], [-0.1], [0.0])
+    assert float(a.z[0]) == pytest.approx(float(b.z[0]), abs=2e-6)
+    with pytest.raises(HamError, match="object_pose dx"):
+        sim.glance([0], [0.0], [0.0], object_pose=(0.0, 1.0, 0.0))
+    with pytest.raises(HamError, match="accepted: \\(yaw, dx, dy\\)"):
+        sim.glance([0], [0.0], [0.0], object_pose=(0.0, 0.0))
+
+
+def test_steep_tilt_about_x_is_blocked_by_the_housing():
+    sim = ExtendedSimulator([objects.get("box")])
+    r = sim.glance([0, 0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [1.0, -1.0])
+    # The face stands vertical: a housing side rests on the box, 3 mm foam + 1 cm body off.
+    assert bool(r.blocked.all()) and float(r.force.max()) < 2.0
+    assert torch.allclose(r.z, torch.full((2,), 0.045 + 0.04), atol=1e-5)
+
+
+def test_bad_poses_are_refused_by_name():
+    sim = ExtendedSimulator([DOME])
+    with pytest.raises(HamError, match="q_y = 1.5"):
+        sim.glance([0], [0.0], [0.0], [1.5], [0.0])
+    with pytest.raises(HamError, match="q_phi_y = nan"):
+        sim.glance([0], [0.0], [0.0], [0.0], [float("nan")])
+    with pytest.raises(HamError, match="equal lengths"):
+        sim.glance([0, 0], [0.0, 0.1, 0.2], [0.0])
+    with pytest.raises(HamError, match="rows_per_taxel"):
+        ExtendedSimulator([DOME], rows_per_taxel=0)
+
+
+def test_the_line_glance_refuses_y_and_phi_y():
+    fast = FastSimulator(objects.resolve_set("paper"))
+    with pytest.raises(HamError, match="q_y = .* is not 0.*pose-dims"):
+        fast.glance([0], [0.0], [0.0], q_y=[0.2])
+    with pytest.raises(HamError, match="q_phi_y"):
+        fast.glance([0], [0.0], [0.0], q_phi_y=[-0.1])
+    r = fast.glance([0], [0.0], [0.0], q_y=[0.0], q_phi_y=None)
+    assert torch.equal(r.height, r.z) and float(r.y[0]) == 0.0 and float(r.phi_y[0]) == 0.0
+    data = r.to_json(0)
+    assert {"height", "y", "phi_y"} <= set(data) and data["height"] == data["z"]
+
+
+def test_world_pose_dims_pick_the_simulator():
+    assert WorldConfig().pose_dims == ("x", "phi")
+    assert "pose_dims" not in WorldConfig().to_dict()  # the paper's world saves what it saved
+    assert isinstance(make_simulator(WorldConfig()), FastSimulator)
+    w = WorldConfig(pose_dims=("x", "y", "phi", "phi_y"))
+    assert isinstance(make_simulator(w), ExtendedSimulator)
+    assert WorldConfig.from_dict(w.to_dict()) == w
+    assert WorldConfig.from_dict({"objects": "paper"}).pose_dims == ("x", "phi")
+    assert WorldConfig(pose_dims="x,phi_y").pose_dims == ("x", "phi_y")
+    for bad, match in [
+        (("x", "z"), "unknown pose dimension 'z'"),
+        (("phi", "x"), "in that order"),
+        ((), "non-empty"),
+        (("x", "x"), "each once"),
+    ]:
+        with pytest.raises(HamError, match=match):
+            WorldConfig(pose_dims=bad)
+
+
+def test_a_height_field_object_picks_the_extended_glance():
+    objects.register(DOME, replace=True)
+    sim = make_simulator(WorldConfig(objects="t_dome"))
+    assert isinstance(sim, ExtendedSimulator)
+    r = sim.glance([0], [0.0], [0.0])
+    assert float(r.force[0]) == pytest.approx(2.0, abs=1e-4)
+
+
+def test_glance_at_maps_columns_to_dims():
+    sim = ExtendedSimulator([DOME])
+    q = torch.tensor([[0.1, -0.2, 0.3, 0.4], [0.0, 0.5, -0.1, 0.2]])
+    a = glance_at(sim, [0, 0], q, POSE_DIMS)
+    b = sim.glance([0, 0], q[:, 0], q[:, 2], q[:, 1], q[:, 3])
+    assert torch.equal(a.pressure, b.pressure) and torch.equal(a.z, b.z)
+    c = glance_at(sim, [0, 0], q[:, [1, 3]], ("y", "phi_y"))
+    d = sim.glance([0, 0], [0.0], [0.0], q[:, 1], q[:, 3])
+    assert torch.equal(c.z, d.z)
+    fast = FastSimulator(objects.resolve_set("paper"))
+    e = glance_at(fast, [1], [[0.2, 0.1]], ("x", "phi"))
+    assert torch.equal(e.z, fast.glance([1], [0.2], [0.1]).z)
+    with pytest.raises(HamError, match="accepted: \\(B, 2\\)"):
+        glance_at(sim, [0], q, ("x", "phi"))
+
+
+OBJECTS_FILE = """
+from ham.world.objects import HapticObject, register
+
+register(HapticObject.from_surface("cli_dome", lambda x, y: 0.03 - 3.0 * (x**2 + y**2)))
+register(HapticObject.from_surface("cli_tilt", lambda x, y: 0.03 + 0.2 * y))
+"""
+
+
+def test_cli_glance_extended_json(ham_cli, tmp_path):
+    import json
+
+    f = tmp_path / "objs.py"
+    f.write_text(OBJECTS_FILE)
+    args = ("glance", "--objects-file", str(f), "--object", "cli_dome")
+    r = ham_cli(*args, "--x", "0.1", "--y", "-0.2", "--phi", "0.1", "--phi-y", "0.2", "--json")
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    assert d["y"] == pytest.approx(-0.2 * 0.045, abs=1e-7)
+    assert d["phi_y"] == pytest.approx(0.2 * math.pi / 2, abs=1e-6)
+    assert d["height"] == d["z"] and d["force"] == pytest.approx(2.0, abs=1e-4)
+    assert d["pose_dims"] == ["x", "y", "phi", "phi_y"] and len(d["pressure"]) == 16
+    # The same glance in-process gives the same numbers.
+    sim = ExtendedSimulator([DOME])  # the same surface
+    ref = sim.glance([0], [0.1], [0.1], [-0.2], [0.2])
+    assert d["height"] == pytest.approx(float(ref.height[0]), abs=1e-9)
+    # y moves the pad on an object sloping in y: higher at +y.
+    hi = ham_cli("glance", "--objects-file", str(f), "--object", "cli_tilt", "--x", "0",
+                 "--phi", "0", "--y", "0.5", "--json")  # fmt: skip
+    lo = ham_cli("glance", "--objects-file", str(f), "--object", "cli_tilt", "--x", "0",
+                 "--phi", "0", "--y", "-0.5", "--json")  # fmt: skip
+    assert json.loads(hi.stdout)["height"] > json.loads(lo.stdout)["height"] + 0.005
+    text = ham_cli(*args, "--x", "0", "--phi", "0")
+    assert text.returncode == 0 and "height" in text.stdout and "phi_y" in text.stdout
+
+
+def test_cli_pose_dims_refused_by_name(ham_cli):
+    r = ham_cli("glance", "--object", "box", "--x", "0", "--phi", "0", "--pose-dims", "x,z")
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "unknown pose dimension 'z'" in r.stderr and "x,y,phi,phi_y" in r.stderr
+    r = ham_cli("glance", "--object", "box", "--x", "0", "--phi", "0", "--pose-dims", "phi,x")
+    assert r.returncode == 2 and "in that order" in r.stderr
+    r = ham_cli("glance", "--object", "box", "--x", "0", "--phi", "0", "--y", "1.5")
+    assert r.returncode == 2 and "q_y = 1.5" in r.stderr
+    # The paper's glance is unchanged: no y, no tilt about x, height is z.
+    r = ham_cli("glance", "--object", "ramp_up", "--x", "0.3", "--phi", "0.2", "--json")
+    import json
+
+    d = json.loads(r.stdout)
+    fast = FastSimulator(objects.resolve_set("paper")).glance([1], [0.3], [0.2])
+    assert d["z"] == float(fast.z[0]) and d["pressure"] == fast.pressure[0].double().tolist()
+    assert d["y"] == 0.0 and d["phi_y"] == 0.0 and d["pose_dims"] == ["x", "phi"]
+
+
+def test_narrow_spike_stops_a_tilted_pad_over_a_turned_object():
+    # A 0.6 mm x 2 cm spike on a 1 cm box (tests/test_narrow_features.py): narrower than the
+    # read-out spacing, carried over from the line glance as a feature line along y.
+    pts = [(-0.045, 0.01), (-0.0003, 0.01), (-0.0003, 0.03), (0.0003, 0.03), (0.0003, 0.01)]
+    obj = HapticObject.from_polyline("t_spike", [*pts, (0.045, 0.01)])
+    sim = ExtendedSimulator([obj])
+    assert sim.features == [2]
+    n = 201
+    qx = torch.linspace(-0.1, 0.1, n)
+    ids = torch.zeros(n, dtype=torch.long)
+    runs = {}
+    for yaw in (0.0, 0.4):  # the spike's line across the tilted rows, then turned
+        pose = (torch.full((n,), yaw), torch.zeros(n), torch.zeros(n))
+        runs[yaw] = sim.glance(ids, qx, 0.0, 0.2, 0.15, object_pose=pose)
+    sim._feat_x = None  # the same glances without the feature line
+    for yaw, r in runs.items():
+        pose = (torch.full((n,), yaw), torch.zeros(n), torch.zeros(n))
+        bare = sim.glance(ids, qx, 0.0, 0.2, 0.15, object_pose=pose)
+        assert float(r.height.min()) > 0.03  # on the spike: its top (3 cm) or its tilted line
+        assert bool((r.height >= bare.height).all())
+        if yaw == 0.0:  # between two columns the pad used to sink to the box (1 cm)
+            assert float((r.height - bare.height).max()) > 0.01
+
+
+def test_heights_reads_the_surface():
+    sim = ExtendedSimulator([DOME])
+    x = torch.tensor([[0.0, 0.01, -0.02, 0.05]])
+    y = torch.tensor([[0.0, -0.015, 0.03, 0.0]])
+    h = sim.heights([0], x, y)
+    ref = DOME.surface(x.double().numpy(), y.double().numpy())
+    np.testing.assert_allclose(h.numpy(), ref, atol=1e-6)  # 0.5 mm bilinear grid; table beside
+    assert float(h[0, 3]) == 0.0
