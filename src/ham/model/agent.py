@@ -35,12 +35,12 @@ from ham.model.core import ACTIVATIONS, CORES, State, make_core
 from ham.model.location_net import STD_ACTIVATIONS, uniform_locations
 from ham.model.policy import POLICIES, LocationDistribution, make_policy
 from ham.model.tactile_net import COMBINERS, TactileNetwork
+from ham.world.glance import POSE_DIMS
 from ham.world.objects import MAX_HEIGHT
 
 FIRST_GLANCES: tuple[str, ...] = ("random", "learned")
-#: The pose dimensions, in canonical order (the world's ``POSE_DIMS``); ``phi`` and ``phi_y`` are
-#: angles, fed to the tactile network as ``q * phi_scale``.
-POSE_DIMS: tuple[str, ...] = ("x", "y", "phi", "phi_y")
+#: ``phi`` and ``phi_y`` of the pose dims (:data:`ham.world.glance.POSE_DIMS`) are angles, fed to
+#: the tactile network as ``q * phi_scale``.
 ANGLE_DIMS: tuple[str, ...] = ("phi", "phi_y")
 #: The paper's two pose parameters ``(x, phi)``.
 PAPER_POSE_DIMS: tuple[str, ...] = ("x", "phi")
