@@ -35,7 +35,7 @@ def add_commands(subparsers) -> None:
     hyper = p.add_argument_group("training (TrainConfig; paper defaults)")
     add_config_options(hyper, TrainConfig, skip={"model", "world", "table", "env"})
     net = p.add_argument_group("network (HamConfig; paper defaults)")
-    add_config_options(net, HamConfig, skip={"n_objects", "pressure_dim"})
+    add_config_options(net, HamConfig, skip={"n_objects", "pressure_dim", "pose_dims"})
     src = p.add_mutually_exclusive_group()
     src.add_argument("--table", metavar="FILE", help="glance table (HDF5) to look glances up in")
     src.add_argument("--online", action="store_true",
@@ -66,6 +66,10 @@ def add_commands(subparsers) -> None:
     p.add_argument("--eval-policy", choices=choices(TrainConfig, "eval_policy"),
                    help="location policy: mean poses or sampled (default: the run's)")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument("--objects", metavar="SET",
+                   help="evaluate on other objects, one per class in the run's class order "
+                   "(e.g. composite:test for a run trained on composite:train: held-out "
+                   "instances); online runs only")  # fmt: skip
     p.add_argument("--confusion", metavar="PNG",
                    help="also plot the confusion matrix after the last glance")  # fmt: skip
     p.set_defaults(func=cmd_evaluate)
@@ -82,6 +86,9 @@ def add_commands(subparsers) -> None:
     p.add_argument("--eval-policy", choices=choices(TrainConfig, "eval_policy"),
                    help="location policy: mean poses or sampled (default: the run's)")  # fmt: skip
     p.add_argument("--json", metavar="FILE", help="also write the heat map data as JSON")
+    p.add_argument("--objects", metavar="SET",
+                   help="on other objects, one per class in the run's class order (e.g. "
+                   "composite:test); online runs only")  # fmt: skip
     p.set_defaults(func=cmd_heatmap)
 
 
@@ -308,7 +315,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from ham.learn.evaluation import evaluate
     from ham.learn.train import load_run
 
-    run = load_run(args.run, device=args.device)
+    run = load_run(args.run, device=args.device, objects=args.objects)
     policy = args.eval_policy or run.config.eval_policy
     try:
         result = evaluate(run.agent, run.env, args.batches, seed=args.seed, policy=policy)
@@ -364,7 +371,7 @@ def cmd_heatmap(args: argparse.Namespace) -> int:
     check_output(args.out, (".png",))
     if args.json:
         check_output(args.json, (".json",), what="--json")
-    run = load_run(args.run, device=args.device)
+    run = load_run(args.run, device=args.device, objects=args.objects)
     policy = args.eval_policy or run.config.eval_policy
     data = heatmap_data(run.agent, run.env, args.batches, args.bins, seed=args.seed, policy=policy)
     data["step"] = run.step

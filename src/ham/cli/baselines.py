@@ -31,6 +31,8 @@ def add_commands(subparsers) -> None:
                    help="planned (default) or random: the first glance uniform, as the HAM's")  # fmt: skip
     p.add_argument("--tolerance", type=float, default=1e-6,
                    help="images closer than this (L2, normalized) are equal (default 1e-6)")  # fmt: skip
+    p.add_argument("--height", action="store_true",
+                   help="the contact height tells objects apart too (as a HAM with --height-input)")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=cmd_baselines)
     add_sb3_command(subparsers)
@@ -48,7 +50,7 @@ def cmd_baselines(args: argparse.Namespace) -> int:
     if args.first == "random" and args.policy in ("random", "grid"):
         raise HamError(f"--first random applies to infogain and oracle, not to {args.policy!r}")
     table = GlanceTable.load(args.table)
-    planner = Planner(Partitions.from_table(table, args.tolerance))
+    planner = Planner(Partitions.from_table(table, args.tolerance, height=args.height))
     accuracy = {str(g): planner.accuracy(args.policy, g, args.first) for g in args.glances}
     result = {
         "policy": args.policy,
@@ -56,6 +58,7 @@ def cmd_baselines(args: argparse.Namespace) -> int:
         "objects": table.objects,
         "first": args.first,
         "tolerance": args.tolerance,
+        "height": args.height,
         "distinct_actions": int(len(planner.parts.labels)),
         "accuracy": accuracy,
     }

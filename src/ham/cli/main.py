@@ -209,17 +209,19 @@ def cmd_table_build(args: argparse.Namespace) -> int:
     check_output(args.out, HDF5)
     world = world_from_args(args)
     preset = preset_from_args(args)
-    grid = args.grid if args.grid is not None else preset["grid"] if preset else 201
+    grid = args.grid if args.grid is not None else preset["grid"] if preset else "201"
     if preset is None:
         out = build_table(world, grid, args.out, progress=not args.quiet,
-                          command=command_line(args))  # fmt: skip
+                          command=command_line(args), compression=args.compression)  # fmt: skip
     else:  # a preset's table is built once into the cache, then copied
         import shutil
 
         from ham.world.cache import cached_table
         from ham.world.files import atomic_write
 
-        cached = cached_table(world, grid, args.cache_dir, progress=not args.quiet,
+        if isinstance(grid, str) and not grid.isdigit():
+            raise HamError(f"--grid {grid!r} with --world; accepted: one number of poses per axis")
+        cached = cached_table(world, int(grid), args.cache_dir, progress=not args.quiet,
                               command=command_line(args))  # fmt: skip
         out = atomic_write(args.out, lambda tmp: shutil.copyfile(cached, tmp))
         print(f"from the cache: {cached}")
@@ -234,7 +236,7 @@ def cmd_table_info(args: argparse.Namespace) -> int:
     if args.json:
         print_json(info.to_dict())
         return 0
-    print(f"{info.path}: {len(info.objects)} objects x {info.grid} x {info.grid} glances")
+    print(f"{info.path}: {len(info.objects)} objects x {_grid_text(info)} glances")
     print(f"  objects:   {', '.join(info.objects)}")
     print(f"  simulator: {info.simulator.get('simulator', '?')}  source: {info.source}")
     from ham.world.sensor import SensorConfig
@@ -250,12 +252,20 @@ def cmd_table_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _grid_text(info) -> str:
+    """``201 x 201`` (the paper's), or ``21 x 21 x 9 x 9 (x,y,phi,phi_y)`` for other pose grids."""
+    text = " x ".join(map(str, info.grid_shape))
+    if tuple(info.pose_dims) != ("x", "phi"):
+        text += f" ({','.join(info.pose_dims)})"
+    return text
+
+
 def cmd_table_verify(args: argparse.Namespace) -> int:
     from ham.world.table import verify_table
 
     info = verify_table(args.file)
     print(
-        f"ok {args.file}: {len(info.objects)} objects x {info.grid} x {info.grid} glances, "
+        f"ok {args.file}: {len(info.objects)} objects x {_grid_text(info)} glances, "
         "finite non-negative pressures, checksum sha256 matches"
     )
     return 0
@@ -408,8 +418,12 @@ def build_parser() -> argparse.ArgumentParser:
     tsub = t.add_subparsers(dest="table_command", metavar="ACTION")
     t.set_defaults(func=lambda args: _need_action(t, "table_command", "ACTION"))
     p = tsub.add_parser("build", help="record a grid x grid table of glances per object")
-    p.add_argument("--grid", type=int, default=None,
-                   help="poses per axis, 2..2001 (default 201, or the --world preset's)")  # fmt: skip
+    p.add_argument("--grid", default=None,
+                   help="poses per axis, 2..2001 (default 201, or the --world preset's), or one "
+                   "per pose dim, e.g. 21,21,9,9 with --pose-dims x,y,phi,phi_y")  # fmt: skip
+    p.add_argument("--compression", default="gzip", choices=("gzip", "lzf", "none"),
+                   help="of a table over other pose dims than x,phi (format 2): none writes a "
+                   "memory-mappable file (default gzip)")  # fmt: skip
     p.add_argument("--out", required=True, help="HDF5 file to write (atomically), .h5 or .hdf5")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_world_options(p)

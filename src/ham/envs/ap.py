@@ -6,9 +6,11 @@ environment's base reward minus the normalized cross-entropy of that step's pred
 a perfect prediction, -1 for a blind guess); the ``-sparse`` variant scores only the prediction
 of the episode's last step. Here:
 
-* observation ``{"pressure": (N, N), "pose": (2,)}`` as in ``ham/HapticGlance-v0`` (N = taxels, 16);
-* ``action["action"]``: the normalized pose ``(q_x, q_phi)`` of the next glance (absolute, in
-  ``[-1, 1]``; outside values are clipped); ``action["prediction"]``: ``K`` logits;
+* observation ``{"pressure": (N, N), "pose": (k,)}`` as in ``ham/HapticGlance-v0`` (N = taxels, 16;
+  k = the world's pose dims, 2 for the paper's; ``height=True``: also ``"height": (1,)``, m);
+* ``action["action"]``: the normalized pose ``(q_x, q_phi)`` (``k`` values in the world's pose
+  dims) of the next glance (absolute, in ``[-1, 1]``; outside values are clipped);
+  ``action["prediction"]``: ``K`` logits;
 * base reward 0; ``reset`` makes the first, random glance; step ``s`` scores the prediction made
   after glances ``1..s`` and makes glance ``s+1``; step ``S`` only scores, and terminates. So an
   episode has ``S`` steps and ``S`` scored predictions (``-sparse``: the last one only);
@@ -39,6 +41,7 @@ from ham.envs.haptic import (
     attach_world,
     check_num_envs,
     observation_space,
+    pose_space,
     reset_option,
 )
 from ham.errors import HamError
@@ -50,10 +53,6 @@ except ImportError as exc:  # pragma: no cover - depends on the installation
     raise HamError(
         f"ap_gym is not available ({exc}); install it with: pip install ap-gym aiohttp"
     ) from None
-
-
-def _pose_space() -> gym.spaces.Box:
-    return gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
 
 
 def _logits(prediction: Any, shape: tuple[int, ...]) -> np.ndarray:
@@ -91,10 +90,14 @@ class HapticGlanceAPEnv(ap_gym.ActiveClassificationEnv):
         normalization: str = "l2",
         device: str = "cpu",
         render_mode: str | None = None,
+        height: bool = False,
+        object_pose=None,
     ) -> None:
-        attach_world(self, 1, glances, table, world, normalization, device, render_mode)
-        super().__init__(self.backend.n_objects, _pose_space())
-        self.observation_space = observation_space(self.backend)
+        attach_world(
+            self, 1, glances, table, world, normalization, device, render_mode, height, object_pose
+        )
+        super().__init__(self.backend.n_objects, pose_space(self.backend))
+        self.observation_space = observation_space(self.backend, height)
 
     def _target(self) -> np.ndarray:
         return np.asarray(self.episodes.objects[0], dtype=np.int64)
@@ -148,11 +151,16 @@ class HapticGlanceAPVectorEnv(ap_gym.ActiveClassificationVectorEnv):
         normalization: str = "l2",
         device: str = "cpu",
         render_mode: str | None = None,
+        height: bool = False,
+        object_pose=None,
     ) -> None:
         num_envs = check_num_envs(num_envs)
-        attach_world(self, int(num_envs), glances, table, world, normalization, device, render_mode)
-        super().__init__(int(num_envs), self.backend.n_objects, _pose_space())
-        self.single_observation_space = observation_space(self.backend)
+        attach_world(
+            self, int(num_envs), glances, table, world, normalization, device, render_mode,
+            height, object_pose,
+        )  # fmt: skip
+        super().__init__(int(num_envs), self.backend.n_objects, pose_space(self.backend))
+        self.single_observation_space = observation_space(self.backend, height)
         self.observation_space = gym.vector.utils.batch_space(
             self.single_observation_space, self.num_envs
         )

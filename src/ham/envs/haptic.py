@@ -11,14 +11,19 @@ fixed number of glances ``S`` (``glances``, default 3):
   earlier step has reward 0 and its ``prediction`` is ignored. The observation returned with the
   termination repeats the last glance.
 
-Spaces:
+Spaces (``k`` = the world's pose dims, 2 for the paper's ``(q_x, q_phi)``; ``WorldConfig.pose_dims``
+or the table's grid, in canonical order ``x, y, phi, phi_y``):
 
-* observation ``{"pressure": Box(N, N) float32, "pose": Box(2,) in [-1, 1]}``: the pressure
+* observation ``{"pressure": Box(N, N) float32, "pose": Box(k,) in [-1, 1]}`` (with
+  ``height=True`` also ``"height": Box(1,)``, the glance's contact height h in m): the pressure
   image of the last glance (``N`` = the world's or the table's ``taxels``, 16 by default), L2-normalized (the paper; ``normalization='l1'``: the authors' code;
   ``'none'``: raw pressure in Pa) and the normalized pose it was made at;
-* action ``{"pose": Box(2,) in [-1, 1], "prediction": Discrete(K)}``: where to glance next
+* action ``{"pose": Box(k,) in [-1, 1], "prediction": Discrete(K)}``: where to glance next
   (``q_x, q_phi``; ``x = q_x * zone``, ``phi = q_phi * pi/2``; values outside ``[-1, 1]`` are
   clipped) and the object the agent believes it touches.
+
+``object_pose`` (online only): a random object pose per episode, yaw and offset
+(:class:`ham.world.source.ObjectPoseConfig` or its dict), drawn from the env's ``np_random``.
 
 Glances come from the batched glance sources of :mod:`ham.learn.environment`: a glance table
 (``table=FILE``, the nearest grid point, as in the paper) or the fast simulator online (exact
@@ -79,6 +84,7 @@ class GlanceBackend:
             defaults); refused with a table, which carries its own.
         normalization: ``l2`` (paper), ``l1`` (authors' code) or ``none`` (raw pressure, Pa).
         device: where glances are computed (``cpu`` or ``cuda``); observations are NumPy.
+        object_pose: a random object pose per episode (online only; ``None``: off).
     """
 
     def __init__(
@@ -87,8 +93,9 @@ class GlanceBackend:
         world: WorldConfig | dict | None = None,
         normalization: str = "l2",
         device: str = "cpu",
+        object_pose=None,
     ) -> None:
-        from ham.world.source import make_source
+        from ham.world.source import ObjectPoseConfig, make_source
 
         if normalization not in ENV_NORMALIZATIONS:
             raise HamError(
@@ -107,7 +114,20 @@ class GlanceBackend:
         if table is not None and not Path(table).exists():
             raise HamError(f"glance table {str(table)!r} does not exist")
         self.device = check_device(device)
+        if isinstance(object_pose, dict):
+            object_pose = ObjectPoseConfig(**object_pose)
+        if object_pose is not None and not isinstance(object_pose, ObjectPoseConfig):
+            raise HamError(
+                f"object_pose = {object_pose!r}; accepted: an ObjectPoseConfig, its dict, or None"
+            )
+        if object_pose is not None and object_pose.enabled and table is not None:
+            raise HamError(
+                f"object_pose with table {str(table)!r}: a table records each object at one "
+                "pose; accepted: online glances (no table)"
+            )
+        self.object_pose = object_pose if object_pose is not None and object_pose.enabled else None
         self.source, self.world = make_source(table, world, self.device)
+        self.pose_dims: tuple[str, ...] = tuple(self.source.pose_dims)
         self.table = None if table is None else str(table)
         self.normalization = normalization
         self.objects: list[str] = list(self.source.objects)
@@ -119,30 +139,42 @@ class GlanceBackend:
         )
 
     def glance(self, objects: np.ndarray, poses: np.ndarray) -> np.ndarray:
-        """Pressure images ``(B, N, N)`` float32 of ``objects`` ``(B,)`` at ``poses`` ``(B, 2)``."""
+        """Pressure images ``(B, N, N)`` float32 of ``objects`` ``(B,)`` at ``poses`` ``(B, k)``."""
+        return self.glance_height(objects, poses)[0]
+
+    def glance_height(
+        self, objects: np.ndarray, poses: np.ndarray, object_pose=None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Pressure images ``(B, N, N)`` and contact heights ``(B,)`` (m), float32, of
+        ``objects`` ``(B,)`` at ``poses`` ``(B, k)``; ``object_pose``: per-row ``(yaw, dx, dy)``
+        arrays or ``None``."""
         from ham.world.sensor import normalize
 
         ids = torch.as_tensor(np.asarray(objects, dtype=np.int64), device=self.device)
         q = torch.as_tensor(np.asarray(poses, dtype=np.float32), device=self.device)
+        if object_pose is not None:
+            object_pose = tuple(
+                torch.as_tensor(np.asarray(a, np.float32), device=self.device) for a in object_pose
+            )
         with torch.no_grad():
-            raw = self.source.lookup(ids, q[:, 0], q[:, 1]).to(torch.float32)
-            flat = normalize(raw, self.normalization)
+            raw, height = self.source.glance(ids, q, object_pose)
+            flat = normalize(raw.to(torch.float32), self.normalization)
         image = flat.reshape(-1, self.taxels, self.taxels).cpu().numpy()
         image = image.astype(np.float32, copy=False)
         if self.normalization != "none":  # unit-norm images lie in [0, 1]; guard rounding
             np.clip(image, 0.0, 1.0, out=image)
-        return image
+        return image, height.to(torch.float32).cpu().numpy()
 
 
-def check_poses(pose: Any, n: int) -> np.ndarray:
-    """Action poses as ``(n, 2)`` float32 clipped to ``[-1, 1]``; NaN or a bad shape: HamError."""
+def check_poses(pose: Any, n: int, k: int = 2) -> np.ndarray:
+    """Action poses as ``(n, k)`` float32 clipped to ``[-1, 1]``; NaN or a bad shape: HamError."""
     try:
         q = np.asarray(pose, dtype=np.float64)
     except (TypeError, ValueError):
-        raise HamError(f"pose {pose!r}; accepted: {n} x 2 numbers in [-1, 1]") from None
-    if q.size != 2 * n:
-        raise HamError(f"pose of shape {q.shape}; accepted: ({n}, 2) numbers in [-1, 1]")
-    q = q.reshape(n, 2)
+        raise HamError(f"pose {pose!r}; accepted: {n} x {k} numbers in [-1, 1]") from None
+    if q.size != k * n:
+        raise HamError(f"pose of shape {q.shape}; accepted: ({n}, {k}) numbers in [-1, 1]")
+    q = q.reshape(n, k)
     if not np.isfinite(q).all():
         raise HamError(
             f"pose {q[~np.isfinite(q).all(1)][0].tolist()} is not finite; accepted: numbers in [-1, 1]"
@@ -165,12 +197,16 @@ def check_object_ids(objects: Any, n: int, n_objects: int) -> np.ndarray:
 class GlanceEpisodes:
     """``n`` episodes in lockstep: their objects, the last glance and its pose, and the count."""
 
-    def __init__(self, backend: GlanceBackend, n: int, glances: int) -> None:
+    def __init__(self, backend: GlanceBackend, n: int, glances: int, height: bool = False) -> None:
         self.backend = backend
         self.n = n
         self.glances = check_glances(glances)
+        self.k = len(backend.pose_dims)
+        self.with_height = bool(height)
         self.objects = np.zeros(n, dtype=np.int64)
-        self.pose = np.zeros((n, 2), dtype=np.float32)
+        self.pose = np.zeros((n, self.k), dtype=np.float32)
+        self.height = np.zeros(n, dtype=np.float32)
+        self.object_pose = None  # per-episode (yaw, dx, dy) arrays, with backend.object_pose
         self.pressure = np.zeros((n, backend.taxels, backend.taxels), dtype=np.float32)
         self.steps = 0  # steps taken in the current episodes (glances made = min(steps + 1, S))
         self.started = False
@@ -182,8 +218,12 @@ class GlanceEpisodes:
             self.objects = rng.integers(0, k, size=self.n).astype(np.int64)
         else:
             self.objects = check_object_ids(objects, self.n, k)
-        self.pose = rng.uniform(-1.0, 1.0, size=(self.n, 2)).astype(np.float32)
-        self.pressure = self.backend.glance(self.objects, self.pose)
+        self.pose = rng.uniform(-1.0, 1.0, size=(self.n, self.k)).astype(np.float32)
+        op = self.backend.object_pose
+        if op is not None:
+            top = np.array([op.yaw_max, op.offset_max, op.offset_max])
+            self.object_pose = tuple(rng.uniform(-1.0, 1.0, size=(3, self.n)) * top[:, None])
+        self._glance()
         self.steps = 0
         self.started = True
 
@@ -194,15 +234,23 @@ class GlanceEpisodes:
             raise HamError("step() before reset(); call reset() first")
         if self.steps >= self.glances:
             raise HamError("step() after the episode ended; call reset() first")
-        q = check_poses(pose, self.n)
+        q = check_poses(pose, self.n, self.k)
         self.steps += 1
         if self.steps < self.glances:
             self.pose = q
-            self.pressure = self.backend.glance(self.objects, q)
+            self._glance()
         return self.steps >= self.glances
 
+    def _glance(self) -> None:
+        self.pressure, self.height = self.backend.glance_height(
+            self.objects, self.pose, self.object_pose
+        )
+
     def observation(self) -> dict[str, np.ndarray]:
-        return {"pressure": self.pressure.copy(), "pose": self.pose.copy()}
+        obs = {"pressure": self.pressure.copy(), "pose": self.pose.copy()}
+        if self.with_height:
+            obs["height"] = self.height.reshape(self.n, 1).copy()
+        return obs
 
     def info(self) -> dict[str, Any]:
         return {
@@ -221,13 +269,16 @@ class GlanceEpisodes:
         return np.repeat(img[..., None], 3, axis=-1)
 
 
-def observation_space(backend: GlanceBackend) -> gym.spaces.Dict:
-    return gym.spaces.Dict(
-        {
-            "pressure": backend.pressure_space,
-            "pose": gym.spaces.Box(-1.0, 1.0, (2,), np.float32),
-        }
-    )
+def pose_space(backend: GlanceBackend) -> gym.spaces.Box:
+    """The normalized pose ``[-1, 1]^k`` of the backend's pose dims."""
+    return gym.spaces.Box(-1.0, 1.0, (len(backend.pose_dims),), np.float32)
+
+
+def observation_space(backend: GlanceBackend, height: bool = False) -> gym.spaces.Dict:
+    spaces = {"pressure": backend.pressure_space, "pose": pose_space(backend)}
+    if height:  # the contact height (m): the table at 0, the objects' tops below MAX_HEIGHT
+        spaces["height"] = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+    return gym.spaces.Dict(spaces)
 
 
 def _prediction(prediction: Any, n: int, n_objects: int) -> np.ndarray:
@@ -235,12 +286,23 @@ def _prediction(prediction: Any, n: int, n_objects: int) -> np.ndarray:
 
 
 def attach_world(
-    env, n: int, glances: int, table, world, normalization: str, device: str, render_mode
+    env,
+    n: int,
+    glances: int,
+    table,
+    world,
+    normalization: str,
+    device: str,
+    render_mode,
+    height: bool = False,
+    object_pose=None,
 ) -> None:
     """Give ``env`` its glance backend and ``n`` episodes: the setup every env here shares."""
+    if not isinstance(height, bool):
+        raise HamError(f"height = {height!r}; accepted: True or False")
     env.render_mode = _check_render_mode(render_mode)
-    env.backend = GlanceBackend(table, world, normalization, device)
-    env.episodes = GlanceEpisodes(env.backend, n, glances)
+    env.backend = GlanceBackend(table, world, normalization, device, object_pose)
+    env.episodes = GlanceEpisodes(env.backend, n, glances, height)
     env.glances = env.episodes.glances
     env.objects = env.backend.objects
 
@@ -255,6 +317,8 @@ class HapticGlanceEnv(gym.Env):
         normalization: ``l2`` (paper), ``l1`` or ``none`` (raw Pa).
         device: ``cpu`` or ``cuda`` for the glances.
         render_mode: ``None`` or ``rgb_array`` (the last pressure image).
+        height: add the glance's contact height (m) to the observation.
+        object_pose: a random object pose per episode (online; ``None``: off).
 
     ``reset(options={"object": ID})`` fixes the object of the episode.
     """
@@ -269,12 +333,16 @@ class HapticGlanceEnv(gym.Env):
         normalization: str = "l2",
         device: str = "cpu",
         render_mode: str | None = None,
+        height: bool = False,
+        object_pose=None,
     ) -> None:
-        attach_world(self, 1, glances, table, world, normalization, device, render_mode)
-        self.observation_space = observation_space(self.backend)
+        attach_world(
+            self, 1, glances, table, world, normalization, device, render_mode, height, object_pose
+        )
+        self.observation_space = observation_space(self.backend, height)
         self.action_space = gym.spaces.Dict(
             {
-                "pose": gym.spaces.Box(-1.0, 1.0, (2,), np.float32),
+                "pose": pose_space(self.backend),
                 "prediction": gym.spaces.Discrete(self.backend.n_objects),
             }
         )
@@ -302,7 +370,8 @@ class HapticGlanceEnv(gym.Env):
     ) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         if not isinstance(action, dict) or set(action) != {"pose", "prediction"}:
             raise HamError(
-                f"action {action!r}; accepted: a dict with 'pose' (2 numbers) and 'prediction' (an id)"
+                f"action {action!r}; accepted: a dict with 'pose' ({self.episodes.k} numbers) and "
+                "'prediction' (an id)"
             )
         prediction = _prediction(action["prediction"], 1, self.backend.n_objects)[0]
         terminated = self.episodes.advance(action["pose"])
@@ -352,17 +421,22 @@ class HapticGlanceVectorEnv(gym.vector.VectorEnv):
         normalization: str = "l2",
         device: str = "cpu",
         render_mode: str | None = None,
+        height: bool = False,
+        object_pose=None,
     ) -> None:
         num_envs = check_num_envs(num_envs)
         self.num_envs = int(num_envs)
-        attach_world(self, self.num_envs, glances, table, world, normalization, device, render_mode)
-        self.single_observation_space = observation_space(self.backend)
+        attach_world(
+            self, self.num_envs, glances, table, world, normalization, device, render_mode,
+            height, object_pose,
+        )  # fmt: skip
+        self.single_observation_space = observation_space(self.backend, height)
         self.observation_space = gym.vector.utils.batch_space(
             self.single_observation_space, self.num_envs
         )
         self.single_action_space = gym.spaces.Dict(
             {
-                "pose": gym.spaces.Box(-1.0, 1.0, (2,), np.float32),
+                "pose": pose_space(self.backend),
                 "prediction": gym.spaces.Discrete(self.backend.n_objects),
             }
         )
@@ -383,7 +457,8 @@ class HapticGlanceVectorEnv(gym.vector.VectorEnv):
         n = self.num_envs
         if not isinstance(actions, dict) or set(actions) != {"pose", "prediction"}:
             raise HamError(
-                f"actions {actions!r}; accepted: a dict with 'pose' ({n}, 2) and 'prediction' ({n},)"
+                f"actions {actions!r}; accepted: a dict with 'pose' ({n}, {self.episodes.k}) and "
+                f"'prediction' ({n},)"
             )
         truncated = np.zeros(n, dtype=np.bool_)
         if self._autoreset:

@@ -73,7 +73,10 @@ def plot_training_curve(metrics: dict, out_png: str | os.PathLike) -> Path:
 
 
 def plot_heatmap(heatmap_data: dict, out_png: str | os.PathLike) -> Path:
-    """One panel per object: where the last glance went, and the learned mean pose."""
+    """One panel per object: where the last glance went, and the learned mean pose; for other
+    pose dims than the paper's ``(x, phi)`` every 2-D projection (:func:`plot_projections`)."""
+    if heatmap_data.get("projections"):
+        return plot_projections(heatmap_data, out_png)
     try:
         counts = np.asarray(heatmap_data["counts"], dtype=float)
         names = list(heatmap_data["objects"])
@@ -113,6 +116,51 @@ def plot_heatmap(heatmap_data: dict, out_png: str | os.PathLike) -> Path:
         fontsize=10,
     )
     fig.tight_layout()
+    return _save(fig, out_png)
+
+
+def plot_projections(heatmap_data: dict, out_png: str | os.PathLike) -> Path:
+    """The last glance's k-D pose as 2-D projections: one row per object (and a first row over
+    all objects), one column per pair of pose dims, normalized units; the learned mean pose
+    (policy mode) marked."""
+    try:
+        projections = heatmap_data["projections"]
+        names = list(heatmap_data["objects"])
+        dims = list(heatmap_data["pose_dims"])
+    except KeyError as exc:
+        raise HamError(f"heat map data lacks {exc}") from None
+    mu = heatmap_data.get("mu_mean")
+    rows, cols = len(names) + 1, len(projections)
+    fig, axes = plt.subplots(
+        rows, cols, figsize=(2.1 * cols + 0.6, 1.9 * rows + 0.6), squeeze=False
+    )
+    for j, proj in enumerate(projections):
+        counts = np.asarray(proj["counts"], dtype=float)
+        a, b = proj["dims"]
+        for i in range(rows):
+            ax = axes[i][j]
+            c = counts.sum(0) if i == 0 else counts[i - 1]
+            total = c.sum()
+            ax.imshow((c / total if total else c).T, origin="lower", extent=(-1, 1, -1, 1),
+                      aspect="equal", cmap="magma")  # fmt: skip
+            if i > 0 and mu is not None and b is not None:
+                m = mu[i - 1]
+                ax.plot(m[dims.index(a)], m[dims.index(b)], "x", color="cyan", ms=6, mew=2)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if i == rows - 1:
+                ax.set_xlabel(f"q_{a}", fontsize=8)
+            if j == 0:
+                ax.set_ylabel("all" if i == 0 else names[i - 1], fontsize=7)
+            if i == 0:
+                ax.set_title(f"q_{a} vs q_{b}" if b else f"q_{a}", fontsize=8)
+    fig.suptitle(
+        f"pose of the last glance, {len(dims)}-D ({','.join(dims)}), projections "
+        f"({heatmap_data.get('glances', '?')} glances, {heatmap_data.get('policy', '')} policy; "
+        f"accuracy {heatmap_data.get('accuracy', float('nan')):.3f})",
+        fontsize=9,
+    )
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.35 / fig.get_figheight()))
     return _save(fig, out_png)
 
 

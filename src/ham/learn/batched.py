@@ -96,6 +96,18 @@ def check_batchable(config: TrainConfig) -> None:
             f"first_glance {config.model.first_glance!r} cannot be batched; accepted: random "
             "(train it with ham train or --executor local)"
         )
+    if config.model.pose_dims != ("x", "phi") or config.model.height_input:
+        raise HamError(
+            f"pose dims {','.join(config.model.pose_dims)}"
+            f"{' with the height input' if config.model.height_input else ''} cannot be "
+            "batched; accepted: the paper's x,phi without height (train it with ham train or "
+            "--executor local)"
+        )
+    if config.object_pose.enabled:
+        raise HamError(
+            "a random object pose cannot be batched; accepted: none (train it with ham train "
+            "or --executor local)"
+        )
 
 
 def _keep_freed_memory() -> None:

@@ -4,7 +4,9 @@ Section "Training": "for each training step, a new batch of size 64 is generated
 to-be-classified objects are uniformly chosen from the set of all four available objects"; there is
 no fixed training set. :class:`HapticEnv` draws such batches from its own seeded
 ``torch.Generator`` and answers glances ``q = (q_x, q_phi) in [-1, 1]^2`` with normalized
-pressure vectors (L2 by default, the paper; L1 as in the authors' code).
+pressure vectors (L2 by default, the paper; L1 as in the authors' code). Beyond the paper:
+``q in [-1, 1]^k`` over the world's pose dims, the contact height ``h`` with each glance
+(:meth:`HapticEnv.glance_height`), and a random object pose per episode (``object_pose``).
 
 Glances come from a :class:`ham.world.source.GlanceSource`. Evaluation uses balanced batches (:meth:`HapticEnv.balanced_objects`).
 """
@@ -15,7 +17,7 @@ import torch
 
 from ham.errors import HamError
 from ham.world.sensor import NORMALIZATIONS, normalize
-from ham.world.source import GlanceSource
+from ham.world.source import GlanceSource, ObjectPoseConfig
 
 
 class HapticEnv:
@@ -27,6 +29,9 @@ class HapticEnv:
         normalization: ``l2`` (paper), ``l1`` (authors' code) or ``none``.
         seed: seeds the generator of the training batches' objects.
         device: where batches live (the source's device).
+        object_pose: a random object pose per episode (:class:`ObjectPoseConfig`; ``None`` or
+            a disabled one: the objects stay at their pose, the paper). Training batches draw
+            it from the object generator; evaluation batch ``i`` from its own seed.
     """
 
     def __init__(
@@ -36,6 +41,7 @@ class HapticEnv:
         normalization: str = "l2",
         seed: int = 0,
         device: str | torch.device = "cpu",
+        object_pose: ObjectPoseConfig | None = None,
     ) -> None:
         if not (isinstance(batch_size, int) and batch_size >= 1):
             raise HamError(f"batch_size = {batch_size!r}; accepted: an integer >= 1")
@@ -44,6 +50,7 @@ class HapticEnv:
                 f"normalization {normalization!r}; accepted: {', '.join(NORMALIZATIONS)}"
             )
         self.source = source
+        self.pose_dims = tuple(getattr(source, "pose_dims", ("x", "phi")))
         self.n_objects = source.n_objects
         self.pressure_dim = source.pressure_dim
         self.batch_size = batch_size
@@ -51,6 +58,9 @@ class HapticEnv:
         self.device = torch.device(device)
         self.generator = torch.Generator(device=self.device)
         self.generator.manual_seed(int(seed))
+        self.seed = int(seed)
+        self.object_pose = object_pose if object_pose and object_pose.enabled else None
+        self._pose: tuple[torch.Tensor, ...] | None = None  # the current batch's object poses
 
     @property
     def objects(self) -> list:
@@ -58,21 +68,47 @@ class HapticEnv:
         return list(self.source.objects)
 
     def sample_objects(self) -> torch.Tensor:
-        """A fresh training batch: object ids drawn uniformly, ``(B,)`` long."""
-        return torch.randint(
+        """A fresh training batch: object ids drawn uniformly, ``(B,)`` long (and, with
+        ``object_pose``, their poses for this episode)."""
+        ids = torch.randint(
             self.n_objects, (self.batch_size,), generator=self.generator, device=self.device
         )
+        if self.object_pose is not None:
+            self._pose = self.object_pose.sample(len(ids), self.generator, self.device)
+        return ids
 
     def balanced_objects(self, batch_index: int = 0) -> torch.Tensor:
         """Evaluation batch ``batch_index``: ids cycle 0, 1, .., K-1, so every object appears
-        equally often (exactly when ``K`` divides the batch size, else over consecutive batches)."""
+        equally often (exactly when ``K`` divides the batch size, else over consecutive batches).
+        With ``object_pose`` their poses come from a generator seeded by the batch index: the
+        same evaluation batches at every evaluation."""
         start = batch_index * self.batch_size
-        return torch.arange(start, start + self.batch_size, device=self.device) % self.n_objects
+        ids = torch.arange(start, start + self.batch_size, device=self.device) % self.n_objects
+        if self.object_pose is not None:
+            g = torch.Generator(device=self.device)
+            g.manual_seed(10_007 * (self.seed + 1) + batch_index)
+            self._pose = self.object_pose.sample(len(ids), g, self.device)
+        return ids
+
+    def glance_height(
+        self, object_ids: torch.Tensor, q: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Normalized pressure vectors ``(B, N^2)`` (256) and contact heights ``(B,)`` (m) for
+        the poses ``q`` ``(B, k)`` in ``[-1, 1]`` (columns: the world's pose dims)."""
+        pose = self._pose
+        if pose is not None and pose[0].shape[0] != object_ids.shape[0]:
+            raise HamError(
+                f"{object_ids.shape[0]} objects but the batch drew {pose[0].shape[0]} object "
+                "poses; accepted: the ids of the last sample_objects/balanced_objects batch"
+            )
+        pressure, height = self.source.glance(object_ids, q, pose)
+        pressure = normalize(pressure.to(self.device, torch.float32), self.normalization)
+        return pressure, height.to(self.device, torch.float32)
 
     def glance(self, object_ids: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
-        """Normalized pressure vectors ``(B, N^2)`` (256) for the poses ``q`` ``(B, 2)`` in ``[-1, 1]``."""
-        pressure = self.source.lookup(object_ids, q[:, 0], q[:, 1])
-        return normalize(pressure.to(self.device, torch.float32), self.normalization)
+        """Normalized pressure vectors ``(B, N^2)`` (256) for the poses ``q`` ``(B, k)`` in
+        ``[-1, 1]`` (``k = 2``, ``(q_x, q_phi)``, in the paper)."""
+        return self.glance_height(object_ids, q)[0]
 
     # ---------------------------------------------------------------- checkpoints
     def state_dict(self) -> dict:

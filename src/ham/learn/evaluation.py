@@ -69,7 +69,7 @@ MAX_BINS = 201
 
 
 def path_lengths(locations: torch.Tensor) -> torch.Tensor:
-    """Per episode, the summed distance between consecutive poses: ``(S, B, 2)`` -> ``(B,)``."""
+    """Per episode, the summed distance between consecutive poses: ``(S, B, k)`` -> ``(B,)``."""
     if locations.shape[0] < 2:
         return locations.new_zeros(locations.shape[1])
     return (locations[1:] - locations[:-1]).norm(dim=-1).sum(0)
@@ -102,7 +102,7 @@ def evaluate(
     counts = torch.arange(1, glances + 1, device=env.device).view(-1, 1, 1)
     confusion = torch.zeros(glances * k * k, dtype=torch.long, device=env.device)
     offsets = torch.arange(glances, device=env.device).view(-1, 1) * (k * k)
-    mu_sum = torch.zeros(k, 2, device=env.device, dtype=torch.float64)
+    mu_sum = torch.zeros(k, len(agent.config.pose_dims), device=env.device, dtype=torch.float64)
     n_obj = torch.zeros(k, device=env.device, dtype=torch.float64)
     path = torch.zeros((), device=env.device, dtype=torch.float64)
     stop_correct = torch.zeros((), device=env.device, dtype=torch.float64)
@@ -169,7 +169,10 @@ def heatmap_data(
     policy without them, the random one, or for one glance).
 
     Returns a JSON-ready dict; ``counts[o][i][j]`` counts object ``o`` with ``q_x`` in bin ``i``
-    and ``q_phi`` in bin ``j``.
+    and ``q_phi`` in bin ``j``. With ``k`` pose dims (``pose_dims``) ``counts`` bins the first
+    two, and ``projections`` holds every pair ``(a, b)`` of dims, ``{"dims": [a, b], "counts"}``
+    (the k-D distribution's 2-D projections; one dim: its bins against a single one). ``mu_*``
+    and ``sigma_mean`` have one column per pose dim.
     """
     _check(batches, policy, seed)
     if not (isinstance(bins, int) and 1 <= bins <= MAX_BINS):
@@ -177,8 +180,10 @@ def heatmap_data(
     generator = torch.Generator(device=env.device)
     generator.manual_seed(int(seed))
     k = env.n_objects
-    counts = torch.zeros(k * bins * bins, device=env.device)
-    mu_sum = torch.zeros(k, 2, device=env.device, dtype=torch.float64)
+    dims = tuple(agent.config.pose_dims)
+    pairs = [(a, b) for a in range(len(dims)) for b in range(a + 1, len(dims))] or [(0, None)]
+    counts = torch.zeros(len(pairs), k * bins * bins, device=env.device)
+    mu_sum = torch.zeros(k, len(dims), device=env.device, dtype=torch.float64)
     mu_sq = torch.zeros_like(mu_sum)
     sigma_sum = torch.zeros_like(mu_sum)
     n_obj = torch.zeros(k, device=env.device, dtype=torch.float64)
@@ -192,9 +197,11 @@ def heatmap_data(
             episode = agent(env, objects, generator, greedy=policy == "mean")
             q = episode.locations[-1]
             cell = ((q + 1) * (bins / 2)).long().clamp(0, bins - 1)
-            counts += torch.bincount(
-                (objects * bins + cell[:, 0]) * bins + cell[:, 1], minlength=k * bins * bins
-            )
+            for i, (a, c) in enumerate(pairs):
+                second = cell[:, c] if c is not None else torch.zeros_like(cell[:, a])
+                counts[i] += torch.bincount(
+                    (objects * bins + cell[:, a]) * bins + second, minlength=k * bins * bins
+                )
             n_obj += torch.bincount(objects, minlength=k)
             correct += float((episode.logits[-1].argmax(-1) == objects).sum())
             mode = episode.policy.mode() if episode.policy is not None else None
@@ -221,7 +228,17 @@ def heatmap_data(
         "bins": bins,
         "range": [-1.0, 1.0],
         "phi_scale": agent.config.phi_scale,
-        "counts": counts.view(k, bins, bins).long().tolist(),
+        "pose_dims": list(dims),
+        "counts": counts[0].view(k, bins, bins).long().tolist(),
+        "projections": [
+            {
+                "dims": [dims[a], dims[c] if c is not None else None],
+                "counts": counts[i].view(k, bins, bins).long().tolist(),
+            }
+            for i, (a, c) in enumerate(pairs)
+        ]
+        if dims != ("x", "phi")
+        else None,  # fmt: skip
         "mu_mean": mu_mean.tolist() if has_mu else None,
         "mu_std": mu_std.tolist() if has_mu else None,
         "sigma_mean": (sigma_sum / denom).tolist() if has_sigma else None,

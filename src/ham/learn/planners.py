@@ -61,20 +61,35 @@ class Partitions:
         return self.labels.shape[1]
 
     @classmethod
-    def from_table(cls, table, tolerance: float = 1e-6) -> Partitions:
+    def from_table(cls, table, tolerance: float = 1e-6, height: bool = False) -> Partitions:
         """Split each grid pose's objects by their L2-normalized images (the agent's input):
-        two images are equal when they differ by at most ``tolerance`` in L2 norm."""
+        two images are equal when they differ by at most ``tolerance`` in L2 norm. ``height``:
+        the glances' contact heights tell objects apart too (the HAM's ``height_input``: the
+        image and ``h / MAX_HEIGHT`` must both agree within ``tolerance``)."""
         from ham.world.sensor import normalize
         from ham.world.table import grid_values
 
         if not (math.isfinite(tolerance) and tolerance >= 0):
             raise HamError(f"tolerance = {tolerance!r}; accepted: a finite number >= 0")
         k, g = table.n_objects, table.grid
+        dims = tuple(getattr(table, "pose_dims", ("x", "phi")))
+        shape = tuple(getattr(table, "grid_shape", (g, g)))
+        # Any two pose dims: the planners see grid poses, not what they mean.
+        if len(dims) != 2 or shape != (g, g) or table.pressure is None:
+            raise HamError(
+                f"a table over pose grid {'x'.join(map(str, shape))} ({','.join(dims)}); the "
+                "exact planners accept a square grid over two pose dims, held in memory"
+            )
         if k > MAX_OBJECTS:
             raise HamError(
                 f"the table has {k} objects; exact planners accept at most {MAX_OBJECTS}"
             )
         p = normalize(table.pressure.double(), "l2")  # (K, g, g, D)
+        if height:
+            from ham.world.objects import MAX_HEIGHT
+
+            h = table.height.double().reshape(k, g, g, 1).to(p.device) / MAX_HEIGHT
+            p = torch.cat([p, h], -1)
         p = p.permute(1, 2, 0, 3).reshape(g * g, k, -1)
         same = (torch.cdist(p, p) <= tolerance).numpy()  # (P, K, K)
         # label = the first object equal to this one (exact equality makes this a partition)

@@ -54,7 +54,7 @@ from ham.world.config import WorldConfig
 from ham.world.devices import check_device
 from ham.world.files import check_output_dir
 from ham.world.sensor import NORMALIZATIONS
-from ham.world.source import check_model_fits, make_source
+from ham.world.source import ObjectPoseConfig, check_model_fits, make_source, world_pose_dims
 
 CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.json"
@@ -136,6 +136,11 @@ class TrainConfig:
         policy_epochs: of the ``epochs`` passes, how many train the location policy (the first
             ones; ``None``: all). The others train the classifier and the critic only: more
             classifier updates without moving the policy further from the batch's.
+        object_yaw_max: a random object pose per episode (beyond the paper; online glances
+            only): the object turned by a yaw uniform in [-object_yaw_max, object_yaw_max] rad
+            (0: off, the paper).
+        object_offset_max: and shifted along x and y by offsets uniform in
+            [-object_offset_max, object_offset_max] m (0: off, the paper).
     """
 
     model: HamConfig = field(default_factory=HamConfig)
@@ -175,6 +180,8 @@ class TrainConfig:
     epochs: int = 1
     clip: float = 0.2
     policy_epochs: int | None = None
+    object_yaw_max: float = 0.0
+    object_offset_max: float = 0.0
 
     def __post_init__(self) -> None:
         for name, kind in (("model", HamConfig), ("world", WorldConfig), ("nesterov", bool)):
@@ -248,6 +255,21 @@ class TrainConfig:
             raise HamError(
                 f"table {self.table!r} and env {self.env.env!r} exclude each other; give one"
             )
+        for name, top in (("object_yaw_max", math.pi), ("object_offset_max", 0.05)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= top:
+                raise HamError(f"{name} = {v!r}; accepted: a number 0..{top:.6g}")
+        if self.object_pose.enabled and (self.table is not None or self.env is not None):
+            raise HamError(
+                f"a random object pose ({self.object_pose}) with "
+                f"{'table ' + repr(self.table) if self.table else 'env ' + repr(self.env.env)}; "
+                "accepted: online glances in the haptic world"
+            )
+
+    @property
+    def object_pose(self) -> ObjectPoseConfig:
+        """The random object pose per episode (:class:`ham.world.source.ObjectPoseConfig`)."""
+        return ObjectPoseConfig(self.object_yaw_max, self.object_offset_max)
 
     def _check_epochs(self) -> None:
         if not (isinstance(self.epochs, int) and not isinstance(self.epochs, bool)
@@ -278,6 +300,7 @@ class TrainConfig:
     def to_dict(self) -> dict:
         d = asdict(self)
         d["world"] = self.world.to_dict()
+        d["model"] = self.model.to_dict()
         return d
 
     @classmethod
@@ -295,16 +318,18 @@ class TrainConfig:
 def model_for_source(
     model: HamConfig, table: str | os.PathLike | None, world: WorldConfig
 ) -> HamConfig:
-    """``model`` sized for its glances: ``pressure_dim`` (``taxels^2``) and ``n_objects`` from the
-    glance table when given (its recorded sensor and objects), else from the online ``world``."""
+    """``model`` sized for its glances: ``pressure_dim`` (``taxels^2``), ``n_objects`` and the
+    ``pose_dims`` (one location stream each) from the glance table when given (its recorded
+    sensor, objects and grid), else from the online ``world``."""
     if table is not None:
         from ham.world.table import table_info
 
         info = table_info(table)
-        dim, n = info.pressure_dim, len(info.objects)
+        dim, n, dims = info.pressure_dim, len(info.objects), tuple(info.pose_dims)
     else:
         dim, n = world.sensor.pressure_dim, len(world.resolve_objects())
-    return replace(model, pressure_dim=dim, n_objects=n)
+        dims = world_pose_dims(world)
+    return replace(model, pressure_dim=dim, n_objects=n, pose_dims=dims)
 
 
 def parameter_groups(agent: HapticAttentionModel, policy_lr_scale: float) -> list[dict]:
@@ -455,8 +480,19 @@ def make_env(config: TrainConfig, device: torch.device | str = "cpu") -> HapticE
     # The model's input and classes come from the source (taxels^2, its objects): refuse a
     # mismatch here, not as a shape error deep in the first step.
     check_model_fits(config.model.pressure_dim, config.model.n_objects, source)
+    if config.model.pose_dims != source.pose_dims:
+        raise HamError(
+            f"the model chooses poses over {','.join(config.model.pose_dims)} but "
+            f"{source.description} takes {','.join(source.pose_dims)}; accepted: a model with "
+            f"pose_dims = {','.join(source.pose_dims)}"
+        )
     return HapticEnv(
-        source, config.batch_size, config.normalization, stream_seed(config.seed, 0), device
+        source,
+        config.batch_size,
+        config.normalization,
+        stream_seed(config.seed, 0),
+        device,
+        object_pose=config.object_pose,
     )
 
 
@@ -486,6 +522,17 @@ def _check_env(model: HamConfig, env) -> None:
     check_glances = getattr(env, "check_glances", None)
     if check_glances is not None:
         check_glances(model.glances)
+    if model.height_input and not hasattr(env, "glance_height"):
+        raise HamError(
+            "the model takes the contact height (height_input) but the environment gives none; "
+            "accepted: the haptic world (glances carry h)"
+        )
+    dims = tuple(getattr(env, "pose_dims", ("x", "phi")))
+    if len(dims) != len(model.pose_dims):
+        raise HamError(
+            f"the model chooses {len(model.pose_dims)}-D poses ({','.join(model.pose_dims)}) "
+            f"but the environment takes {len(dims)}-D ones; accepted: pose_dims = {','.join(dims)}"
+        )
 
 
 # --------------------------------------------------------------------------- files
@@ -519,12 +566,31 @@ def load_checkpoint(out: Path) -> dict:
         raise HamError(f"cannot read checkpoint {str(path)!r}: {exc}") from None
 
 
-def load_run(out: str | os.PathLike, device: str | None = None) -> Run:
-    """The run in directory ``out`` at its latest checkpoint (for evaluation and heat maps)."""
+def load_run(out: str | os.PathLike, device: str | None = None, objects: str | None = None) -> Run:
+    """The run in directory ``out`` at its latest checkpoint (for evaluation and heat maps).
+
+    ``objects``: evaluate on other objects of the same number, class ``i`` the ``i``-th (e.g.
+    ``composite:test``, the held-out instances of a run trained on ``composite:train``); the
+    run's world otherwise (online runs only)."""
     out = Path(out)
     config = TrainConfig.from_dict(read_json(out / CONFIG_FILE))
     if device is not None:
         config = replace(config, device=device)
+    if objects is not None:
+        if config.table is not None or config.env is not None:
+            raise HamError(
+                f"--objects {objects!r} with a run on "
+                f"{'table ' + repr(config.table) if config.table else 'env ' + repr(config.env.env)}"
+                "; accepted: a run with online glances"
+            )
+        world = replace(config.world, objects=objects)
+        n = len(world.resolve_objects())
+        if n != config.model.n_objects:
+            raise HamError(
+                f"--objects {objects!r} has {n} objects but the run classifies "
+                f"{config.model.n_objects}; accepted: one object per class, in class order"
+            )
+        config = replace(config, world=world)
     run = Run.create(config)
     run.load_state_dict(load_checkpoint(out))
     return run
@@ -628,21 +694,34 @@ def train_step(run: Run) -> HybridLoss | InfoLoss:
 
 
 class GlanceRecorder:
-    """An environment that passes every glance through and keeps it: the pressures ``(B, D)``
-    and the where-inputs ``(B, 2)`` the network read (the sensor's observed location where the
-    environment reports one, else the pose asked for), so a batch can be replayed."""
+    """An environment that passes every glance through and keeps it: the pressures ``(B, D)``,
+    the contact heights where the model reads them, and the where-inputs ``(B, k)`` the network
+    read (the sensor's observed location where the environment reports one, else the pose asked
+    for), so a batch can be replayed."""
 
     def __init__(self, env) -> None:
         self.env = env
         self.pressures: list[torch.Tensor] = []
+        self.heights: list[torch.Tensor] = []
         self.where: list[torch.Tensor] = []
 
-    def glance(self, objects: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
-        pressure = self.env.glance(objects, q)
+    def _keep(self, pressure: torch.Tensor, q: torch.Tensor) -> None:
         where = getattr(self.env, "observed_location", None)
         self.pressures.append(pressure)
         self.where.append(q if where is None else where)
+
+    def glance(self, objects: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+        pressure = self.env.glance(objects, q)
+        self._keep(pressure, q)
         return pressure
+
+    def glance_height(
+        self, objects: torch.Tensor, q: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        pressure, height = self.env.glance_height(objects, q)
+        self._keep(pressure, q)
+        self.heights.append(height)
+        return pressure, height
 
     @property
     def observed_location(self) -> torch.Tensor:
@@ -650,10 +729,15 @@ class GlanceRecorder:
 
 
 def replay_episode(
-    agent: HapticAttentionModel, played: Episode, pressures: torch.Tensor, where: torch.Tensor
+    agent: HapticAttentionModel,
+    played: Episode,
+    pressures: torch.Tensor,
+    where: torch.Tensor,
+    heights: torch.Tensor | None = None,
 ) -> Episode:
     """The episode ``played`` again, through the network as it is now: the recorded glances
-    ``pressures`` ``(S, B, D)`` at ``where`` ``(S, B, 2)``, the same poses, no environment."""
+    ``pressures`` ``(S, B, D)`` at ``where`` ``(S, B, k)`` (with their contact ``heights``
+    ``(S, B)`` where the model reads them), the same poses, no environment."""
     batch, glances = pressures.shape[1], pressures.shape[0]
     dists, logits, baselines = [], [], []
     first_baseline = None
@@ -663,7 +747,8 @@ def replay_episode(
         first_baseline = agent.baseline(tau0)
     state = agent.core.initial_state(batch, pressures)
     for s in range(glances):
-        tau, state = agent.step(pressures[s], where[s], state)
+        height = None if heights is None else heights[s]
+        tau, state = agent.step(pressures[s], where[s], state, height)
         logits.append(agent.classifier(tau))
         baselines.append(agent.baseline(tau))
         if s < glances - 1:
@@ -691,9 +776,10 @@ def train_step_epochs(run: Run) -> InfoLoss:
     on_reward = c.move_cost if c.move_cost_on == "reward" else 0.0
     targets = info_targets(played, c.gamma, c.gae_lambda, on_reward)
     pressures, where = torch.stack(recorder.pressures), torch.stack(recorder.where)
+    heights = torch.stack(recorder.heights) if recorder.heights else None
     policy_epochs = c.epochs if c.policy_epochs is None else c.policy_epochs
     for epoch in range(c.epochs):
-        episode = replay_episode(run.agent, played, pressures, where)
+        episode = replay_episode(run.agent, played, pressures, where, heights)
         loss = clipped_info_loss(episode, targets, c.clip, c.entropy_coef)
         if c.move_cost > 0 and c.move_cost_on == "mean":
             loss.total = loss.total + mean_travel_penalty(episode, c.move_cost)

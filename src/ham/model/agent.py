@@ -6,7 +6,10 @@ Section "The Haptic Attention Model" and Fig "Illustration of the Used Model". O
 1. the first pose is random, ``q_1 ~ U[-1, 1]^2`` (section "Training": "the first
    pressure-location pair is chosen by the first random glance");
 2. glance ``s`` returns the normalized pressure ``p_s``; the tactile network combines it with
-   the pose ``l_s = (q_x, q_phi * pi/2)`` into the glance feature ``g_s``;
+   the pose ``l_s = (q_x, q_phi * pi/2)`` into the glance feature ``g_s``. Beyond the paper (its
+   Discussion): ``k`` pose dimensions ``HamConfig.pose_dims`` (e.g. ``x, y, phi, phi_y``; angles
+   scaled by ``phi_scale``), one location stream each, and optionally the contact height ``h``
+   of the glance, ``g: q -> (p, h)``, as one more where-input (``h / MAX_HEIGHT``);
 3. the core integrates ``g_1 .. g_s`` into ``tau_{1:s}``; the classifier reads
    ``pi(o | tau_{1:s})``, the baseline ``b(tau_{1:s})``;
 4. the location policy (:mod:`ham.model.policy`) maps ``tau_{1:s}`` to a distribution over
@@ -32,10 +35,15 @@ from ham.model.core import ACTIVATIONS, CORES, State, make_core
 from ham.model.location_net import STD_ACTIVATIONS, uniform_locations
 from ham.model.policy import POLICIES, LocationDistribution, make_policy
 from ham.model.tactile_net import COMBINERS, TactileNetwork
+from ham.world.glance import PAPER_POSE_DIMS, check_pose_dims
+from ham.world.objects import MAX_HEIGHT
 
 FIRST_GLANCES: tuple[str, ...] = ("random", "learned")
 #: What the learned stop's head reads (``HamConfig.stop_input``).
 STOP_INPUTS: tuple[str, ...] = ("confidence", "core")
+#: ``phi`` and ``phi_y`` of the pose dims (:data:`ham.world.glance.POSE_DIMS`) are angles, fed to
+#: the tactile network as ``q * phi_scale``.
+ANGLE_DIMS: tuple[str, ...] = ("phi", "phi_y")
 
 
 @dataclass(frozen=True)
@@ -78,6 +86,11 @@ class HamConfig:
         first_glance: ``random`` (paper: uniform, the location network acts from glance 2 on)
             or ``learned`` (beyond the paper: the policy also chooses the first pose, from the
             core output before any glance, zeros; its learned biases make it a learned pose).
+        pose_dims: the pose dimensions the policy chooses, in the world's order (the paper's
+            ``x, phi``; any non-empty subset of ``x, y, phi, phi_y``): one location stream and
+            one where-input each. Set from the world by :func:`ham.learn.train.model_for_source`.
+        height_input: feed the glance's contact height ``h`` (m, over ``MAX_HEIGHT``) to the
+            tactile network's where-layer (the paper's Discussion, ``g: q -> (p, h)``).
     """
 
     glances: int = 3
@@ -102,8 +115,14 @@ class HamConfig:
     first_glance: str = field(default="random", metadata={"choices": FIRST_GLANCES})
     stop: bool = False
     stop_input: str = field(default="confidence", metadata={"choices": STOP_INPUTS})
+    pose_dims: tuple[str, ...] = PAPER_POSE_DIMS
+    height_input: bool = False
 
     def __post_init__(self) -> None:
+        # frozen: a JSON list (a saved config) becomes the tuple
+        object.__setattr__(self, "pose_dims", check_pose_dims(self.pose_dims))
+        if not isinstance(self.height_input, bool):
+            raise HamError(f"height_input = {self.height_input!r}; accepted: true or false")
         for name in ("glances", "n_objects", "pressure_dim", "what_units", "where_units",
                      "combine_units", "hidden_units", "transformer_layers",
                      "transformer_heads"):  # fmt: skip
@@ -114,8 +133,15 @@ class HamConfig:
             raise HamError(f"n_objects = {self.n_objects}; accepted: >= 2 objects to classify")
         check_choices(self)
 
+    @property
+    def location_dim(self) -> int:
+        """Inputs of the tactile network's where-layer: the pose dims and the height if fed."""
+        return len(self.pose_dims) + int(self.height_input)
+
     def to_dict(self) -> dict:
-        return asdict(self)
+        d = asdict(self)
+        d["pose_dims"] = list(self.pose_dims)
+        return d
 
     @classmethod
     def from_dict(cls, d: dict) -> HamConfig:
@@ -131,7 +157,8 @@ class Episode:
 
     Attributes:
         objects: ``(B,)`` the true object ids.
-        locations: ``(S, B, 2)`` the poses ``q`` of the glances (detached samples).
+        locations: ``(S, B, k)`` the poses ``q`` of the glances (detached samples), columns in
+            ``HamConfig.pose_dims`` order.
         logits: ``(S, B, K)`` classifier outputs after each glance.
         baselines: ``(S, B)`` ``b(tau_{1:s})`` after each glance.
         policy: the location distributions that drew glances ``first_chosen + 1..S``
@@ -218,7 +245,13 @@ class HapticAttentionModel(nn.Module):
         super().__init__()
         self.config = c = config or HamConfig()
         self.tactile = TactileNetwork(
-            c.pressure_dim, 2, c.what_units, c.where_units, c.combiner, c.combine_units, c.bias
+            c.pressure_dim,
+            c.location_dim,
+            c.what_units,
+            c.where_units,
+            c.combiner,
+            c.combine_units,
+            c.bias,
         )
         self.core = make_core(
             c.core,
@@ -242,13 +275,32 @@ class HapticAttentionModel(nn.Module):
             else:
                 self.stop_head = StopHead()
             he_normal_init(self.stop_head)
+        # where-input column i: q_i, times phi_scale for an angle
+        self._angle = [d in ANGLE_DIMS for d in c.pose_dims]
+
+    def where(self, q: torch.Tensor, height: torch.Tensor | None = None) -> torch.Tensor:
+        """The tactile network's where-input: ``(q_x, q_phi * phi_scale)`` in the paper; angles
+        scaled, and ``h / MAX_HEIGHT`` appended with ``height_input``."""
+        scale = self.config.phi_scale
+        cols = [q[..., i] * scale if a else q[..., i] for i, a in enumerate(self._angle)]
+        if self.config.height_input:
+            if height is None:
+                raise HamError(
+                    "the model takes the contact height (height_input) but the environment "
+                    "gave none; accepted: a haptic world's glances (they carry h)"
+                )
+            cols.append(height.to(q.dtype) / MAX_HEIGHT)
+        return torch.stack(cols, dim=-1)
 
     def step(
-        self, pressure: torch.Tensor, q: torch.Tensor, state: State
+        self,
+        pressure: torch.Tensor,
+        q: torch.Tensor,
+        state: State,
+        height: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, State]:
-        """One glance through tactile network and core: ``(p_s, q_s) -> tau_{1:s}``."""
-        location = torch.stack([q[:, 0], q[:, 1] * self.config.phi_scale], dim=-1)
-        return self.core(self.tactile(pressure, location), state)
+        """One glance through tactile network and core: ``(p_s, q_s[, h_s]) -> tau_{1:s}``."""
+        return self.core(self.tactile(pressure, self.where(q, height)), state)
 
     def forward(
         self,
@@ -274,12 +326,17 @@ class HapticAttentionModel(nn.Module):
             dists.append(dist)
             first_baseline = self.baseline(tau0)
         else:
-            q = uniform_locations(batch, generator, objects.device)  # the paper: random
+            # the paper: random
+            q = uniform_locations(batch, generator, objects.device, len(self.config.pose_dims))
         state = self.core.initial_state(batch, q)
         for s in range(self.config.glances):
-            pressure = env.glance(objects, q)
+            height = None
+            if self.config.height_input:
+                pressure, height = env.glance_height(objects, q)
+            else:
+                pressure = env.glance(objects, q)
             where = getattr(env, "observed_location", None)
-            tau, state = self.step(pressure, q if where is None else where, state)
+            tau, state = self.step(pressure, q if where is None else where, state, height)
             locations.append(q)
             logits.append(self.classifier(tau))
             baselines.append(self.baseline(tau))
@@ -304,16 +361,21 @@ class HapticAttentionModel(nn.Module):
         )
 
     def replay(
-        self, pressures: torch.Tensor, locations: torch.Tensor
+        self,
+        pressures: torch.Tensor,
+        locations: torch.Tensor,
+        heights: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, LocationDistribution | None]:
-        """The bare network on recorded glances ``(S, B, pressure_dim)`` at ``(S, B, 2)``: no environment,
+        """The bare network on recorded glances ``(S, B, pressure_dim)`` at ``(S, B, k)`` (contact
+        heights ``(S, B)`` with ``height_input``): no environment,
         no sampling. Returns ``(logits, baselines, policy)``: logits and baselines stacked over
         the glances, the location distributions after glances 1..S-1 (``None`` for one glance).
         Used by the benchmark as the reference cost."""
         state = self.core.initial_state(pressures.shape[1], pressures)
         logits, baselines, dists = [], [], []
         for s in range(pressures.shape[0]):
-            tau, state = self.step(pressures[s], locations[s], state)
+            h = None if heights is None else heights[s]
+            tau, state = self.step(pressures[s], locations[s], state, h)
             logits.append(self.classifier(tau))
             baselines.append(self.baseline(tau))
             if s < pressures.shape[0] - 1:

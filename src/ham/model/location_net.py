@@ -31,10 +31,12 @@ STD_ACTIVATIONS: tuple[str, ...] = ("softplus", "sigmoid")
 
 
 class LocationNetwork(nn.Module):
-    """``tau -> (mu, sigma)``, each ``(B, 2)`` for the ``x`` and ``phi`` streams.
+    """``tau -> (mu, sigma)``, each ``(B, k)``: one stream per pose dimension (``x`` and ``phi``
+    in the paper, ``k = 2``; the paper's Discussion: one location stream per pose dimension).
 
     Args:
         input_size: width of the core output (256).
+        dims: pose dimensions ``k``, one Gaussian stream each (2).
         std_activation: ``softplus`` (paper) or ``sigmoid`` (authors' code).
         sigma_min: a floor added to ``sigma`` (not in the paper) so that the eligibilities'
             ``1 / sigma^3`` stay finite.
@@ -47,6 +49,7 @@ class LocationNetwork(nn.Module):
         std_activation: str = "softplus",
         sigma_min: float = 1e-3,
         bias: bool = True,
+        dims: int = 2,
     ) -> None:
         super().__init__()
         if std_activation not in STD_ACTIVATIONS:
@@ -57,8 +60,8 @@ class LocationNetwork(nn.Module):
             raise HamError(f"sigma_min = {sigma_min!r}; accepted: >= 0")
         self.std_activation = std_activation
         self.sigma_min = sigma_min
-        self.mu = nn.Linear(input_size, 2, bias=bias)
-        self.sigma = nn.Linear(input_size, 2, bias=bias)
+        self.mu = nn.Linear(input_size, dims, bias=bias)
+        self.sigma = nn.Linear(input_size, dims, bias=bias)
 
     def forward(self, tau: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         tau = tau.detach()  # the core is not trained through the location branch
@@ -100,10 +103,14 @@ def truncated_normal(
 
 
 def uniform_locations(
-    batch: int, generator: torch.Generator | None, device: torch.device | str = "cpu"
+    batch: int,
+    generator: torch.Generator | None,
+    device: torch.device | str = "cpu",
+    dims: int = 2,
 ) -> torch.Tensor:
-    """Uniform poses ``q ~ U[-1, 1]^2``, shape (B, 2): the first glance, and the random policy."""
-    return torch.rand(batch, 2, generator=generator, device=device) * 2 - 1
+    """Uniform poses ``q ~ U[-1, 1]^k``, shape (B, k) (k = 2 in the paper): the first glance, and
+    the random policy."""
+    return torch.rand(batch, dims, generator=generator, device=device) * 2 - 1
 
 
 def gaussian_log_prob(q: torch.Tensor, mu: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:

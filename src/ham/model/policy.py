@@ -2,7 +2,8 @@
 
 A policy is a module ``distribution(tau) -> LocationDistribution``; the distribution answers
 ``sample(generator)``, ``log_prob(q)``, ``mode()``, ``entropy()`` and ``scale()`` over poses
-``q in [-1, 1]^2``. The model samples from it, the hybrid loss (:mod:`ham.learn.hybrid_loss`)
+``q in [-1, 1]^k`` (``k = 2``, ``(q_x, q_phi)``, in the paper; one stream per pose dimension of
+``HamConfig.pose_dims``). The model samples from it, the hybrid loss (:mod:`ham.learn.hybrid_loss`)
 takes ``log_prob`` for the REINFORCE term and the evaluation (:mod:`ham.learn.evaluation`) takes
 ``mode`` for its mean poses, so neither knows what parametrizes a policy. A new policy is one
 new :class:`LocationPolicy` subclass registered under a name with :func:`register_policy`;
@@ -17,7 +18,7 @@ Registered:
   random-location model ``pi_rloc``; no weights, no REINFORCE term.
 
 The distributions are batched: the model stacks one per glance (:meth:`LocationDistribution.stack`),
-so ``log_prob`` of the episode's poses ``(S-1, B, 2)`` is ``(S-1, B)``: summed over the two streams.
+so ``log_prob`` of the episode's poses ``(S-1, B, k)`` is ``(S-1, B)``: summed over the streams.
 """
 
 from __future__ import annotations
@@ -125,11 +126,14 @@ class TruncatedGaussian(LocationDistribution):
 
 
 class Uniform(LocationDistribution):
-    """Poses uniform in ``[-1, 1]^2``: density ``1/4``, no parameters, no mode."""
+    """Poses uniform in ``[-1, 1]^k``: density ``2^-k``, no parameters, no mode."""
 
-    def __init__(self, batch_shape: tuple[int, ...], device: torch.device | str = "cpu") -> None:
+    def __init__(
+        self, batch_shape: tuple[int, ...], device: torch.device | str = "cpu", dims: int = 2
+    ) -> None:
         self._shape = torch.Size(batch_shape)
         self.device = torch.device(device)
+        self.dims = dims
 
     @property
     def batch_shape(self) -> torch.Size:
@@ -137,20 +141,21 @@ class Uniform(LocationDistribution):
 
     def sample(self, generator: torch.Generator | None) -> torch.Tensor:
         # for batch shape (B,) the same draw as uniform_locations (the first glance)
-        return torch.rand(*self._shape, 2, generator=generator, device=self.device) * 2 - 1
+        return torch.rand(*self._shape, self.dims, generator=generator, device=self.device) * 2 - 1
 
     def log_prob(self, q: torch.Tensor) -> torch.Tensor:
-        return torch.full(q.shape[:-1], -2 * math.log(2.0), dtype=q.dtype, device=q.device)
+        return torch.full(q.shape[:-1], -self.dims * math.log(2.0), dtype=q.dtype, device=q.device)
 
     def mode(self) -> None:
         return None
 
     def entropy(self) -> torch.Tensor:
-        return torch.full(self._shape, 2 * math.log(2.0), device=self.device)
+        return torch.full(self._shape, self.dims * math.log(2.0), device=self.device)
 
     @classmethod
     def stack(cls, dists: list[LocationDistribution]) -> Uniform:
-        return cls((len(dists), *dists[0].batch_shape), dists[0].device)
+        first = dists[0]
+        return cls((len(dists), *first.batch_shape), first.device, first.dims)
 
 
 class LocationPolicy(nn.Module):
@@ -206,7 +211,13 @@ class GaussianPolicy(LocationNetwork, LocationPolicy):
 
     @classmethod
     def from_config(cls, config: Any) -> GaussianPolicy:
-        return cls(config.hidden_units, config.std_activation, config.sigma_min, config.bias)
+        return cls(
+            config.hidden_units,
+            config.std_activation,
+            config.sigma_min,
+            config.bias,
+            dims=len(config.pose_dims),
+        )
 
     def distribution(self, tau: torch.Tensor) -> TruncatedGaussian:
         mu, sigma = self(tau)
@@ -217,9 +228,13 @@ class GaussianPolicy(LocationNetwork, LocationPolicy):
 class UniformPolicy(LocationPolicy):
     """Random locations (the paper's ``pi_rloc``): uniform poses, whatever the core says."""
 
+    def __init__(self, dims: int = 2) -> None:
+        super().__init__()
+        self.dims = dims
+
     @classmethod
     def from_config(cls, config: Any) -> UniformPolicy:
-        return cls()
+        return cls(len(config.pose_dims))
 
     def distribution(self, tau: torch.Tensor) -> Uniform:
-        return Uniform((tau.shape[0],), tau.device)
+        return Uniform((tau.shape[0],), tau.device, self.dims)

@@ -16,6 +16,24 @@ File layout (HDF5, self-describing)::
     /objects/<name>/z         (grid, grid) float32, m
     /objects/<name>/contact   (grid, grid) bool
 
+Tables over any pose grid (format version 2, beyond the paper): for a world whose pose dims
+are not the paper's ``(x, phi)`` (``WorldConfig.pose_dims``, e.g. ``x, y, phi, phi_y``) or a
+grid that differs per axis, the poses are the points of a ``g_1 x .. x g_k`` lattice, and each
+object's data are stored flat over the lattice, row-major (last pose dim fastest), in chunked,
+compressed datasets::
+
+    /                       attrs: as above, plus pose_dims (JSON list), grid_shape (JSON list),
+                                   compression; grid = g_1
+    /objects/<name>/pressure  (P, N, N) float32, P = g_1 * .. * g_k; chunks of whole images
+    /objects/<name>/force, height  (P,) float32; contact (P,) bool
+
+``height`` is the contact height ``h`` (m), the face centre's final height; version-1 tables keep
+it as ``z``. A 2-D ``(x, phi)`` square grid is written in version 1 exactly as before (the
+``paper`` table is bit-identical). Loading reads a table into memory; a table larger than
+``max_memory`` bytes (or ``lookup="stream"``) stays on disk: an uncompressed one
+(``compression="none"``) is memory-mapped, a compressed one is read per batch (the images a
+batch asks for, one sorted read per object). Online glances are the default for 4-D poses.
+
 Files are written atomically: a build writes ``FILE.partial`` (resumable: finished q_x rows are
 marked in ``/progress``) and renames it to ``FILE`` only when complete and checksummed.
 
@@ -46,10 +64,22 @@ from ham.errors import HamError
 from ham.world.config import WorldConfig, make_simulator
 from ham.world.files import atomic_write, check_output
 from ham.world.objects import load_objects
+from ham.world.poses import result_height, simulate, world_pose_dims
 from ham.world.sensor import SensorConfig
 
 FORMAT = "ham-glance-table"
 FORMAT_VERSION = 1
+#: Tables over any pose grid (module doc); version 1 is the paper's square (x, phi) grid.
+FORMAT_VERSION_GRID = 2
+FORMAT_VERSIONS = (FORMAT_VERSION, FORMAT_VERSION_GRID)
+PAPER_POSE_DIMS = ("x", "phi")
+#: Compressions of version-2 tables: gzip (default, portable), lzf (faster), none (memory-mappable).
+COMPRESSIONS: tuple[str, ...] = ("gzip", "lzf", "none")
+#: Tables above this many pressure bytes are not read into memory by default (``lookup="auto"``).
+MAX_MEMORY = 2 * 1024**3
+LOOKUPS: tuple[str, ...] = ("auto", "memory", "stream")
+#: Largest number of poses in a version-2 table (a 4-D grid of 51^4 is 6.8 M).
+MAX_POSES = 50_000_000
 AUTHORS_OBJECTS = ("box", "ramp_up", "convex", "ramp_down")
 #: The authors' data set is the paper's pad: 16 x 16 taxels, flattened to 256 values.
 AUTHORS_TAXELS = 16
@@ -66,8 +96,46 @@ def nearest_index(q: torch.Tensor, grid: int) -> torch.Tensor:
 
 
 def _check_grid(grid: int) -> None:
-    if not (isinstance(grid, int) and 2 <= grid <= 2001):
+    if not (isinstance(grid, int) and not isinstance(grid, bool) and 2 <= grid <= 2001):
         raise HamError(f"grid = {grid!r}; accepted: an integer 2..2001 (the paper uses 201)")
+
+
+def grid_shape_for(grid, pose_dims: tuple[str, ...]) -> tuple[int, ...]:
+    """Points per pose axis: ``grid`` an integer (every axis) or one integer per pose dim (a
+    sequence, or a comma-separated string such as ``"21,21,9,9"``)."""
+    if isinstance(grid, str):
+        try:
+            grid = [int(g) for g in grid.split(",")]
+        except ValueError:
+            raise HamError(
+                f"grid = {grid!r}; accepted: an integer or one per pose dim, e.g. 21,21,9,9"
+            ) from None
+        if len(grid) == 1:
+            grid = grid[0]
+    if isinstance(grid, (list, tuple)):
+        if len(grid) != len(pose_dims):
+            raise HamError(
+                f"grid = {','.join(map(str, grid))}: {len(grid)} axes for the {len(pose_dims)} "
+                f"pose dims {','.join(pose_dims)}; accepted: one integer, or one per pose dim"
+            )
+        for g in grid:
+            _check_grid(g)
+        shape = tuple(int(g) for g in grid)
+    else:
+        _check_grid(grid)
+        shape = (int(grid),) * len(pose_dims)
+    poses = int(np.prod(shape))
+    if poses > MAX_POSES:
+        raise HamError(
+            f"grid {'x'.join(map(str, shape))} has {poses:,} poses per object; accepted: at most "
+            f"{MAX_POSES:,} (use online glances for finer 4-D poses)"
+        )
+    return shape
+
+
+def is_paper_layout(pose_dims: tuple[str, ...], shape: tuple[int, ...]) -> bool:
+    """A square ``(x, phi)`` grid: written in the paper's format version 1."""
+    return tuple(pose_dims) == PAPER_POSE_DIMS and shape[0] == shape[1]
 
 
 def _python_command(call: str) -> str:
@@ -89,31 +157,47 @@ def _check_pressure(path: str, name: str, a: np.ndarray) -> None:
     )
 
 
-def _checksum(f: h5py.File, names: list[str]) -> str:
+def _checksum(f: h5py.File, names: list[str], rows: int = 65536) -> str:
+    """sha256 of every object's pressure in order, read ``rows`` images at a time (the same
+    digest as over whole arrays: sha256 streams)."""
     h = hashlib.sha256()
     for name in names:
-        h.update(np.ascontiguousarray(f[f"objects/{name}/pressure"][...]).tobytes())
+        ds = f[f"objects/{name}/pressure"]
+        for i in range(0, ds.shape[0], rows):
+            h.update(np.ascontiguousarray(ds[i : i + rows]).tobytes())
     return h.hexdigest()
 
 
 # --------------------------------------------------------------------------- build
 def build_table(
     world: WorldConfig,
-    grid: int,
+    grid: int | tuple[int, ...] | str,
     out: str | os.PathLike,
     *,
     batch: int | None = None,
     progress: bool = True,
     command: str | None = None,
+    compression: str = "gzip",
     **sim_kwargs,
 ) -> Path:
-    """Record ``grid x grid`` glances per object of ``world`` into the HDF5 file ``out``.
+    """Record ``grid x grid`` glances per object of ``world`` into the HDF5 file ``out``; over
+    the world's pose dims (``grid``: points per axis, one integer or one per dim) in format
+    version 2 when they are not the paper's square ``(x, phi)`` grid (module doc).
 
     Resumes from ``out.partial`` when one exists for the same world and grid. ``command`` is
     recorded in the file (the CLI passes its argv; default: the Python program and this call).
     The world, and so any objects file it was built from (name, sha256, text), is recorded too.
+    ``compression`` (version 2 only): gzip, lzf or none (a memory-mappable file).
     """
-    _check_grid(grid)
+    dims = world_pose_dims(world)
+    shape = grid_shape_for(grid, dims)
+    if compression not in COMPRESSIONS:
+        raise HamError(f"compression = {compression!r}; accepted: {', '.join(COMPRESSIONS)}")
+    if not is_paper_layout(dims, shape):
+        return _build_grid_table(
+            world, dims, shape, out, batch, progress, command, compression, sim_kwargs
+        )
+    grid = shape[0]
     out = check_output(out, (".h5", ".hdf5"), what="glance table")
     if out.parent and not out.parent.exists():
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -195,6 +279,106 @@ def build_table(
     return out
 
 
+def grid_poses(shape: tuple[int, ...], start: int, stop: int) -> np.ndarray:
+    """Poses ``start .. stop - 1`` of the row-major lattice ``shape`` as ``(n, k)`` values."""
+    idx = np.unravel_index(np.arange(start, stop), shape)
+    return np.stack([grid_values(g)[i] for g, i in zip(shape, idx, strict=True)], 1)
+
+
+def _build_grid_table(world, dims, shape, out, batch, progress, command, compression, sim_kwargs):
+    """:func:`build_table` in format version 2: any pose dims, any grid per axis."""
+    out = check_output(out, (".h5", ".hdf5"), what="glance table")
+    if out.parent and not out.parent.exists():
+        out.parent.mkdir(parents=True, exist_ok=True)
+    partial = out.with_name(out.name + ".partial")
+    objs = world.resolve_objects()
+    names = [o.name for o in objs]
+    world_json = json.dumps(world.to_dict(), sort_keys=True)
+    sim = make_simulator(world, **sim_kwargs)
+    n_tax = world.sensor.taxels
+    poses = int(np.prod(shape))
+    batch = max(1, min(poses, batch or (65536 if sim.name == "fast" else 4096)))
+    blocks = -(-poses // batch)
+    chunk_rows = max(1, min(poses, 262144 // (4 * n_tax * n_tax)))  # ~256 KB chunks
+    comp = None if compression == "none" else compression
+    opts = dict(compression=comp, chunks=True) if comp else {}
+    spec = json.dumps(
+        {"grid_shape": list(shape), "pose_dims": list(dims), "compression": compression}
+    )
+    mode = "a" if partial.exists() else "w"
+    try:
+        f = h5py.File(partial, mode)
+    except OSError as exc:
+        raise HamError(f"cannot write glance table {partial}: {exc}") from None
+    with f:
+        if mode == "a" and (f.attrs.get("world") != world_json or f.attrs.get("build") != spec):
+            raise HamError(
+                f"{partial} is a partial build of another world or grid; delete it to start over"
+            )
+        if mode == "w":
+            f.attrs.update(
+                format=FORMAT,
+                format_version=FORMAT_VERSION_GRID,
+                grid=shape[0],
+                grid_shape=json.dumps(list(shape)),
+                pose_dims=json.dumps(list(dims)),
+                compression=compression,
+                build=spec,
+                q_range=json.dumps([-1.0, 1.0]),
+                objects=json.dumps(names),
+                world=world_json,
+                sensor=json.dumps(world.sensor.to_dict(), sort_keys=True),
+                geometry=json.dumps({o.name: o.outline().tolist() for o in objs}),
+                simulator=json.dumps(sim.describe(), sort_keys=True, default=str),
+                ham_version=ham.__version__,
+            )
+            f.create_dataset("progress", data=np.zeros((len(objs), blocks), bool))
+            for name in names:
+                g = f.create_group(f"objects/{name}")
+                if comp:
+                    g.create_dataset("pressure", (poses, n_tax, n_tax), np.float32,
+                                     chunks=(chunk_rows, n_tax, n_tax), compression=comp)  # fmt: skip
+                else:
+                    g.create_dataset("pressure", (poses, n_tax, n_tax), np.float32)
+                g.create_dataset("force", (poses,), np.float32, **opts)
+                g.create_dataset("height", (poses,), np.float32, **opts)
+                g.create_dataset("contact", (poses,), bool, **opts)
+        done = f["progress"][...]
+        with tqdm(
+            total=len(objs) * poses,
+            initial=int(done.sum()) * batch,
+            desc=f"glance table ({sim.name}, {'x'.join(map(str, shape))})",
+            unit="glance",
+            disable=not progress,
+            file=sys.stderr,
+        ) as bar:
+            for oi, name in enumerate(names):
+                g = f[f"objects/{name}"]
+                for b in range(blocks):
+                    if done[oi, b]:
+                        continue
+                    sl = slice(b * batch, min((b + 1) * batch, poses))
+                    q = torch.from_numpy(grid_poses(shape, sl.start, sl.stop))
+                    ids = torch.full((len(q),), oi, dtype=torch.long)
+                    r = simulate(sim, ids, q, dims)
+                    g["pressure"][sl] = r.pressure.cpu().numpy()
+                    g["force"][sl] = r.force.cpu().numpy()
+                    g["height"][sl] = result_height(r).cpu().numpy()
+                    g["contact"][sl] = r.contact.cpu().numpy()
+                    f["progress"][oi, b] = True  # only after the data: a crash redoes the block
+                    f.flush()
+                    bar.update(sl.stop - sl.start)
+        f.attrs["command"] = command or _python_command(
+            f"ham.world.table.build_table(grid={list(shape)}, out={str(out)!r})"
+        )
+        f.attrs["created"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+        f.attrs["checksum"] = _checksum(f, names)
+        del f["progress"]
+        del f.attrs["build"]
+    os.replace(partial, out)
+    return out
+
+
 # --------------------------------------------------------------------------- read
 @dataclass
 class TableInfo:
@@ -209,6 +393,20 @@ class TableInfo:
     checksum: str
     source: str
     sensor: dict = field(default_factory=dict)
+    #: the pose dims of the grid's axes (the paper's ``x, phi``) and the points per axis
+    pose_dims: tuple = PAPER_POSE_DIMS
+    grid_shape: tuple = ()
+    format_version: int = FORMAT_VERSION
+    compression: str = "none"
+
+    def __post_init__(self) -> None:
+        if not self.grid_shape:
+            self.grid_shape = (self.grid,) * len(self.pose_dims)
+
+    @property
+    def poses(self) -> int:
+        """Grid poses per object."""
+        return int(np.prod(self.grid_shape))
 
     @property
     def taxels(self) -> int:
@@ -221,7 +419,9 @@ class TableInfo:
         return self.taxels**2
 
     def to_dict(self) -> dict:
-        return dict(self.__dict__)
+        d = dict(self.__dict__)
+        d["pose_dims"], d["grid_shape"] = list(self.pose_dims), list(self.grid_shape)
+        return d
 
 
 def _open(path: str | os.PathLike) -> h5py.File:
@@ -242,12 +442,18 @@ def _read_info(f: h5py.File, path: str) -> TableInfo:
     a = f.attrs
     if a.get("format") != FORMAT:
         raise HamError(f"{path!r} is not a ham glance table (format attribute {a.get('format')!r})")
-    if int(a.get("format_version", -1)) != FORMAT_VERSION:
+    version = int(a.get("format_version", -1))
+    if version not in FORMAT_VERSIONS:
         raise HamError(
-            f"{path!r} has table format version {a.get('format_version')}; accepted: {FORMAT_VERSION}"
+            f"{path!r} has table format version {a.get('format_version')}; accepted: "
+            f"{', '.join(map(str, FORMAT_VERSIONS))}"
         )
     try:
         grid = int(a["grid"])
+        dims, shape = PAPER_POSE_DIMS, (grid, grid)
+        if version == FORMAT_VERSION_GRID:
+            dims = tuple(json.loads(a["pose_dims"]))
+            shape = tuple(int(g) for g in json.loads(a["grid_shape"]))
         names = json.loads(a["objects"])
         world = json.loads(a["world"])
         simulator = json.loads(a.get("simulator", "{}"))
@@ -270,22 +476,35 @@ def _read_info(f: h5py.File, path: str) -> TableInfo:
         )
     if len(set(names)) != len(names):
         raise HamError(f"glance table {path!r} lists an object twice: {names}")
-    if not 2 <= grid <= 2001:
-        raise HamError(f"glance table {path!r} has grid {grid}; accepted: 2..2001")
+    if not (len(shape) == len(dims) >= 1 and all(2 <= g <= 2001 for g in shape)):
+        raise HamError(
+            f"glance table {path!r} has grid {'x'.join(map(str, shape))} over pose dims "
+            f"{','.join(dims)}; accepted: 2..2001 points on each pose axis"
+        )
     n = sensor["taxels"]
-    for name in names:
-        for key, shape in (
+    if version == FORMAT_VERSION:
+        expected = (
             ("pressure", (grid, grid, n, n)),
             ("force", (grid, grid)),
             ("z", (grid, grid)),
             ("contact", (grid, grid)),
-        ):
+        )
+    else:
+        poses = int(np.prod(shape))
+        expected = (
+            ("pressure", (poses, n, n)),
+            ("force", (poses,)),
+            ("height", (poses,)),
+            ("contact", (poses,)),
+        )
+    for name in names:
+        for key, shape_ in expected:
             ds = f.get(f"objects/{name}/{key}")
             if ds is None:
                 raise HamError(f"{path!r}: objects/{name}/{key} is missing; a glance table has one")
-            if ds.shape != shape:
+            if ds.shape != shape_:
                 raise HamError(
-                    f"{path!r}: objects/{name}/{key} has shape {ds.shape}, expected {shape}"
+                    f"{path!r}: objects/{name}/{key} has shape {ds.shape}, expected {shape_}"
                 )
     return TableInfo(
         path=str(path),
@@ -299,6 +518,10 @@ def _read_info(f: h5py.File, path: str) -> TableInfo:
         checksum=checksum,
         source=str(a.get("source", "ham")),
         sensor=sensor,
+        pose_dims=tuple(dims),
+        grid_shape=tuple(shape),
+        format_version=version,
+        compression=str(a.get("compression", "none")),
     )
 
 
@@ -330,29 +553,73 @@ def _read_pressure(f: h5py.File, info: TableInfo, path: str, verify: bool) -> li
 
 def verify_table(path: str | os.PathLike) -> TableInfo:
     """Check a table completely (``ham table verify``): attributes, shapes, at least one object,
-    finite non-negative pressures and the sha256 checksum; a :class:`HamError` names the problem."""
+    finite non-negative pressures and the sha256 checksum; a :class:`HamError` names the problem.
+    A version-2 table is read in blocks (any size)."""
     with _open(path) as f:
         info = _read_info(f, str(path))
-        _read_pressure(f, info, str(path), verify=True)
+        if info.format_version == FORMAT_VERSION:
+            _read_pressure(f, info, str(path), verify=True)
+        else:
+            _verify_streamed(f, info, str(path))
     return info
+
+
+def _verify_streamed(f: h5py.File, info: TableInfo, path: str, rows: int = 65536) -> None:
+    """:func:`verify_table` of a version-2 table, ``rows`` images at a time."""
+    h = hashlib.sha256()
+    for name in info.objects:
+        ds = f[f"objects/{name}/pressure"]
+        for i in range(0, ds.shape[0], rows):
+            try:
+                a = np.ascontiguousarray(ds[i : i + rows])
+            except OSError as exc:
+                raise HamError(f"cannot read glance table {path!r}: {exc}") from None
+            _check_pressure(path, name, a)
+            h.update(a.tobytes())
+    if h.hexdigest() != info.checksum:
+        raise HamError(
+            f"glance table {path!r} is corrupt: its checksum does not match its data "
+            f"(recorded {info.checksum[:12]}..., data {h.hexdigest()[:12]}...)"
+        )
 
 
 class GlanceTable:
     """A loaded glance table with vectorized nearest-grid-point lookup (CPU or CUDA).
 
-    ``pressure`` is a ``(n_objects, grid, grid, N, N)`` float32 tensor of raw pressure, ``N`` the
-    recorded sensor's ``taxels`` (16).
+    ``pressure`` is a ``(n_objects, g_1, .., g_k, N, N)`` float32 tensor of raw pressure (the
+    paper: ``(n_objects, grid, grid, N, N)``), ``N`` the recorded sensor's ``taxels`` (16);
+    ``height`` the ``(n_objects, g_1, .., g_k)`` contact heights (m). A streamed table (too
+    large for memory, :meth:`load`) has ``pressure = None`` and reads its images per batch.
     """
 
-    def __init__(self, info: TableInfo, pressure: torch.Tensor, extras: dict[str, np.ndarray]):
+    def __init__(
+        self,
+        info: TableInfo,
+        pressure: torch.Tensor | None,
+        extras: dict[str, np.ndarray],
+        stream=None,
+    ):
         self.info = info
         self.grid = info.grid
+        self.grid_shape = tuple(info.grid_shape)
+        self.pose_dims = tuple(info.pose_dims)
         self.objects = list(info.objects)
         self.n_objects = len(self.objects)
         self.taxels = info.taxels
         self.pressure_dim = info.pressure_dim
         self.pressure = pressure
         self.extras = extras
+        self._stream = stream  # _Stream: the on-disk images of a streamed table
+        key = "z" if info.format_version == FORMAT_VERSION else "height"
+        device = pressure.device if pressure is not None else torch.device("cpu")
+        self.height = torch.from_numpy(
+            np.asarray(extras[key], dtype=np.float32).reshape(self.n_objects, *self.grid_shape)
+        ).to(device)
+        strides, acc = [], 1
+        for g in reversed(self.grid_shape):
+            strides.append(acc)
+            acc *= g
+        self._strides = list(reversed(strides))  # row-major pose index
 
     @property
     def world(self) -> WorldConfig:
@@ -361,37 +628,74 @@ class GlanceTable:
 
     @property
     def device(self) -> torch.device:
-        return self.pressure.device
+        return self.height.device
+
+    @property
+    def streamed(self) -> bool:
+        """The images stay on disk (memory-mapped or read per batch)."""
+        return self._stream is not None
 
     @classmethod
     def load(
-        cls, path: str | os.PathLike, *, verify: bool = True, device: str = "cpu"
+        cls,
+        path: str | os.PathLike,
+        *,
+        verify: bool = True,
+        device: str = "cpu",
+        lookup: str = "auto",
+        max_memory: int = MAX_MEMORY,
     ) -> GlanceTable:
         """Read ``path``; refuse truncated, corrupt or mismatched files with a clear error.
 
         Structure, finite non-negative pressures and (with ``verify``, the default) the
         checksum are checked: see the module doc for the cost. Registers the objects of the
         objects file the table was built from (hash verified).
+
+        ``lookup``: ``memory`` reads the images into memory; ``stream`` leaves them on disk
+        (memory-mapped when stored uncompressed, else read per batch; CPU only, no checks of
+        the data: ``ham table verify`` checks a big table); ``auto`` streams a version-2 table
+        whose images exceed ``max_memory`` bytes.
         """
         from ham.world.devices import check_device
 
+        if lookup not in LOOKUPS:
+            raise HamError(f"lookup = {lookup!r}; accepted: {', '.join(LOOKUPS)}")
         device = check_device(device)
         with _open(path) as f:
             info = _read_info(f, str(path))
             if info.world.get("objects_file") is not None:
                 load_objects(info.world["objects_file"])
-            arrays = _read_pressure(f, info, str(path), verify)
+            size = len(info.objects) * info.poses * info.pressure_dim * 4
+            stream = info.format_version == FORMAT_VERSION_GRID and (
+                lookup == "stream" or (lookup == "auto" and size > max_memory)
+            )
+            if lookup == "stream" and info.format_version == FORMAT_VERSION:
+                raise HamError(
+                    f"lookup = 'stream' on {str(path)!r}, a version-1 (paper) table; accepted: "
+                    "memory or auto for it (streaming is for version-2 grid tables)"
+                )
+            if stream and str(device) != "cpu":
+                raise HamError(
+                    f"a streamed glance table ({size / 1024**3:.1f} GiB of images) on {device}; "
+                    "accepted: device cpu, or lookup='memory' if it fits"
+                )
+            arrays = None if stream else _read_pressure(f, info, str(path), verify)
+            keys = ("force", "z", "contact") if info.format_version == FORMAT_VERSION else (
+                "force", "height", "contact")  # fmt: skip
             try:
-                extras = {
-                    key: np.stack([f[f"objects/{n}/{key}"][...] for n in info.objects])
-                    for key in ("force", "z", "contact")
-                }
+                extras = {key: np.stack([f[f"objects/{n}/{key}"][...] for n in info.objects])
+                          for key in keys}  # fmt: skip
             except (OSError, KeyError) as exc:
                 raise HamError(f"cannot read glance table {str(path)!r}: {exc}") from None
-        pressure = torch.from_numpy(np.stack(arrays).astype(np.float32, copy=False)).to(device)
-        return cls(info, pressure, extras)
+        if stream:
+            return cls(info, None, extras, _Stream(str(path), info))
+        pressure = torch.from_numpy(np.stack(arrays).astype(np.float32, copy=False))
+        pressure = pressure.view(len(info.objects), *info.grid_shape, info.taxels, info.taxels)
+        return cls(info, pressure.to(device), extras)
 
     def to(self, device: str | torch.device) -> GlanceTable:
+        if self.streamed:
+            raise HamError(f"a streamed glance table stays on the CPU; accepted: cpu, not {device}")
         return GlanceTable(self.info, self.pressure.to(device), self.extras)
 
     def indices(self, q_x, q_phi) -> tuple[torch.Tensor, torch.Tensor]:
@@ -406,6 +710,14 @@ class GlanceTable:
 
         ``check=False`` skips input validation (the training loop's own samples are in range).
         """
+        if self.pose_dims != PAPER_POSE_DIMS:
+            raise HamError(
+                f"lookup(q_x, q_phi) on a table over pose dims {','.join(self.pose_dims)}; "
+                f"accepted: lookup_pose(ids, q) with q (B, {len(self.pose_dims)})"
+            )
+        if self.streamed:
+            q = torch.stack([torch.as_tensor(q_x), torch.as_tensor(q_phi)], -1)
+            return self.lookup_pose(object_ids, q, check=check)
         if check:
             from ham.world.glance import as_object_ids
 
@@ -417,6 +729,81 @@ class GlanceTable:
         g, n = self.grid, self.taxels
         flat = self.pressure.view(-1, n * n)  # one gather of whole images: no per-axis indexing
         return flat.index_select(0, (ids * g + ix) * g + ip).view(-1, n, n)
+
+    def pose_index(self, object_ids, q, *, check: bool = True) -> torch.Tensor:
+        """The flat index ``object * P + pose`` of the grid point closest to each row of ``q``
+        ``(B, k)`` (columns: :attr:`pose_dims`)."""
+        from ham.world.glance import as_action, as_object_ids
+
+        k = len(self.pose_dims)
+        if check:
+            ids = as_object_ids(object_ids, self.n_objects, self.device)
+            q = torch.as_tensor(q, device=self.device)
+            if q.ndim != 2 or q.shape[1] != k or q.shape[0] != ids.shape[0]:
+                raise HamError(
+                    f"poses of shape {tuple(q.shape)}; accepted: ({ids.shape[0]}, {k}) for the "
+                    f"table's pose dims {','.join(self.pose_dims)}"
+                )
+            q = torch.stack(
+                [as_action(f"q_{d}", q[:, i], self.device) for i, d in enumerate(self.pose_dims)],
+                -1,
+            )
+        else:
+            ids = object_ids
+        flat = ids * self.info.poses
+        for i, (g, stride) in enumerate(zip(self.grid_shape, self._strides, strict=True)):
+            flat = flat + nearest_index(q[:, i], g) * stride
+        return flat
+
+    def lookup_pose(
+        self, object_ids, q, *, check: bool = True, height: bool = False
+    ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        """Raw pressure ``(B, N, N)`` at the grid points closest to the poses ``q`` ``(B, k)``
+        (and the contact heights ``(B,)`` with ``height``). On the paper's table the same
+        gather as :meth:`lookup`."""
+        idx = self.pose_index(object_ids, q, check=check)
+        n = self.taxels
+        if self._stream is not None:
+            pressure = self._stream.read(idx).view(-1, n, n)
+        else:
+            pressure = self.pressure.view(-1, n * n).index_select(0, idx).view(-1, n, n)
+        if not height:
+            return pressure
+        return pressure, self.height.view(-1).index_select(0, idx)
+
+
+class _Stream:
+    """The images of a version-2 table on disk: memory-mapped when stored uncompressed, else
+    read per batch (unique sorted pose indices, one read per object)."""
+
+    def __init__(self, path: str, info: TableInfo) -> None:
+        self.path, self.info = path, info
+        self._file = h5py.File(path, "r")
+        self._ds = [self._file[f"objects/{n}/pressure"] for n in info.objects]
+        self._maps = None
+        offsets = [ds.id.get_offset() for ds in self._ds]
+        if info.compression == "none" and all(o is not None for o in offsets):
+            shape = (info.poses, info.pressure_dim)
+            self._maps = [np.memmap(path, np.float32, "r", o, shape) for o in offsets]
+
+    def read(self, idx: torch.Tensor) -> torch.Tensor:
+        """Images ``(B, N*N)`` at flat indices ``object * P + pose``."""
+        poses = self.info.poses
+        flat = idx.cpu().numpy()
+        obj, pose = np.divmod(flat, poses)
+        out = np.empty((len(flat), self.info.pressure_dim), np.float32)
+        for o in np.unique(obj):
+            rows = np.flatnonzero(obj == o)
+            want, inverse = np.unique(pose[rows], return_inverse=True)
+            if self._maps is not None:
+                got = self._maps[o][want]
+            else:
+                got = self._ds[o][want].reshape(len(want), -1)  # h5py: increasing indices
+            out[rows] = got[inverse]
+        return torch.from_numpy(out)
+
+    def close(self) -> None:
+        self._file.close()
 
 
 # --------------------------------------------------------------------------- authors' data
