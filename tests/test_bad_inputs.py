@@ -713,6 +713,7 @@ PY_CASES = [
     ("train-config-beta-str", _train_config(beta="high"), "'high'"),
     ("train-config-decay-str", _train_config(lr_decay="slow"), "'slow'"),
     ("train-config-momentum-none", _train_config(momentum=None), "None"),
+    ("train-config-nesterov-no-momentum", _train_config(momentum=0.0), "momentum = 0"),
     ("train-config-seed-bool", _train_config(seed=True), "True"),
     ("train-config-table-int", _train_config(table=5), "5"),
     ("train-config-world-dict", _train_config(world={}), "{}"),

@@ -149,3 +149,30 @@ def test_gym_envs_take_the_extended_world():
                            object_pose={"yaw_max": 0.3})  # fmt: skip
     obs, _ = ap.reset(seed=0)
     assert obs["pose"].shape == (4,) and ap.action_space["action"].shape == (4,)
+
+
+def test_epochs_replay_the_recorded_contact_heights(tmp_path):
+    """PPO-style epochs on 4-D poses with the height input: the replayed first pass is the
+    played episode (heights included), and training runs."""
+    from ham.learn.train import GlanceRecorder, replay_episode
+
+    config = _tiny(W4, epochs=2)
+    torch.manual_seed(0)
+    from ham.model.agent import HapticAttentionModel
+
+    model = HapticAttentionModel(config.model)
+    source, _ = make_source(None, W4)
+    env = HapticEnv(source, batch_size=4, seed=0)
+    recorder = GlanceRecorder(env)
+    played = model(recorder, env.sample_objects(), torch.Generator().manual_seed(1))
+    assert len(recorder.heights) == config.model.glances
+    again = replay_episode(
+        model,
+        played,
+        torch.stack(recorder.pressures),
+        torch.stack(recorder.where),
+        torch.stack(recorder.heights),
+    )
+    assert torch.allclose(again.logits, played.logits, atol=1e-5)
+    metrics = train(config, tmp_path / "run", progress=False)
+    assert metrics["env_steps"] > 0

@@ -214,6 +214,10 @@ class TrainConfig:
             raise HamError(f"lr_decay = {self.lr_decay!r}; accepted: 0 < lr_decay <= 1")
         if not 0 <= self.momentum < 1:
             raise HamError(f"momentum = {self.momentum!r}; accepted: 0 <= momentum < 1")
+        if self.nesterov and self.momentum == 0 and self.optimizer == "sgd":
+            raise HamError(
+                "nesterov = true with momentum = 0; accepted: momentum > 0, or no nesterov"
+            )
         if not (math.isfinite(self.beta) and self.beta >= 0):
             raise HamError(f"beta = {self.beta!r}; accepted: a finite number >= 0")
         if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
