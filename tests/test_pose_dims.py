@@ -31,7 +31,7 @@ def test_pose_dims_are_validated_and_round_trip_through_json():
     assert back == c
     assert HamConfig(pose_dims="x,phi") == HamConfig()
     for bad in ("phi,x", "x,x", "", "x,z"):
-        with pytest.raises(HamError, match="pose_dims = .*; accepted: a non-empty subset"):
+        with pytest.raises(HamError, match="pose_dims.*; accepted: a non-empty subset"):
             HamConfig(pose_dims=bad)
     with pytest.raises(HamError, match="height_input = 1; accepted"):
         HamConfig(height_input=1)
