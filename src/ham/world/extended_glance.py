@@ -307,18 +307,11 @@ class ExtendedSimulator:
 
     # ------------------------------------------------------------------ poses
     def poses(self, ids, q_x, q_y, q_phi, q_phi_y):
-        """Metric ``(x, y, phi, phi_y)`` of the face centre for normalized actions."""
-        phi = q_phi * self.pose.phi_max
-        phi_y = q_phi_y * self.pose.phi_max
-        p = self.pose.pivot_offset
-        # The authors' pivot sits p above the face centre, along the pad's normal
-        # n = (sin phi cos phi_y, sin phi_y, cos phi cos phi_y): rotating about it shifts the face.
-        x = q_x * self._half_x[ids]
-        y = q_y * self._half_y[ids]
-        if p != 0:
-            x = x - p * torch.sin(phi) * torch.cos(phi_y)
-            y = y - p * torch.sin(phi_y)
-        return x, y, phi, phi_y
+        """Metric ``(x, y, phi, phi_y)`` of the face centre for normalized actions
+        (:meth:`ham.world.glance.PoseConfig.extended_pose`)."""
+        return self.pose.extended_pose(
+            q_x, q_y, q_phi, q_phi_y, self._half_x[ids], self._half_y[ids]
+        )
 
     # ------------------------------------------------------------------ glance
     def glance(

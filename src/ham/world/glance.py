@@ -123,6 +123,24 @@ class PoseConfig:
         """``y = q_y * half_depth``: half the object's depth (the zone spans the base in y)."""
         return 0.5 * obj.depth
 
+    def extended_pose(self, q_x, q_y, q_phi, q_phi_y, half_x, half_y):
+        """Metric ``(x, y, phi, phi_y)`` of the face centre for normalized actions (tensors) and
+        the zones' half widths ``half_x``, ``half_y``: ``x = q_x * half_x``, ``y = q_y * half_y``,
+        ``phi = q_phi * phi_max``, ``phi_y = q_phi_y * phi_max``. The authors' pivot sits
+        ``pivot_offset`` above the face centre, along the pad's normal
+        ``n = (sin phi cos phi_y, sin phi_y, cos phi cos phi_y)``: rotating about it shifts x by
+        ``-p sin(phi) cos(phi_y)`` and y by ``-p sin(phi_y)`` (with ``phi_y = 0`` the line
+        glance's shift bit for bit: cos 0 = 1 exactly)."""
+        phi = q_phi * self.phi_max
+        phi_y = q_phi_y * self.phi_max
+        p = self.pivot_offset
+        x = q_x * half_x
+        y = q_y * half_y
+        if p != 0:
+            x = x - p * torch.sin(phi) * torch.cos(phi_y)
+            y = y - p * torch.sin(phi_y)
+        return x, y, phi, phi_y
+
 
 @dataclass(frozen=True)
 class GlanceConfig:

@@ -784,20 +784,12 @@ class MujocoSimulator:
         return x, phi
 
     def poses4(self, ids, q_x, q_phi, q_y, q_phi_y):
-        """Metric ``(x, y, phi, phi_y)`` of the face centre: the mapping of
-        :meth:`ham.world.extended_glance.ExtendedSimulator.poses`, ``y = q_y * depth / 2`` of the object, ``phi_y = q_phi_y * phi_max``; x and phi
-        as :meth:`poses`, the authors' pivot (``pivot_offset`` above the face, along its normal)
-        shifting x by ``-p sin(phi) cos(phi_y)`` and y by ``-p sin(phi_y)``."""
-        phi = q_phi * self.pose.phi_max
-        phi_y = q_phi_y * self.pose.phi_max
-        p = self.pose.pivot_offset
-        x = q_x * self._half[ids]
-        y = q_y * self._half_depth[ids]
-        if p != 0:
-            # With phi_y = 0 this is :meth:`poses` bit for bit (cos 0 = 1 exactly).
-            x = x - p * torch.sin(phi) * torch.cos(phi_y)
-            y = y - p * torch.sin(phi_y)
-        return x, y, phi, phi_y
+        """Metric ``(x, y, phi, phi_y)`` of the face centre: the extended glance's mapping
+        (:meth:`ham.world.glance.PoseConfig.extended_pose`), ``y = q_y * depth / 2`` of the
+        object; with ``phi_y = 0`` it is :meth:`poses` bit for bit."""
+        return self.pose.extended_pose(
+            q_x, q_y, q_phi, q_phi_y, self._half[ids], self._half_depth[ids]
+        )
 
     def first_touch(self, ids: np.ndarray, x: np.ndarray, phi: np.ndarray) -> np.ndarray:
         """Height (m) of the face centre at which the pad's boundary first meets the surface.
