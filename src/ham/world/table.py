@@ -198,25 +198,14 @@ def build_table(
             world, dims, shape, out, batch, progress, command, compression, sim_kwargs
         )
     grid = shape[0]
-    out = check_output(out, (".h5", ".hdf5"), what="glance table")
-    if out.parent and not out.parent.exists():
-        out.parent.mkdir(parents=True, exist_ok=True)
-    partial = out.with_name(out.name + ".partial")
-    objs = world.resolve_objects()
-    names = [o.name for o in objs]
-    world_json = json.dumps(world.to_dict(), sort_keys=True)
-    sim = make_simulator(world, **sim_kwargs)
+    out, partial, objs, names, world_json, sim = _start_build(world, out, sim_kwargs)
     n_tax = world.sensor.taxels
     q = grid_values(grid)
     # Rows of q_x per simulator call: the fast model takes whole objects, slow engines less.
     batch = batch or (grid * grid if sim.name == "fast" else 16 * grid)
     rows_per_call = max(1, batch // grid)
 
-    mode = "a" if partial.exists() else "w"
-    try:
-        f = h5py.File(partial, mode)
-    except OSError as exc:
-        raise HamError(f"cannot write glance table {partial}: {exc}") from None
+    f, mode = _open_partial(partial)
     with f:
         if mode == "a" and (
             f.attrs.get("world") != world_json or int(f.attrs.get("grid", -1)) != grid
@@ -229,13 +218,7 @@ def build_table(
                 format=FORMAT,
                 format_version=FORMAT_VERSION,
                 grid=grid,
-                q_range=json.dumps([-1.0, 1.0]),
-                objects=json.dumps(names),
-                world=world_json,
-                sensor=json.dumps(world.sensor.to_dict(), sort_keys=True),
-                geometry=json.dumps({o.name: o.outline().tolist() for o in objs}),
-                simulator=json.dumps(sim.describe(), sort_keys=True, default=str),
-                ham_version=ham.__version__,
+                **_world_attrs(world, world_json, objs, sim),
             )
             f.create_dataset("progress", data=np.zeros((len(objs), grid), bool))
             for name in names:
@@ -269,12 +252,7 @@ def build_table(
                     f["progress"][oi, sl] = True  # only after the data: a crash redoes the block
                     f.flush()
                     bar.update(int((~done[oi, sl]).sum()) * grid)
-        f.attrs["command"] = command or _python_command(
-            f"ham.world.table.build_table(grid={grid}, out={str(out)!r})"
-        )
-        f.attrs["created"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
-        f.attrs["checksum"] = _checksum(f, names)
-        del f["progress"]
+        _finish_build(f, names, command, grid, out)
     os.replace(partial, out)
     return out
 
@@ -287,14 +265,7 @@ def grid_poses(shape: tuple[int, ...], start: int, stop: int) -> np.ndarray:
 
 def _build_grid_table(world, dims, shape, out, batch, progress, command, compression, sim_kwargs):
     """:func:`build_table` in format version 2: any pose dims, any grid per axis."""
-    out = check_output(out, (".h5", ".hdf5"), what="glance table")
-    if out.parent and not out.parent.exists():
-        out.parent.mkdir(parents=True, exist_ok=True)
-    partial = out.with_name(out.name + ".partial")
-    objs = world.resolve_objects()
-    names = [o.name for o in objs]
-    world_json = json.dumps(world.to_dict(), sort_keys=True)
-    sim = make_simulator(world, **sim_kwargs)
+    out, partial, objs, names, world_json, sim = _start_build(world, out, sim_kwargs)
     n_tax = world.sensor.taxels
     poses = int(np.prod(shape))
     batch = max(1, min(poses, batch or (65536 if sim.name == "fast" else 4096)))
@@ -305,11 +276,7 @@ def _build_grid_table(world, dims, shape, out, batch, progress, command, compres
     spec = json.dumps(
         {"grid_shape": list(shape), "pose_dims": list(dims), "compression": compression}
     )
-    mode = "a" if partial.exists() else "w"
-    try:
-        f = h5py.File(partial, mode)
-    except OSError as exc:
-        raise HamError(f"cannot write glance table {partial}: {exc}") from None
+    f, mode = _open_partial(partial)
     with f:
         if mode == "a" and (f.attrs.get("world") != world_json or f.attrs.get("build") != spec):
             raise HamError(
@@ -324,13 +291,7 @@ def _build_grid_table(world, dims, shape, out, batch, progress, command, compres
                 pose_dims=json.dumps(list(dims)),
                 compression=compression,
                 build=spec,
-                q_range=json.dumps([-1.0, 1.0]),
-                objects=json.dumps(names),
-                world=world_json,
-                sensor=json.dumps(world.sensor.to_dict(), sort_keys=True),
-                geometry=json.dumps({o.name: o.outline().tolist() for o in objs}),
-                simulator=json.dumps(sim.describe(), sort_keys=True, default=str),
-                ham_version=ham.__version__,
+                **_world_attrs(world, world_json, objs, sim),
             )
             f.create_dataset("progress", data=np.zeros((len(objs), blocks), bool))
             for name in names:
@@ -368,15 +329,56 @@ def _build_grid_table(world, dims, shape, out, batch, progress, command, compres
                     f["progress"][oi, b] = True  # only after the data: a crash redoes the block
                     f.flush()
                     bar.update(sl.stop - sl.start)
-        f.attrs["command"] = command or _python_command(
-            f"ham.world.table.build_table(grid={list(shape)}, out={str(out)!r})"
-        )
-        f.attrs["created"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
-        f.attrs["checksum"] = _checksum(f, names)
-        del f["progress"]
+        _finish_build(f, names, command, list(shape), out)
         del f.attrs["build"]
     os.replace(partial, out)
     return out
+
+
+def _start_build(world: WorldConfig, out, sim_kwargs: dict):
+    """What both table formats' builds start from: the checked output path and its ``.partial``
+    twin, the world's objects and names, its JSON and its simulator."""
+    out = check_output(out, (".h5", ".hdf5"), what="glance table")
+    if out.parent and not out.parent.exists():
+        out.parent.mkdir(parents=True, exist_ok=True)
+    partial = out.with_name(out.name + ".partial")
+    objs = world.resolve_objects()
+    names = [o.name for o in objs]
+    world_json = json.dumps(world.to_dict(), sort_keys=True)
+    return out, partial, objs, names, world_json, make_simulator(world, **sim_kwargs)
+
+
+def _open_partial(partial: Path):
+    """The partial build file, opened to resume (``a``) when it exists, else new (``w``)."""
+    mode = "a" if partial.exists() else "w"
+    try:
+        return h5py.File(partial, mode), mode
+    except OSError as exc:
+        raise HamError(f"cannot write glance table {partial}: {exc}") from None
+
+
+def _world_attrs(world: WorldConfig, world_json: str, objs: list, sim) -> dict:
+    """The attributes that describe a table's world, in both formats (in this order)."""
+    return dict(
+        q_range=json.dumps([-1.0, 1.0]),
+        objects=json.dumps([o.name for o in objs]),
+        world=world_json,
+        sensor=json.dumps(world.sensor.to_dict(), sort_keys=True),
+        geometry=json.dumps({o.name: o.outline().tolist() for o in objs}),
+        simulator=json.dumps(sim.describe(), sort_keys=True, default=str),
+        ham_version=ham.__version__,
+    )
+
+
+def _finish_build(f: h5py.File, names: list[str], command: str | None, grid, out: Path) -> None:
+    """Record the command (``build_table(grid=grid, out=out)`` when none is given), the time and
+    the checksum; drop the build's progress marks."""
+    f.attrs["command"] = command or _python_command(
+        f"ham.world.table.build_table(grid={grid}, out={str(out)!r})"
+    )
+    f.attrs["created"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+    f.attrs["checksum"] = _checksum(f, names)
+    del f["progress"]
 
 
 # --------------------------------------------------------------------------- read
