@@ -22,6 +22,21 @@ def run_ham(*args: str, cwd=None, timeout: float = 300) -> subprocess.CompletedP
     )
 
 
+def ok(r: subprocess.CompletedProcess) -> subprocess.CompletedProcess:
+    """``r`` after checking that the command succeeded (its stderr shown when not)."""
+    assert r.returncode == 0, r.stderr
+    return r
+
+
+def one_line_error(r: subprocess.CompletedProcess) -> str:
+    """The CLI's answer to bad input: exit 2, one line on stderr, no traceback."""
+    assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
+    assert "Traceback" not in r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("ham: error: "), r.stderr
+    return lines[0]
+
+
 @pytest.fixture
 def ham_cli():
     return run_ham

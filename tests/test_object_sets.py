@@ -3,7 +3,6 @@ grey-scale images and triangle meshes, height fields in objects files, and `ham 
 
 import itertools
 import json
-import subprocess
 
 import matplotlib.image as mpimg
 import numpy as np
@@ -13,22 +12,9 @@ import trimesh
 from ham.errors import HamError
 from ham.world import objects
 from ham.world.objects import HapticObject
-from tests.conftest import run_ham
+from tests.conftest import ok, one_line_error, run_ham
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-
-
-def ok(r: subprocess.CompletedProcess) -> subprocess.CompletedProcess:
-    assert r.returncode == 0, r.stderr
-    return r
-
-
-def one_line_error(r: subprocess.CompletedProcess) -> str:
-    assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
-    assert "Traceback" not in r.stderr
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("ham: error: "), r.stderr
-    return lines[0]
 
 
 def at(obj: HapticObject, x: float, y: float) -> float:

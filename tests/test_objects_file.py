@@ -13,26 +13,12 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import run_ham
+from tests.conftest import ok, one_line_error, run_ham
 
 HEADER = "import numpy as np\nfrom ham.world.objects import HapticObject, register\n"
 #: The example of docs/world.md, "Your own objects": the tests keep the docs' file working.
 OWN = (Path(__file__).parents[1] / "docs" / "examples" / "my_objects.py").read_text()
 NAMES = ["cylinder", "wedge", "bump", "notch"]
-
-
-def ok(r: subprocess.CompletedProcess) -> subprocess.CompletedProcess:
-    assert r.returncode == 0, r.stderr
-    return r
-
-
-def one_line_error(r: subprocess.CompletedProcess) -> str:
-    """The CLI's answer to bad input: exit 2, one line on stderr, no traceback."""
-    assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
-    assert "Traceback" not in r.stderr
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("ham: error: "), r.stderr
-    return lines[0]
 
 
 @pytest.fixture(scope="module")
