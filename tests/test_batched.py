@@ -15,7 +15,8 @@ from ham.experiments.reproduce import PROFILES, Job, render_report, stopped_at_p
 from ham.experiments.runs import is_finished
 from ham.learn import batched
 from ham.learn.batched import BatchedRuns, _open_runs, train_batched
-from ham.learn.train import TrainConfig, load_run, resume, train
+from ham.learn.evaluation import evaluate
+from ham.learn.train import TrainConfig, load_run, resume, stream_seed, train
 from ham.model.agent import HamConfig
 
 
@@ -113,6 +114,39 @@ def test_the_portable_path_equals_single_runs(tmp_path, monkeypatch):
     train_batched(configs, [tmp_path / f"b{c.seed}" for c in configs])
     for c in configs:
         assert_same_run(tmp_path / f"b{c.seed}", tmp_path / f"single{c.seed}")
+
+
+@pytest.mark.parametrize(
+    "model,policy",
+    [
+        (HamConfig(glances=3), "mean"),
+        (HamConfig(glances=3), "sample"),
+        (HamConfig(glances=2, policy="random", core="mlp"), "mean"),
+    ],  # fmt: skip
+    ids=["learned-mean", "learned-sample", "random"],
+)
+def test_the_batched_evaluation_equals_each_runs_own(tmp_path, monkeypatch, model, policy):
+    # 5 evaluation batches of 8 in passes of 2 batches (16 rows): the poses of every batch are
+    # drawn from the run's own generator in the single evaluation's order
+    monkeypatch.setattr(batched, "_EVAL_ROWS", 16)
+    configs = [tiny(s, model=model, eval_batches=5, eval_policy=policy) for s in range(3)]
+    outs = [tmp_path / f"b{s}" for s in range(3)]
+    group = BatchedRuns(_open_runs(configs, outs), outs)
+    group.step()  # weights apart from their initial ones
+    for idx in ([0, 1, 2], [2, 0]):  # all the group's runs (the stack itself), and a subset
+        for i, got in zip(idx, group.evaluate(idx), strict=True):
+            r = group.runs[i]
+            want = evaluate(r.agent, r.env, 5, seed=stream_seed(i, 2), policy=policy).to_dict()
+            got = got.to_dict()
+            for key in ("path_length", "mu_mean"):
+                a, b = got.pop(key), want.pop(key)
+                if key == "mu_mean":  # the random policy has no mode
+                    assert (a is None) == (b is None) == (model.policy == "random")
+                if a is not None:
+                    assert torch.allclose(torch.tensor(a), torch.tensor(b), atol=1e-5)
+            assert got == want  # accuracies, confusion counts, per object
+    accuracies = [r.accuracy_per_glance for r in group.evaluate([0, 1, 2])]
+    assert accuracies[0] != accuracies[1] or accuracies[0] != accuracies[2]
 
 
 def test_each_run_has_the_directory_of_a_single_run(tmp_path):

@@ -39,6 +39,7 @@ from torch.nn import functional as F
 
 from ham.errors import HamError
 from ham.learn.environment import HapticEnv
+from ham.learn.evaluation import EvalResult, eval_result
 from ham.learn.hybrid_loss import hybrid_loss
 from ham.learn.train import (
     CHECKPOINT_FILE,
@@ -132,6 +133,11 @@ def _keep_freed_memory() -> None:
 
 
 _MALLOPT_DONE = False
+# episodes of a run per pass of a batched evaluation (eight batches of 64): products this deep
+# run at the CPU's peak; deeper passes lose more in the elementwise parts, whose tensors
+# outgrow the caches (measured at 10 glances, 10 runs: 64 rows 880 ms per run, 256-1024 rows
+# 580-640 ms, 2048 rows 710-810 ms)
+_EVAL_ROWS = 512
 _FUSED_SGD = getattr(torch, "_fused_sgd_", None)
 
 
@@ -316,7 +322,9 @@ class _StackedHam:
                     out[name + ".bias"] = g[1]
         return out
 
-    def _lin(self, p: dict, name: str, x: torch.Tensor) -> torch.Tensor:
+    def _lin(self, p: dict, name: str, x: torch.Tensor, record: bool = True) -> torch.Tensor:
+        if not record:  # evaluation: no gradient to defer
+            return _mm_nt(x, p[name + ".weight"], p.get(name + ".bias"))
         layer = self.layers.get(name)
         if layer is None:
             self.used.add(name + ".weight")
@@ -327,13 +335,16 @@ class _StackedHam:
             )
         return layer(x)
 
-    def glance(self, p: dict, pressure, q, state, with_policy: bool):
+    def glance(self, p: dict, pressure, q, state, with_policy: bool, record: bool = True):
+        """One glance: ``record=False`` for an evaluation (no gradient; the layers' records of
+        the training step are left alone)."""
         c = self.c
+        lin = self._lin if record else lambda p, name, x: self._lin(p, name, x, False)
         # HapticAttentionModel.step: the pose fed to the tactile network
         location = torch.stack([q[..., 0], q[..., 1] * c.phi_scale], dim=-1)
         # TactileNetwork
-        what = torch.relu(self._lin(p, "tactile.what", pressure))
-        where = torch.relu(self._lin(p, "tactile.where", location))
+        what = torch.relu(lin(p, "tactile.what", pressure))
+        where = torch.relu(lin(p, "tactile.where", location))
         if c.combiner == "add":
             g = what + where
         elif c.combiner == "mul":
@@ -341,13 +352,13 @@ class _StackedHam:
         else:
             g = torch.cat([what, where], dim=-1)
             for k in range(2 if c.combiner == "concat2" else 1):
-                g = torch.relu(self._lin(p, f"tactile.combine.{2 * k}", g))
+                g = torch.relu(lin(p, f"tactile.combine.{2 * k}", g))
         # the core: LSTMCore or MLPCore
         if c.core == "lstm":
             h, cell = state
             if c.truncate_bptt:
                 h, cell = h.detach(), cell.detach()
-            gates = self._lin(p, "core.gates", torch.cat([g, h], dim=-1))
+            gates = lin(p, "core.gates", torch.cat([g, h], dim=-1))
             if c.lstm_activation == "tanh":
                 tau, cell = _TanhLSTMCell.apply(gates, cell, c.forget_bias)
             else:
@@ -356,14 +367,14 @@ class _StackedHam:
                 tau = torch.sigmoid(o) * torch.relu(cell)
             state = (tau, cell)
         else:
-            tau = torch.relu(self._lin(p, "core.dense", g))
-        logits = self._lin(p, "classifier.dense", tau)
-        baseline = self._lin(p, "baseline.dense", tau.detach()).squeeze(-1)
+            tau = torch.relu(lin(p, "core.dense", g))
+        logits = lin(p, "classifier.dense", tau)
+        baseline = lin(p, "baseline.dense", tau.detach()).squeeze(-1)
         dist = None
         if with_policy and c.policy == "learned":  # LocationNetwork: reads tau detached
             t = tau.detach()
-            mu = torch.tanh(self._lin(p, "location.mu", t))
-            s = self._lin(p, "location.sigma", t)
+            mu = torch.tanh(lin(p, "location.mu", t))
+            s = lin(p, "location.sigma", t)
             sigma = F.softplus(s) if c.std_activation == "softplus" else torch.sigmoid(s)
             dist = (mu, sigma + c.sigma_min)
         return state, logits, baseline, dist
@@ -622,6 +633,103 @@ class BatchedRuns:
             self._drop(failed)
         return out
 
+    # ------------------------------------------------------------------ evaluation
+    @torch.no_grad()
+    def evaluate(self, idx: list[int]) -> list[EvalResult]:
+        """:func:`ham.learn.evaluation.evaluate` of the runs ``idx`` (their config's
+        ``eval_batches``, ``eval_policy`` and seed ``stream_seed(seed, 2)``), all at once.
+
+        Every run's poses come from its own generator in the order the single evaluation draws
+        them (per batch: the first glance, then each later glance unless the policy's mode is
+        taken); drawn first, they let up to :data:`_EVAL_ROWS` episodes of a run (many
+        evaluation batches: each batch is independent of the others) go through each stacked
+        layer at once. The counts are the single evaluation's; sums of floats (path length,
+        modes) to float tolerance."""
+        runs = [self.runs[i] for i in idx]
+        c, env = runs[0].config, runs[0].env
+        n, batch, batches, glances = len(runs), env.batch_size, c.eval_batches, c.model.glances
+        device, k = env.device, env.n_objects
+        learned = c.model.policy == "learned"
+        greedy = learned and c.eval_policy == "mean"  # the random policy has no mode: samples
+        if idx == self.active:
+            p = {name: t.detach() for name, t in self.stacked.items()}
+        else:
+            p = {name: torch.stack([self._params[i][name].detach() for i in idx])
+                 for name in self._names}  # fmt: skip
+        later = 0 if greedy else glances - 1  # draws per batch after the first glance's
+        dtype = torch.float64 if learned else torch.float32  # truncated_normal's, Uniform's
+        first = torch.empty(n, batches, batch, 2, device=device)
+        draws = torch.empty(n, batches, later, batch, 2, device=device, dtype=dtype)
+        for j, r in enumerate(runs):
+            g = torch.Generator(device=device)
+            g.manual_seed(stream_seed(r.config.seed, 2))
+            for b in range(batches):
+                torch.rand(batch, 2, generator=g, device=device, out=first[j, b])
+                for s in range(later):
+                    torch.rand(batch, 2, generator=g, device=device, dtype=dtype,
+                               out=draws[j, b, s])  # fmt: skip
+        correct = torch.zeros(n, glances, device=device)
+        accumulated = torch.zeros(n, glances, device=device)
+        confusion = torch.zeros(n * glances * k * k, dtype=torch.long, device=device)
+        offsets = (torch.arange(n, device=device).view(-1, 1, 1) * glances
+                   + torch.arange(glances, device=device).view(1, -1, 1)) * (k * k)  # fmt: skip
+        counts = torch.arange(1, glances + 1, device=device).view(1, -1, 1, 1)
+        mu_sum = torch.zeros(n, k, 2, device=device, dtype=torch.float64)
+        n_obj = torch.zeros(k, device=device, dtype=torch.float64)
+        path = torch.zeros(n, device=device, dtype=torch.float64)
+        agent = self._template
+        per = max(1, _EVAL_ROWS // batch)  # batches per pass
+        for b0 in range(0, batches, per):
+            b1 = min(batches, b0 + per)
+            rows = (b1 - b0) * batch
+            objects = torch.cat([env.balanced_objects(b) for b in range(b0, b1)])
+            flat_objects = objects.expand(n, rows).reshape(-1)
+            q = first[:, b0:b1].reshape(n, rows, 2) * 2 - 1  # uniform_locations
+            state = tuple(t.unsqueeze(0).repeat(n, *([1] * t.dim()))
+                          for t in agent.core.initial_state(rows, q[0]))  # fmt: skip
+            locations, logits, mode = [], [], None
+            for s in range(glances):
+                pressure = env.glance(flat_objects, q.reshape(-1, 2)).view(n, rows, -1)
+                final = s == glances - 1
+                state, lg, _, dist = self._net.glance(p, pressure, q, state, not final, False)
+                locations.append(q)
+                logits.append(lg)
+                if final:
+                    break
+                if learned:
+                    mode = torch.nan_to_num(dist[0]).clamp(-1, 1)  # TruncatedGaussian.mode
+                if greedy:
+                    q = mode
+                elif learned:
+                    u = draws[:, b0:b1, s].reshape(n, rows, 2)
+                    q = truncated_normal(dist[0], dist[1], uniform=u)
+                else:
+                    q = draws[:, b0:b1, s].reshape(n, rows, 2) * 2 - 1  # Uniform.sample
+            logit = torch.stack(logits, 1)  # (N, S, rows, K)
+            predicted = logit.argmax(-1)
+            correct += (predicted == objects).sum(-1)
+            confusion += torch.bincount((offsets + objects * k + predicted).flatten(),
+                                        minlength=confusion.numel())  # fmt: skip
+            averaged = logit.softmax(-1).cumsum(1) / counts
+            accumulated += (averaged.argmax(-1) == objects).sum(-1)
+            loc = torch.stack(locations, 1)  # (N, S, rows, 2): path_lengths per run
+            path += (loc[:, 1:] - loc[:, :-1]).norm(dim=-1).sum(1).sum(-1).double()
+            if mode is not None:
+                mu_sum.index_add_(1, objects, mode.double())
+                n_obj += torch.bincount(objects, minlength=k)
+        confusion = confusion.view(n, -1)
+        return [eval_result(env, batches, correct[j], accumulated[j], confusion[j], mu_sum[j],
+                            n_obj, path[j]) for j in range(n)]  # fmt: skip
+
+    def _evaluate(self, due: list[tuple[int, float | None, float | None]]) -> dict[int, dict]:
+        """Evaluate and record the runs ``due`` (run index, mean train loss and reward since
+        the last evaluation), as :func:`ham.learn.train._evaluate`; their records by index."""
+        if not due:
+            return {}
+        results = self.evaluate([i for i, _, _ in due])
+        return {i: _evaluate(self.runs[i], loss, reward, result)
+                for (i, loss, reward), result in zip(due, results, strict=True)}  # fmt: skip
+
     # ------------------------------------------------------------------ the loop
     def train(self, progress: bool = False) -> list[dict | str]:
         """Train every run to its ``steps`` (:func:`ham.learn.train.train_loop` for N).
@@ -635,13 +743,21 @@ class BatchedRuns:
             _write_json(out / CONFIG_FILE, r.config.to_dict())
         writers = {}
         sums = {}
+        for i, record in self._evaluate(
+            [
+                (i, None, None)
+                for i in self.active
+                if self.runs[i].step == 0 and not self.runs[i].history
+            ]  # fmt: skip
+        ).items():
+            writers[i] = SummaryWriter(str(self.outs[i] / "tb"))
+            _log_eval(writers[i], record, self.runs[i].config.model.glances)
+            self._save(i)
+            self._maybe_stop(i)
         for i in list(self.active):
             r, out = self.runs[i], self.outs[i]
-            writers[i] = SummaryWriter(str(out / "tb"), purge_step=r.step if r.step else None)
-            if r.step == 0 and not r.history:
-                _log_eval(writers[i], _evaluate(r, None, None), r.config.model.glances)
-                self._save(i)
-                self._maybe_stop(i)
+            if i not in writers:
+                writers[i] = SummaryWriter(str(out / "tb"), purge_step=r.step or None)
             sums[i] = [
                 torch.zeros((), device=r.env.device),
                 torch.zeros((), device=r.env.device),
@@ -661,7 +777,7 @@ class BatchedRuns:
                 t_train += time.perf_counter() - t0
                 n_train += 1
                 bar.update(len(stepped))
-                finished = []
+                finished, due = [], []
                 for i, loss, reward, parts in stepped:
                     r, c, w, acc = self.runs[i], self.runs[i].config, writers[i], sums[i]
                     acc[0] += loss
@@ -674,14 +790,16 @@ class BatchedRuns:
                         w.add_scalar("train/reward", reward.item(), r.step)
                         w.add_scalar("train/lr", r.optimizer.param_groups[0]["lr"], r.step)
                     if r.step % c.eval_every == 0 or r.step == c.steps:
-                        record = _evaluate(r, acc[0].item() / acc[2], acc[1].item() / acc[2])
+                        due.append((i, acc[0].item() / acc[2], acc[1].item() / acc[2]))
                         acc[0].zero_()
                         acc[1].zero_()
                         acc[2] = 0
-                        _log_eval(w, record, c.model.glances)
-                        self._save(i)
-                        if self._maybe_stop(i):
-                            finished.append(i)
+                for i, record in self._evaluate(due).items():  # the due runs at once
+                    _log_eval(writers[i], record, self.runs[i].config.model.glances)
+                    self._save(i)
+                    if self._maybe_stop(i):
+                        finished.append(i)
+                for i, *_ in stepped:
                     if self._done(i):
                         finished.append(i)
                 if finished:

@@ -132,6 +132,28 @@ def evaluate(
                 n_obj += torch.bincount(objects, minlength=k)
     finally:
         agent.train(was_training)
+    stop = (stop_correct, stop_glances_sum) if agent.config.stop else None
+    return eval_result(env, batches, correct, accumulated, confusion, mu_sum, n_obj, path, stop)
+
+
+def eval_result(
+    env: HapticEnv,
+    batches: int,
+    correct: torch.Tensor,
+    accumulated: torch.Tensor,
+    confusion: torch.Tensor,
+    mu_sum: torch.Tensor,
+    n_obj: torch.Tensor,
+    path: torch.Tensor,
+    stop: tuple[torch.Tensor, torch.Tensor] | None = None,
+) -> EvalResult:
+    """The :class:`EvalResult` of one evaluation's counts over ``batches`` batches of ``env``:
+    correct answers per glance ``(S,)``, the same of the averaged outputs ``(S,)``, the
+    confusion counts ``(S * K * K,)``, the summed modes of the last policy ``(K, k)`` over
+    ``n_obj`` episodes per object, the summed path lengths, and with a learned stop its correct
+    answers and glances used. (:mod:`ham.learn.batched` evaluates N runs at once and gives each
+    its counts here.)"""
+    glances, k = correct.shape[0], env.n_objects
     n = batches * env.batch_size
     per_glance = (correct / n).tolist()
     has_mu = bool(n_obj.sum() > 0)
@@ -149,8 +171,8 @@ def evaluate(
         per_object_accuracy=per_object,
         objects=[str(o) for o in env.objects],
         path_length=float(path / n),
-        stop_accuracy=float(stop_correct / n) if agent.config.stop else None,
-        mean_glances=float(stop_glances_sum / n) if agent.config.stop else None,
+        stop_accuracy=float(stop[0] / n) if stop is not None else None,
+        mean_glances=float(stop[1] / n) if stop is not None else None,
     )
 
 

@@ -38,7 +38,7 @@ from tqdm.auto import tqdm
 from ham.errors import HamError, check_choices, check_known_fields
 from ham.learn.ap_adapter import ApGymConfig, ApGymGlanceEnv
 from ham.learn.environment import HapticEnv
-from ham.learn.evaluation import EVAL_POLICIES, evaluate
+from ham.learn.evaluation import EVAL_POLICIES, EvalResult, evaluate
 from ham.learn.hybrid_loss import REDUCTIONS, HybridLoss, hybrid_loss
 from ham.learn.info_loss import (
     MOVE_COSTS,
@@ -798,11 +798,18 @@ def train_step_epochs(run: Run) -> InfoLoss:
     return loss
 
 
-def _evaluate(run: Run, train_loss: float | None, train_reward: float | None) -> dict:
+def _evaluate(
+    run: Run,
+    train_loss: float | None,
+    train_reward: float | None,
+    result: EvalResult | None = None,
+) -> dict:
+    """Evaluate ``run`` and record it; ``result``: the evaluation made elsewhere (batched)."""
     c = run.config
-    result = evaluate(
-        run.agent, run.env, c.eval_batches, seed=stream_seed(c.seed, 2), policy=c.eval_policy
-    )
+    if result is None:
+        result = evaluate(
+            run.agent, run.env, c.eval_batches, seed=stream_seed(c.seed, 2), policy=c.eval_policy
+        )
     if result.accuracy > run.best_accuracy:
         run.best_accuracy, run.best_step = result.accuracy, run.step
     run.best_accumulated_accuracy = max(
