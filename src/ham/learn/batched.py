@@ -257,14 +257,29 @@ class _TanhLSTMCell(torch.autograd.Function):
     much as the cell's products; here one sigmoid over all four gates and a hand-written
     backward. Equal to the module's cell to float rounding (tested against single runs)."""
 
+    _constants: dict = {}
+
+    @classmethod
+    def _scale_shift(cls, z: torch.Tensor, forget_bias: float) -> tuple[torch.Tensor, ...]:
+        """``(1, 1, 2, 1)`` and ``(0, b_f, 0, 0)`` per gate, spelled out along the units: an
+        operand broadcast along the last axis takes PyTorch's unvectorized loop (an
+        ``addcmul`` over 10 x 64 x 1024 gates: 0.32 ms, against 0.06 ms with them spelled
+        out)."""
+        key = (z.shape[-1], z.device, z.dtype, forget_bias)
+        if key not in cls._constants:
+            h = z.shape[-1]
+            scale = z.new_tensor([1.0, 1.0, 2.0, 1.0]).unsqueeze(-1).expand(4, h).contiguous()
+            shift = z.new_tensor([0.0, forget_bias, 0.0, 0.0]).unsqueeze(-1).expand(4, h)
+            cls._constants[key] = (scale, shift.contiguous())
+        return cls._constants[key]
+
     @staticmethod
     def forward(ctx, gates, cell, forget_bias):
         shape = gates.shape
         z = gates.view(*shape[:-1], 4, shape[-1] // 4)
         # one sigmoid of (i, f + b_f, 2u, o): tanh(u) = 2 sigmoid(2u) - 1
-        scale = z.new_tensor([1.0, 1.0, 2.0, 1.0]).unsqueeze(-1)
-        shift = z.new_tensor([0.0, forget_bias, 0.0, 0.0]).unsqueeze(-1)
-        sig = torch.sigmoid(torch.addcmul(shift, z, scale))
+        scale, shift = _TanhLSTMCell._scale_shift(z, forget_bias)
+        sig = torch.addcmul(shift, z, scale).sigmoid_()
         si, sf, su, so = sig.unbind(-2)
         tu = su * 2 - 1
         c1 = torch.addcmul(sf * cell, si, tu)
@@ -285,10 +300,10 @@ class _TanhLSTMCell(torch.autograd.Function):
         torch.mul(dcell, tu, out=d[..., 0, :])
         torch.mul(dcell, cell, out=d[..., 1, :])
         torch.mul(dcell, si, out=d[..., 2, :])
+        d[..., 2, :].mul_(4)
         torch.mul(dh, tc, out=d[..., 3, :])
         # sigmoid' = s (1 - s); tanh'(u) = 1 - tanh(u)^2 = 4 s_u (1 - s_u) with s_u = sigmoid(2u)
-        k = sig.new_tensor([1.0, 1.0, 4.0, 1.0]).unsqueeze(-1)
-        d.mul_(sig).mul_(1 - sig).mul_(k)
+        d.mul_(torch.addcmul(sig, sig, sig, value=-1))
         dgates = d.view(*sig.shape[:-2], -1)
         return dgates, (dcell * sf if ctx.needs_input_grad[1] else None), None
 
