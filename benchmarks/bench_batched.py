@@ -13,7 +13,10 @@ the other glance counts interpolated linearly in G from the measured ones, and e
 costed as the full model (the MLP core is cheaper: an upper bound).
 
     PYTHONPATH=src python benchmarks/bench_batched.py [--table TABLE] [--runs 10] [--glances 3 10]
-        [--repeats 4]
+        [--repeats 4] [--device cuda]
+
+With ``--device cuda`` the times are wall-clock (the GPU synchronized before each reading: CPU
+time says nothing there) and the projection is in GPU-hours, one batched group after another.
 """
 
 from __future__ import annotations
@@ -39,9 +42,11 @@ TABLE1_GLANCES = (1, 2, 3, 4, 6, 8, 10)
 STEPS, EVALS, SEEDS = 50_000, 250, 10
 
 
-def measure(glances: int, runs: int, repeats: int, table: str | None) -> dict:
-    configs = [TrainConfig(model=HamConfig(glances=glances), seed=s, table=table)
+def measure(glances: int, runs: int, repeats: int, table: str | None, device: str = "cpu") -> dict:
+    configs = [TrainConfig(model=HamConfig(glances=glances), seed=s, table=table, device=device)
                for s in range(runs)]  # fmt: skip
+    cuda = device.startswith("cuda")
+    sync = torch.cuda.synchronize if cuda else (lambda: None)
     with tempfile.TemporaryDirectory() as tmp:
         outs = [Path(tmp) / str(s) for s in range(runs)]
         group = BatchedRuns(_open_runs(configs, outs), outs)  # writes nothing until train()
@@ -49,28 +54,37 @@ def measure(glances: int, runs: int, repeats: int, table: str | None) -> dict:
         # environment seeded as Run.create seeds it
         source = group.runs[0].env.source
         singles = [Run.create(c, HapticEnv(source, c.batch_size, c.normalization,
-                                           stream_seed(c.seed, 0))) for c in configs]  # fmt: skip
+                                           stream_seed(c.seed, 0), torch.device(device)))
+                   for c in configs]  # fmt: skip
         for _ in range(2):  # warm up both
             group.step()
             for r in singles:
                 train_step(r)
         t_single, t_batched, c_single, c_batched = [], [], [], []
         for _ in range(repeats):  # interleaved: both see the same machine load
+            sync()
             t0, c0 = time.perf_counter(), time.process_time()
             for r in singles:
                 train_step(r)
+            sync()
             t1, c1 = time.perf_counter(), time.process_time()
             group.step()
+            sync()
             t2, c2 = time.perf_counter(), time.process_time()
             t_single.append(t1 - t0)
             t_batched.append(t2 - t1)
             c_single.append(c1 - c0)
             c_batched.append(c2 - c1)
-    c0 = time.process_time()
-    evaluate(singles[0].agent, singles[0].env, 100, seed=2)
-    c_eval = time.process_time() - c0
-    single, batched = statistics.median(c_single), statistics.median(c_batched)
+        sync()
+        c0, t0 = time.process_time(), time.perf_counter()
+        evaluate(singles[0].agent, singles[0].env, 100, seed=2)
+        sync()
+        c_eval = (time.perf_counter() - t0) if cuda else (time.process_time() - c0)
     wall_single, wall_batched = statistics.median(t_single), statistics.median(t_batched)
+    if cuda:  # the GPU's work is not this process's CPU time
+        single, batched = wall_single, wall_batched
+    else:
+        single, batched = statistics.median(c_single), statistics.median(c_batched)
     return {
         "glances": glances,
         "runs": runs,
@@ -107,17 +121,23 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=4)
     p.add_argument("--table", default=None, help="a glance table (default: online simulator)")
     p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--device", default="cpu", help="cpu or cuda (wall-clock times on cuda)")
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
-    rows = [measure(g, args.runs, args.repeats, args.table) for g in args.glances]
+    rows = [measure(g, args.runs, args.repeats, args.table, args.device) for g in args.glances]
+    cuda = args.device.startswith("cuda")
+    unit = "GPU-hours" if cuda else "CPU-hours"
     before = grid_hours(rows, "single_ms_per_run_step")
     after = grid_hours(rows, "batched_ms_per_run_step")
     if args.json:
-        print(json.dumps({"rows": rows, "grid_cpu_hours": [before, after]}, indent=1))
+        key = "grid_gpu_hours" if cuda else "grid_cpu_hours"
+        print(json.dumps({"device": args.device, "rows": rows, key: [before, after]}, indent=1))
         return
-    print(f"{args.runs} runs, {args.threads} torch thread(s), batch 64, the paper's model")
-    print(f"CPU time per process, median of {args.repeats} interleaved repeats; load average "
+    print(f"{args.runs} runs, {args.threads} torch thread(s), batch 64, the paper's model, "
+          f"on {args.device}")  # fmt: skip
+    clock = "wall-clock time (GPU synchronized)" if cuda else "CPU time per process"
+    print(f"{clock}, median of {args.repeats} interleaved repeats; load average "
           f"{os.getloadavg()[0]:.1f} at the end")  # fmt: skip
     print("glances  single ms/run-step  batched ms/run-step  seed-steps/s single  batched  ratio"
           "  (wall-clock ratio)")  # fmt: skip
@@ -131,7 +151,7 @@ def main() -> None:
     print(
         f"paper grid ({7 * 3 * SEEDS + 3 * SEEDS} runs x 50,000 steps + 250 evaluations; ms/step interpolated linearly "
         f"in G from G = {', '.join(map(str, args.glances))}; every variant costed as the full "
-        f"model): {before:,.0f} CPU-hours one by one, {after:,.0f} batched ({before / after:.2f}x)"
+        f"model): {before:,.1f} {unit} one by one, {after:,.1f} batched ({before / after:.2f}x)"
     )
 
 

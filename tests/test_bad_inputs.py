@@ -389,6 +389,8 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("reproduce-workers-minus", ["reproduce", "table1", "--out", "rp", "--workers", "-2"], "-2"),
     ("reproduce-retries-minus", ["reproduce", "table1", "--out", "rp", "--retries", "-1"], "retries = -1"),
     ("reproduce-seeds-0", ["reproduce", "table1", "--out", "rp", "--seeds", "0"], "seeds = 0"),
+    ("reproduce-steps-0", ["reproduce", "table1", "--out", "rp", "--steps", "0"], "steps = 0"),
+    ("reproduce-grid-steps", ["reproduce", "grid", "docs/grids/example.toml", "--out", "rp", "--steps", "5"], "--steps"),
     ("reproduce-glances-0", ["reproduce", "table1", "--out", "rp", "--glances", "0"], "[0]"),
     ("reproduce-glances-minus", ["reproduce", "table1", "--out", "rp", "--glances", "-1"], "[-1]"),
     ("reproduce-glances-101", ["reproduce", "table1", "--out", "rp", "--glances", "101"], "101"),

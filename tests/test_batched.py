@@ -149,6 +149,20 @@ def test_the_batched_evaluation_equals_each_runs_own(tmp_path, monkeypatch, mode
     assert accuracies[0] != accuracies[1] or accuracies[0] != accuracies[2]
 
 
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (run on one)")
+@pytest.mark.parametrize("kw", [{}, {"optimizer": "adam"}], ids=["sgd", "adam"])
+def test_cuda_batched_equals_single_runs(tmp_path, kw):
+    # the CUDA path (one bmm per layer for all runs, foreach optimizer steps) against single
+    # runs on the same GPU
+    configs = [tiny(s, device="cuda", **kw) for s in range(3)]
+    for c in configs:
+        train(c, tmp_path / f"single{c.seed}", progress=False)
+    train_batched(configs, [tmp_path / f"b{c.seed}" for c in configs])
+    atol = 1e-4 if kw.get("optimizer") == "adam" else 1e-5
+    for c in configs:
+        assert_same_run(tmp_path / f"b{c.seed}", tmp_path / f"single{c.seed}", atol)
+
+
 def test_each_run_has_the_directory_of_a_single_run(tmp_path):
     configs = [tiny(s, steps=4) for s in (0, 5)]
     train(configs[0], tmp_path / "single", progress=False)

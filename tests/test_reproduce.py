@@ -116,7 +116,7 @@ def test_a_part_of_the_grid(tmp_path, ham_cli):
         PROFILES["quick"].subset(variants=["cnn"])
     r = ham_cli(
         "reproduce", "table1", "--profile", "smoke", "--glances", "2", "--variants", "full",
-        "--workers", "1", "--quiet", "--out", str(tmp_path),
+        "--steps", "7", "--workers", "1", "--quiet", "--out", str(tmp_path),
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert "ran 1 run(s), skipped 0 finished" in r.stdout
@@ -126,6 +126,9 @@ def test_a_part_of_the_grid(tmp_path, ham_cli):
     table = (tmp_path / "table1.md").read_text()
     assert "| 2 | " in table and "—" in table
     assert "variants ['full'] (paper" in (tmp_path / "report.md").read_text()
+    assert "steps 7 (paper 50000)" in (tmp_path / "report.md").read_text()
+    (run,) = [p for p in tmp_path.rglob("metrics.json") if "full" in str(p)]
+    assert json.loads(run.read_text())["history"][-1]["step"] == 7
 
 
 def test_paper_profile_is_the_papers_protocol():

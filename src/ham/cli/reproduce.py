@@ -46,6 +46,13 @@ def add_commands(subparsers) -> None:
         help="override the profile's seed count (grid: run seeds 0..N-1 in every cell)",
     )
     p.add_argument(
+        "--steps",
+        type=int,
+        default=None,
+        help="override the profile's training steps per run (its evaluation interval stays; "
+        "not with grid: the grid file names its steps)",
+    )
+    p.add_argument(
         "--glances",
         type=int,
         nargs="+",
@@ -118,6 +125,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         args.profile or "quick",
         args.out,
         seeds=args.seeds,
+        steps=args.steps,
         executor=args.executor,
         workers=args.workers,
         ray_address=args.ray_address,
@@ -153,7 +161,11 @@ def cmd_grid(args: argparse.Namespace) -> int:
 
     if args.file is None:
         raise HamError("ham reproduce grid needs a grid FILE (.toml or .json); see docs/grids.md")
-    given = [f"--{k}" for k in ("profile", "glances", "variants") if getattr(args, k) is not None]
+    given = [
+        f"--{k}"
+        for k in ("profile", "steps", "glances", "variants")
+        if getattr(args, k) is not None
+    ]
     if given:
         raise HamError(f"{', '.join(given)} apply to the paper's tables, not to a grid file")
     if args.objects is not None or args.objects_file is not None or args.world is not None:

@@ -623,6 +623,7 @@ def reproduce(
     out: str | os.PathLike,
     *,
     seeds: int | None = None,
+    steps: int | None = None,
     executor: str = "local",
     workers: int | None = None,
     ray_address: str | None = None,
@@ -643,6 +644,8 @@ def reproduce(
 
     ``glances`` and ``variants`` cut Table 1 and the figures to a part of the grid (Table 2 is
     always the four combiners at 3 glances), e.g. the paper's protocol for one row on a laptop.
+    ``steps`` replaces the profile's training steps (its evaluation interval and batches stay;
+    the report names the change), e.g. as many steps as a GPU lease holds.
     ``world``: the world of the glance table (default: the paper's); with an objects file, every
     worker registers the file's objects from the record in the table and the world.
     ``batch_runs`` (runs per batch) and ``stop_at_perfect`` go with ``executor="batched"``.
@@ -668,6 +671,10 @@ def reproduce(
         if not (isinstance(seeds, int) and seeds >= 1):
             raise HamError(f"seeds = {seeds!r}; accepted: an integer >= 1")
         profile = replace(profile, seeds=seeds)
+    if steps is not None:
+        if not (isinstance(steps, int) and not isinstance(steps, bool) and steps >= 1):
+            raise HamError(f"steps = {steps!r}; accepted: an integer >= 1")
+        profile = replace(profile, steps=steps)
     profile = profile.subset(glances, variants)
     if workers is not None and not (isinstance(workers, int) and workers >= 1):
         raise HamError(f"workers = {workers!r}; accepted: an integer >= 1 (default: all cores)")
