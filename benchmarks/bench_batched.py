@@ -5,8 +5,10 @@ as single runs (:func:`ham.learn.train.train_step`, one after another) and as on
 (:class:`ham.learn.batched.BatchedRuns`), measured interleaved in the same process (both see the
 same machine load), one torch thread (as a worker of the local pool). The times are the
 process's CPU time (on a shared machine wall-clock time counts the other jobs' share; the
-wall-clock ratio is printed beside). Also one evaluation (100 batches) per run, which stays per
-run in both. Prints the ratio and the projected CPU-hours of
+wall-clock ratio is printed beside). Also one evaluation (100 batches) of a single run and the
+batched group's evaluation of all N runs at once (:meth:`BatchedRuns.evaluate`), per run. Prints
+the step's ratio, the ratio of a whole run (50,000 steps and 250 evaluations), and the projected
+CPU-hours of
 the full paper grid (Table 1: 7 glance counts x 3 trained variants x 10 seeds, Table 2: 3 more
 combiners x 10 seeds at 3 glances; 50,000 steps and 250 evaluations each), with ms/step at
 the other glance counts interpolated linearly in G from the measured ones, and every variant
@@ -80,6 +82,10 @@ def measure(glances: int, runs: int, repeats: int, table: str | None, device: st
         evaluate(singles[0].agent, singles[0].env, 100, seed=2)
         sync()
         c_eval = (time.perf_counter() - t0) if cuda else (time.process_time() - c0)
+        c0, t0 = time.process_time(), time.perf_counter()
+        group.evaluate(list(range(runs)))  # each run's 100 batches (the config's eval_batches)
+        sync()
+        c_group = (time.perf_counter() - t0) if cuda else (time.process_time() - c0)
     wall_single, wall_batched = statistics.median(t_single), statistics.median(t_batched)
     if cuda:  # the GPU's work is not this process's CPU time
         single, batched = wall_single, wall_batched
@@ -95,14 +101,20 @@ def measure(glances: int, runs: int, repeats: int, table: str | None, device: st
         "ratio": single / batched,
         "wall_ratio": wall_single / wall_batched,
         "eval_ms": 1000 * c_eval,
+        "batched_eval_ms": 1000 * c_group / runs,  # per run
+        "eval_ratio": c_eval * runs / c_group,
+        # a whole run: STEPS steps and EVALS evaluations
+        "run_ratio": (STEPS * single / runs + EVALS * c_eval)
+        / (STEPS * batched / runs + EVALS * c_group / runs),
     }
 
 
-def grid_hours(rows: list[dict], key: str) -> float:
-    """CPU-hours of the paper grid with ms/step ``key``, interpolated linearly in G."""
+def grid_hours(rows: list[dict], key: str, eval_key: str) -> float:
+    """CPU-hours of the paper grid with ms/step ``key`` and ms/evaluation ``eval_key``,
+    interpolated linearly in G."""
     g = [r["glances"] for r in rows]
     ms = [r[key] for r in rows]
-    ev = [r["eval_ms"] for r in rows]
+    ev = [r[eval_key] for r in rows]
     if len(rows) == 1:
         fit = lambda x, y: lambda G: y[0] * G / x[0]  # noqa: E731 - proportional to G
     else:
@@ -128,8 +140,8 @@ def main() -> None:
     rows = [measure(g, args.runs, args.repeats, args.table, args.device) for g in args.glances]
     cuda = args.device.startswith("cuda")
     unit = "GPU-hours" if cuda else "CPU-hours"
-    before = grid_hours(rows, "single_ms_per_run_step")
-    after = grid_hours(rows, "batched_ms_per_run_step")
+    before = grid_hours(rows, "single_ms_per_run_step", "eval_ms")
+    after = grid_hours(rows, "batched_ms_per_run_step", "batched_eval_ms")
     if args.json:
         key = "grid_gpu_hours" if cuda else "grid_cpu_hours"
         print(json.dumps({"device": args.device, "rows": rows, key: [before, after]}, indent=1))
@@ -146,8 +158,11 @@ def main() -> None:
               f"{r['batched_ms_per_run_step']:>19.1f}  {r['single_seed_steps_per_s']:>19.1f}  "
               f"{r['batched_seed_steps_per_s']:>7.1f}  {r['ratio']:>5.2f}  "
               f"({r['wall_ratio']:.2f})")  # fmt: skip
-    evals = ", ".join(f"G={r['glances']}: {r['eval_ms']:.0f} ms" for r in rows)
-    print(f"one evaluation (100 batches, per run in both): {evals}")
+    evals = ", ".join(f"G={r['glances']}: {r['eval_ms']:.0f} / {r['batched_eval_ms']:.0f} ms "
+                      f"({r['eval_ratio']:.2f}x)" for r in rows)  # fmt: skip
+    print(f"one evaluation of 100 batches per run, single / batched: {evals}")
+    runs = ", ".join(f"G={r['glances']}: {r['run_ratio']:.2f}x" for r in rows)
+    print(f"a whole run ({STEPS:,} steps, {EVALS} evaluations), batched vs single: {runs}")
     print(
         f"paper grid ({7 * 3 * SEEDS + 3 * SEEDS} runs x 50,000 steps + 250 evaluations; ms/step interpolated linearly "
         f"in G from G = {', '.join(map(str, args.glances))}; every variant costed as the full "
