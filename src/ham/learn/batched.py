@@ -13,8 +13,10 @@ all runs (docs/agent.md#batched-runs has the measurements); on CUDA each layer i
 Everything else stays per run and is the single run's own code (:mod:`ham.learn.train`): each
 run is a :class:`ham.learn.train.Run` with its own environment generator (objects, stream 0),
 pose generator (stream 1), optimizer (SGD with Nesterov momentum at its own learning-rate
-schedule), evaluation (stream 2), checkpoint, ``config.json``, ``metrics.json``, ``timing.json``
-and ``tb/``. A run's parameters (and its SGD momentum buffers) are views into the stacked
+schedule), evaluation poses (stream 2), checkpoint, ``config.json``, ``metrics.json``,
+``timing.json`` and ``tb/``. The runs due for an evaluation are evaluated at once
+(:meth:`BatchedRuns.evaluate`: the single evaluation's counts, each run's poses from its own
+generator, eight evaluation batches per pass through the stacked layers). A run's parameters (and its SGD momentum buffers) are views into the stacked
 tensors, so its evaluation reads the current weights and its checkpoint the current state. The
 same seed gives the single run's numbers to float tolerance (the batched products sum in
 another order); resume is bit-identical to an uninterrupted batched group. A run whose loss or weights turn NaN/inf stops alone (its
