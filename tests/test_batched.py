@@ -163,6 +163,28 @@ def test_cuda_batched_equals_single_runs(tmp_path, kw):
         assert_same_run(tmp_path / f"b{c.seed}", tmp_path / f"single{c.seed}", atol)
 
 
+def test_the_onednn_path_equals_single_runs(tmp_path, monkeypatch):
+    # batches of 16: the CPU's per-run oneDNN products (the tiny runs' 8 rows go to bmm)
+    if batched._LINEAR_ONEDNN is None:
+        pytest.skip("this torch has no oneDNN linear")
+    calls = []
+
+    def linear(*args):
+        calls.append(args[1].shape)
+        return onednn(*args)
+
+    onednn = batched._LINEAR_ONEDNN
+    monkeypatch.setattr(batched, "_LINEAR_ONEDNN", linear)
+    configs = [tiny(s, batch_size=16, steps=4) for s in range(2)]
+    for c in configs:
+        train(c, tmp_path / f"single{c.seed}", progress=False)
+    train_batched(configs, [tmp_path / f"b{c.seed}" for c in configs])
+    assert (1024, 256) in calls  # the gates' first glance: the weight's g columns alone
+    assert (1024, 512) in calls
+    for c in configs:
+        assert_same_run(tmp_path / f"b{c.seed}", tmp_path / f"single{c.seed}")
+
+
 def test_each_run_has_the_directory_of_a_single_run(tmp_path):
     configs = [tiny(s, steps=4) for s in (0, 5)]
     train(configs[0], tmp_path / "single", progress=False)
