@@ -355,14 +355,32 @@ class ExtendedSimulator:
             y=y,
             phi_y=phi_y,
         )
+        # The glances in object order: one object's height map (~130 kB per coefficient table at
+        # 0.5 mm) stays in the cache across a chunk's gathers, where a mixed batch reads all
+        # objects' maps in turn (~1.2 MB each for curvature2d: ~1.2x faster sorted). Each glance is
+        # computed row by row, so the order does not change any value.
+        order = self._object_order(ids)
+        rows = (ids, x, y, phi, phi_y, *(pose_b if pose is not None else ()))
+        if order is not None:
+            rows = tuple(t.index_select(0, order) for t in rows)
+        s_ids, s_x, s_y, s_phi, s_phi_y, *s_pose = rows
         work = self._workspace(min(n, self.chunk))
         for i in range(0, n, self.chunk):
             sl = slice(i, i + self.chunk)
-            obj = None if pose is None else tuple(t[sl] for t in pose_b)
-            self._glance_into(out, sl, ids[sl], x[sl], y[sl], phi[sl], phi_y[sl], obj, work)
+            obj = tuple(t[sl] for t in s_pose) if s_pose else None
+            dst = sl if order is None else order[sl]
+            self._glance_into(
+                out, dst, s_ids[sl], s_x[sl], s_y[sl], s_phi[sl], s_phi_y[sl], obj, work
+            )
         torch.gt(out.force, 0, out=out.contact)
         out.height = out.z
         return out
+
+    def _object_order(self, ids: torch.Tensor) -> torch.Tensor | None:
+        """The batch's rows sorted by object (stable), or ``None`` when already in order."""
+        if len(self.objects) == 1 or len(ids) < 2 or not bool((ids[1:] < ids[:-1]).any()):
+            return None
+        return torch.argsort(ids, stable=True)
 
     def _workspace(self, rows: int) -> _Workspace:
         """This thread's workspace for ``rows`` glances per chunk, kept between calls."""
@@ -401,8 +419,9 @@ class ExtendedSimulator:
         ty0 = cyy * ky + self._off_y[ids]
         return tx0, ty0, ux * kx, uy * ky, vx * kx, vy * ky, wx * kx, wy * ky, -uz, -vz, -wz
 
-    def _glance_into(self, out: GlanceResult, sl, ids, x, y, phi, phi_y, obj, work) -> None:
-        """Glances ``sl`` of the batch, written into ``out``'s rows ``sl``."""
+    def _glance_into(self, out: GlanceResult, dst, ids, x, y, phi, phi_y, obj, work) -> None:
+        """Glances of ``ids`` at these poses, written into ``out``'s rows ``dst`` (a slice or
+        an index tensor)."""
         s, g = self.sensor, self.glance_config
         b, su = len(ids), s.supersample
         tx0, ty0, xu, yu, xv, yv, xw, yw, zu, zv, zw = self._frame(ids, x, y, phi, phi_y, obj)
@@ -458,10 +477,10 @@ class ExtendedSimulator:
         e_h.addcmul_(zu[:, None], hu).addcmul_(zv[:, None], hv).addcmul_(zw[:, None], hw)
         z_block = e_h.amax(1).sub_(top).clamp_min_(-s.foam_thickness)
         z_rel = torch.maximum(z_force, z_block)
-        torch.add(top, z_rel, out=out.z[sl])
-        torch.gt(z_block, z_force, out=out.blocked[sl])
+        _put(out.z, dst, top.add_(z_rel))
+        _put(out.blocked, dst, torch.gt(z_block, z_force))
         compression = e.sub_(z_rel[:, None]).clamp_(0, s.foam_thickness)
-        torch.mul(compression.sum(1), self._c0, out=out.force[sl])
+        _put(out.force, dst, compression.sum(1).mul_(self._c0))
         n, sv = s.taxels, self.rows_per_taxel
         if self._direct_image:  # Myrmex's read-out, per taxel over its su x sv points
             c = compression.view(b, n, sv, n, su)
@@ -472,10 +491,10 @@ class ExtendedSimulator:
                 for k in range(su):
                     if j or k:
                         acc.add_(c[:, :, j, :, k])
-            out.pressure[sl] = acc.div_(su * sv).mul_(s.foam_stiffness)
+            _put(out.pressure, dst, acc.div_(su * sv).mul_(s.foam_stiffness))
         else:
             cells = compression.view(b, n, sv, n, su).mean((2, 4))
-            out.pressure[sl] = self.myrmex.postprocess(cells * s.foam_stiffness)
+            _put(out.pressure, dst, self.myrmex.postprocess(cells * s.foam_stiffness))
 
     def _add_features(self, e: torch.Tensor, ids, frame) -> None:
         """Raise the touch height ``e`` (B, R, C) of the read-out point whose cell a feature line
@@ -513,6 +532,14 @@ class ExtendedSimulator:
             "height_map_resolution": self.resolution,
             "rows_per_taxel": self.rows_per_taxel,
         }
+
+
+def _put(target: torch.Tensor, rows, value: torch.Tensor) -> None:
+    """``target[rows] = value`` for a slice or an index tensor of rows."""
+    if isinstance(rows, slice):
+        target[rows] = value
+    else:
+        target.index_copy_(0, rows, value)
 
 
 def _object_pose(object_pose, device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
