@@ -44,7 +44,8 @@ Model (:class:`ExtendedSimulator`):
 
 Speed (one core): every ``(B, K)`` step is one vectorized pass without boolean temporaries, the
 coordinates are outer sums of per-row u and v terms (no ``(B, K)`` rotation), the bilinear
-coefficients are four float32 tables read with int32 indices, and the temporaries live in a
+coefficients are four float32 tables read with int64 indices (index_select converts int32
+ones first), and the temporaries live in a
 per-thread workspace reused across chunks and calls (numbers in docs/world.md).
 """
 
@@ -233,7 +234,7 @@ class ExtendedSimulator:
         self._stride = torch.tensor([m[0] + 2 for m in meta], dtype=torch.float32, device=dev)
         # First cell (i, j) = (-1, -1) of each object: base + 0; (i, j) is at (j+1)(nx+2) + i+1.
         first = [m[4] + m[0] + 3 for m in meta]
-        self._base = torch.tensor(first, dtype=torch.int32, device=dev)
+        self._base = torch.tensor(first, dtype=torch.int64, device=dev)
         # Also as float32, exact below 2^24 cells in all (:meth:`_lookup_` adds it in float).
         self._float_index = base < 2**24
         self._base_f = torch.tensor(first, dtype=torch.float64).to(dev, torch.float32)
@@ -292,10 +293,10 @@ class ExtendedSimulator:
         stride = float(self._stride[0]) if self._uniform else self._stride[ids, None, None]
         if self._float_index and yshape[-1] == 1:
             flat = fx.add_(fy.mul_(stride).add_(self._base_f[ids, None, None]))
-            idx = work.get("i", shape, torch.int32).copy_(flat).view(-1)
+            idx = work.get("i", shape, torch.int64).copy_(flat).view(-1)
         else:
             flat = fx.add_(fy, alpha=stride) if self._uniform else fx.addcmul_(fy, stride)
-            idx = work.get("i", shape, torch.int32).copy_(flat)
+            idx = work.get("i", shape, torch.int64).copy_(flat)
             idx = idx.add_(self._base[ids, None, None]).view(-1)
         n = idx.numel()
         a = torch.index_select(self._map_a, 0, idx, out=work.get(out, (n,))).view(shape)
@@ -446,12 +447,16 @@ class ExtendedSimulator:
                 out=ty,
             )
         e = self._lookup_(ids, tx, ty, work, "e")
-        e.add_((zu[:, None] * u)[:, None, :]).add_((zv[:, None] * v)[:, :, None])
+        e.add_((zu[:, None] * u)[:, None, :])
         if self._feat_x is not None:
-            self._add_features(e, ids, (tx0, ty0, xu, yu, xv, yv, zu, zv))
+            self._add_features(e, ids, (tx0, ty0, xu, yu, xv, yv, zu))
+        # Heights relative to the first touch (the top): small numbers, float32-exact enough. The
+        # v term (one value per row) and the top in one pass; the same top (rounding is monotone).
+        row = (zv[:, None] * v)[:, :, None]  # (B, R, 1)
+        top = e.amax(2, keepdim=True).add_(row).amax(1)  # (B, 1)
+        e.add_(row.sub_(top[:, :, None]))
+        top = top.view(b)
         e = e.view(b, -1)
-        top = e.amax(1)
-        e.sub_(top[:, None])  # relative to the first touch: small numbers, float32-exact enough
         target = g.force_threshold / self._c0
         z0 = None
         if su > 1:
@@ -498,18 +503,19 @@ class ExtendedSimulator:
 
     def _add_features(self, e: torch.Tensor, ids, frame) -> None:
         """Raise the touch height ``e`` (B, R, C) of the read-out point whose cell a feature line
-        crosses, in each row, to the line's: the line glance's feature points, row by row."""
+        crosses, in each row, to the line's: the line glance's feature points, row by row. ``e``
+        and the lines' heights leave out the term ``v zv``, one value per row."""
         s = self.sensor
         rows = self._has_features[ids].nonzero().squeeze(1)
         if len(rows) == 0:
             return
-        tx0, ty0, xu, yu, xv, yv, zu, zv = (t[rows, None, None] for t in frame)
+        tx0, ty0, xu, yu, xv, yv, zu = (t[rows, None, None] for t in frame)
         ids_r = ids[rows]
         v = self._v[None, :, None]
         tf = self._feat_t[ids_r][:, None, :]  # (B', 1, F)
         # The row at v meets the line x = x_f where tx0 + u xu + v xv = t_f.
         uf = (tf - tx0 - v * xv) / xu  # (B', R, F); inf or NaN for a vertical pad: outside
-        ef = self._feat_h[ids_r][:, None, :] + uf * zu + v * zv
+        ef = self._feat_h[ids_r][:, None, :] + uf * zu
         tyf = ty0 + uf * yu + v * yv  # on the block along y?
         spacing = s.pitch / s.supersample
         cell = torch.floor((uf + 0.5 * s.size) / spacing)
