@@ -81,6 +81,9 @@ GRID_STEP = 5e-4
 HOUSING_EDGE_SAMPLES = 3
 #: Most grid cells per object: float32 map coordinates index cells exactly below 2^24.
 MAX_CELLS = 1 << 24
+#: Batches of at least this many glances are computed in object order (cache locality; measured
+#: on one core: 10% slower at 16-64 mixed glances, even at 256, 1.2x faster at 16,384).
+SORT_MIN = 256
 
 
 def _f32_step(n: int) -> float:
@@ -378,8 +381,9 @@ class ExtendedSimulator:
         return out
 
     def _object_order(self, ids: torch.Tensor) -> torch.Tensor | None:
-        """The batch's rows sorted by object (stable), or ``None`` when already in order."""
-        if len(self.objects) == 1 or len(ids) < 2 or not bool((ids[1:] < ids[:-1]).any()):
+        """The batch's rows sorted by object (stable), or ``None`` when already in order or
+        small (below :data:`SORT_MIN` glances the sort costs more than it saves)."""
+        if len(self.objects) == 1 or len(ids) < SORT_MIN or not bool((ids[1:] < ids[:-1]).any()):
             return None
         return torch.argsort(ids, stable=True)
 
