@@ -312,3 +312,23 @@ def test_objects_of_different_sizes_glance_as_alone():
             a = mixed.glance(torch.full((n,), oid), *q, **kw)
             b = alone.glance(torch.zeros(n, dtype=torch.long), *q, **kw)
             assert torch.equal(a.z, b.z) and torch.equal(a.pressure, b.pressure)
+
+
+def test_a_mixed_batch_gives_each_glance_as_alone():
+    # The simulator computes a mixed batch in object order (cache locality) and puts each result
+    # back in its row: the rows must equal the same glances one object at a time.
+    objs = [DOME, CYL_X, objects.get("trough"), SLOPE_Y]
+    sim = ExtendedSimulator(objs, chunk=64)  # several chunks, each mixing objects
+    g = torch.Generator().manual_seed(3)
+    n = 400
+    ids = torch.randint(0, len(objs), (n,), generator=g)
+    q = [torch.rand(n, generator=g) * 2 - 1 for _ in range(4)]
+    pose = (torch.rand(n, generator=g) * 6, torch.full((n,), 0.002), torch.full((n,), -0.001))
+    for kw in ({}, {"object_pose": pose}):
+        mixed = sim.glance(ids, *q, **kw)
+        for oid in range(len(objs)):
+            rows = (ids == oid).nonzero().squeeze(1)
+            sub = {"object_pose": tuple(t[rows] for t in pose)} if kw else {}
+            alone = sim.glance(ids[rows], *(t[rows] for t in q), **sub)
+            for name in ("pressure", "z", "force", "blocked", "x", "y", "phi", "phi_y"):
+                assert torch.equal(getattr(mixed, name)[rows], getattr(alone, name)), name

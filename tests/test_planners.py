@@ -126,3 +126,77 @@ def test_bad_planner_arguments():
         pl.accuracy("best", 1)
     with pytest.raises(HamError, match="first = 'late'"):
         pl.infogain(1, "late")
+
+
+@pytest.fixture(scope="module")
+def table_3d(tmp_path_factory):
+    """A format-2 table over three pose dims (x, y, phi) of the curvature2d objects."""
+    path = tmp_path_factory.mktemp("planners3d") / "c2d.h5"
+    world = WorldConfig(objects="curvature2d", pose_dims=("x", "y", "phi"))
+    build_table(world, "5,4,3", path, progress=False)
+    return GlanceTable.load(path)
+
+
+def test_partitions_of_a_3d_table(table_3d):
+    parts = Partitions.from_table(table_3d, height=True)
+    assert parts.grid_action.shape == (5, 4, 3) and parts.pose.shape == (len(parts.labels), 3)
+    assert parts.weight.sum() == pytest.approx(1.0)
+    # each action's pose is a grid pose that realizes it
+    for a, q in enumerate(parts.pose):
+        idx = tuple(
+            int(nearest_index(torch.tensor([v]), n)) for v, n in zip(q, (5, 4, 3), strict=True)
+        )
+        assert parts.grid_action[idx] == a
+    # comparing the poses in chunks gives the same partitions
+    small = Partitions.from_table(table_3d, height=True, chunk=7)
+    np.testing.assert_array_equal(small.labels, parts.labels)
+    np.testing.assert_array_equal(small.grid_action, parts.grid_action)
+
+
+def test_random_on_a_3d_table_is_exact_against_enumeration(table_3d):
+    pl = Planner(Partitions.from_table(table_3d))
+    k, shape = table_3d.n_objects, table_3d.grid_shape
+    p = normalize(table_3d.pressure.double(), "l2").reshape(k, -1, 256).transpose(0, 1)
+    same = (torch.cdist(p, p) <= 1e-6).numpy()  # (P, K, K)
+    w = np.ones(())
+    for n in shape:
+        cell = np.full(n, 1.0)
+        cell[[0, -1]] = 0.5
+        w = np.multiply.outer(w, cell / cell.sum())
+    w = w.reshape(-1)
+    one = sum(w[i] * (1.0 / same[i].sum(-1)).mean() for i in range(len(w)))
+    assert pl.random(1) == pytest.approx(one, abs=1e-9)
+    two = sum(
+        w[i] * w[j] * (1.0 / (same[i] & same[j]).sum(-1)).mean()
+        for i in range(len(w))
+        for j in range(len(w))
+    )
+    assert pl.random(2) == pytest.approx(two, abs=1e-9)
+
+
+def test_grid_sweep_on_a_3d_table(table_3d):
+    pl = Planner(Partitions.from_table(table_3d))
+    poses = torch.from_numpy(sweep(5, 3))
+    assert sweep(8, 3).tolist()[:3] == [[-0.5, -0.5, -0.5], [0.5, -0.5, -0.5], [-0.5, 0.5, -0.5]]
+    idx = [nearest_index(poses[:, j], n) for j, n in enumerate(table_3d.grid_shape)]
+    p = normalize(table_3d.pressure.double(), "l2")[:, idx[0], idx[1], idx[2]]  # (K, 5, D)
+    flat = p.reshape(table_3d.n_objects, -1)
+    same = torch.cdist(flat, flat) <= 1e-6 * 5
+    assert pl.grid(5) == pytest.approx(float((1.0 / same.sum(-1)).mean()))
+    for g in (1, 2, 3):
+        o = pl.oracle(g)
+        assert o >= pl.infogain(g) - 1e-12 and o >= pl.random(g) - 1e-12
+        assert o >= pl.grid(g) - 1e-12 and pl.oracle(g, "random") <= o + 1e-12
+
+
+def test_cli_baselines_on_a_3d_table(tmp_path, ham_cli):
+    path = tmp_path / "t3.h5"
+    build_table(
+        WorldConfig(objects="curvature2d", pose_dims=("x", "y", "phi")), 3, path, progress=False
+    )
+    p = ham_cli("baselines", "--policy", "infogain", "--table", str(path), "--height",
+                "--first", "random", "--glances", "1", "2", "--json")  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    d = json.loads(p.stdout)
+    assert d["pose_dims"] == ["x", "y", "phi"] and d["grid_shape"] == [3, 3, 3]
+    assert 0 < d["accuracy"]["1"] <= d["accuracy"]["2"] <= 1

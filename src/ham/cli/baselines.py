@@ -56,6 +56,8 @@ def cmd_baselines(args: argparse.Namespace) -> int:
         "policy": args.policy,
         "table": str(args.table),
         "objects": table.objects,
+        "pose_dims": list(table.pose_dims),
+        "grid_shape": list(table.grid_shape),
         "first": args.first,
         "tolerance": args.tolerance,
         "height": args.height,
@@ -69,7 +71,8 @@ def cmd_baselines(args: argparse.Namespace) -> int:
         sys.stdout.write("\n")
         return 0
     print(
-        f"{args.policy} on {args.table} ({len(table.objects)} objects, "
+        f"{args.policy} on {args.table} ({len(table.objects)} objects, pose grid "
+        f"{'x'.join(map(str, table.grid_shape))} over {','.join(table.pose_dims)}, "
         f"{result['distinct_actions']} distinct pose actions, first glance {args.first})"
     )
     print("| glances | accuracy |\n|---|---|")

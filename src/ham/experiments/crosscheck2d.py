@@ -1,10 +1,13 @@
 """Cross-check the MuJoCo extended glance against the fast one on ``curvature2d`` (issue 12).
 
     .venv/bin/python -m ham.experiments.crosscheck2d   # docs/crosscheck_curvature2d.md, docs/img/crosscheck2d_*.png
+    .venv/bin/python -m ham.experiments.crosscheck2d --grid 5 --out /tmp/grid.md   # every grid pose
 
-Both simulators glance at the same random 4-D poses ``(x, y, phi, phi_y)`` on the height-field
-objects; the report gives, per object, the image correlation and the contact height difference,
-with pictures of glances on the saddle and the pyramid. Every number and picture comes from the
+Both simulators glance at the same 4-D poses ``(x, y, phi, phi_y)`` on the height-field objects:
+random ones (``--poses``), or every point of a table's pose lattice (``--grid``, ``--pose-dims``:
+the lattice of ``ham table build`` over those dims, tilts scaled to ``--tilt``; the other dims
+0). The report gives, per object, the image correlation and the contact height difference, with
+pictures of glances on the saddle and the pyramid. Every number and picture comes from the
 run that writes it (the paper's Discussion: ``g: (x, phi_x, phi_y) -> (p, h)``).
 """
 
@@ -24,9 +27,11 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+from ham.errors import HamError  # noqa: E402
 from ham.experiments.crosscheck import draw_grid, fmt_table  # noqa: E402
 from ham.world.extended_glance import ExtendedSimulator  # noqa: E402
 from ham.world.files import atomic_write  # noqa: E402
+from ham.world.glance import POSE_DIMS, check_pose_dims  # noqa: E402
 from ham.world.mujoco_sim import (  # noqa: E402
     SETTLED,
     STATUS_NAMES,
@@ -34,8 +39,9 @@ from ham.world.mujoco_sim import (  # noqa: E402
     calibrate_foam_stiffness,
     image_correlation,
 )
-from ham.world.objects import resolve_set  # noqa: E402
+from ham.world.objects import HapticObject, resolve_set  # noqa: E402
 from ham.world.sensor import SensorConfig  # noqa: E402
+from ham.world.table import grid_poses, grid_shape_for  # noqa: E402
 
 #: Random 4-D poses per object.
 POSES = 64
@@ -63,13 +69,52 @@ PYRAMID_POSES = [
 ]
 
 
-def random_poses(n: int, seed: int = 0) -> np.ndarray:
+def random_poses(n: int, seed: int = 0, tilt: float = TILT) -> np.ndarray:
     """``(n, 4)`` normalized poses ``(q_x, q_y, q_phi, q_phi_y)``: x, y over the whole zone, tilts
-    uniform in ``[-TILT, TILT]`` rad (``phi_max = pi/2``)."""
+    uniform in ``[-tilt, tilt]`` rad (``phi_max = pi/2``)."""
     rng = np.random.default_rng(seed)
     q = rng.uniform(-1.0, 1.0, (n, 4))
-    q[:, 2:] *= TILT / (math.pi / 2)
+    q[:, 2:] *= tilt / (math.pi / 2)
     return q
+
+
+def lattice_poses(grid, dims=POSE_DIMS, tilt: float = math.pi / 2) -> np.ndarray:
+    """``(n, 4)`` normalized poses ``(q_x, q_y, q_phi, q_phi_y)``: every point of the pose lattice
+    of a glance table over ``dims`` (``grid``: points per axis, one integer or one per dim, as
+    ``ham table build --grid``), row-major; the tilts scaled from ``pi/2`` (the table's) to
+    ``tilt``; the dims not in ``dims`` are 0."""
+    dims = check_pose_dims(dims)
+    if not (isinstance(tilt, (int, float)) and 0 < tilt <= math.pi / 2):
+        raise HamError(f"tilt = {tilt!r}; accepted: 0 < tilt <= pi/2 (rad)")
+    shape = grid_shape_for(grid, dims)
+    lattice = grid_poses(shape, 0, int(np.prod(shape)))
+    q = np.zeros((len(lattice), 4))
+    for j, d in enumerate(dims):
+        q[:, POSE_DIMS.index(d)] = lattice[:, j]
+    q[:, 2:] *= tilt / (math.pi / 2)
+    return q
+
+
+#: Random poses of the bowl comparison (the set's bowl against deeper ones).
+BOWL_POSES = 64
+
+
+def bowl_variants() -> list[tuple[str, HapticObject]]:
+    """The set's bowl beside spherical bowls over the whole base (radius 7 cm: the set's bowl
+    until it was made shallow; 15 and 30 cm), each 2 cm deep at its centre."""
+
+    def sphere(radius: float):
+        return lambda x, y: 0.02 + radius - np.sqrt(np.clip(radius**2 - x**2 - y**2, 0, None))
+
+    out = [
+        (
+            f"sphere R = {r * 100:g} cm over the base",
+            HapticObject.from_surface(f"bowl_r{r}", sphere(r)),
+        )
+        for r in (0.07, 0.15, 0.30)
+    ]
+    bowl = next(o for o in resolve_set("curvature2d") if o.name == "bowl")
+    return out + [("the set's bowl (7 cm across, 6 mm deep, in a flat top)", bowl)]
 
 
 def _glance(sim, oid: int, q: np.ndarray):
@@ -95,8 +140,16 @@ def report(
     poses: int = POSES,
     seed: int = 0,
     mujoco_options: dict | None = None,
+    grid=None,
+    pose_dims=POSE_DIMS,
+    tilt: float = TILT,
+    command: str = "",
 ) -> dict:
-    """Run the cross-check and write ``out`` (markdown) and its pictures beside it in ``img/``."""
+    """Run the cross-check and write ``out`` (markdown) and its pictures beside it in ``img/``.
+
+    Poses: ``poses`` random ones (``seed``, tilts up to ``tilt``), or with ``grid`` every point
+    of the lattice over ``pose_dims`` (:func:`lattice_poses`). ``command``: the options the
+    report names in its first line."""
     out = Path(out)
     img_dir = out.parent / "img"
     img_dir.mkdir(parents=True, exist_ok=True)
@@ -107,7 +160,26 @@ def report(
     fast = ExtendedSimulator(objs, sensor)
     iso = ExtendedSimulator(objs, sensor, rows_per_taxel=sensor.supersample)
     cfg = mj.config
-    q = random_poses(poses, seed)
+    if grid is None:
+        q = random_poses(poses, seed, tilt)
+        pose_text = (
+            f"{poses} per object, the same for all objects, seeded: `q_x`, `q_y` uniform in "
+            f"[-1, 1] (the pad centre anywhere over the base), `phi`, `phi_y` uniform in "
+            f"[-{tilt:g}, {tilt:g}] rad"
+        )
+    else:
+        q = lattice_poses(grid, pose_dims, tilt)
+        dims = check_pose_dims(pose_dims)
+        shape = grid_shape_for(grid, dims)
+        pose_text = (
+            f"every point of the {' x '.join(map(str, shape))} lattice over "
+            f"`{','.join(dims)}` ({len(q)} per object; `ham table build --pose-dims "
+            f"{','.join(dims)} --grid {','.join(map(str, shape))}`), each axis from -1 to 1, "
+            f"the tilts from -{tilt:g} to {tilt:g} rad, the other pose dims 0"
+        )
+        poses = len(q)
+    if len(q) < CONTACT_POSES:
+        raise HamError(f"{len(q)} poses per object; accepted: at least {CONTACT_POSES}")
     qn = q.copy()
     qn[:, 2:] *= math.pi / 2  # metric tilts for the tables
 
@@ -206,6 +278,33 @@ def report(
             cells += [f"{c.mean():.3f}", f"{dh.max():.2f}", f"{len(qc) / dt:.1f}"]
         contact_rows.append(cells)
 
+    # ---------------------------------------------------------------- bowls
+    qb = random_poses(BOWL_POSES, seed, tilt)
+    bowl_rows = []
+    variants = bowl_variants()
+    bmj = MujocoSimulator(
+        [o for _, o in variants], sensor, threads=threads, **(mujoco_options or {})
+    )
+    bfast = ExtendedSimulator([o for _, o in variants], sensor)
+    for oid, (label, _) in enumerate(variants):
+        r, f = _glance(bmj, oid, qb), _glance(bfast, oid, qb)
+        c = image_correlation(r.pressure, f.pressure)
+        dh = np.abs((r.height - f.height).double().numpy()) * 1e3
+        cells = np.minimum(pressed_cells(r.pressure), pressed_cells(f.pressure))
+        bowl_rows.append(
+            [
+                label,
+                f"{c.mean():.3f}",
+                f"{np.median(c):.3f}",
+                f"{np.mean(dh <= HEIGHT_GOAL_MM):.0%}",
+                f"{dh.max():.2f}",
+                f"{np.mean(cells <= POINT_CELLS):.0%}",
+                f"{np.mean(r.info['status'].numpy() == SETTLED):.0%}",
+                f"{np.mean(f.blocked.numpy()):.0%}",
+            ]
+        )
+    bmj.close()
+
     # ---------------------------------------------------------------- pictures
     pictures = []
     for name, poses_, title in (
@@ -239,9 +338,10 @@ def report(
     rel = lambda p: os.path.relpath(p, out.parent)  # noqa: E731
     md = ["# MuJoCo extended glances cross-checked against the fast model on `curvature2d`\n"]
     md.append(
-        "Generated by `.venv/bin/python -m ham.experiments.crosscheck2d` "
-        f"(MuJoCo {mujoco.__version__}, {poses} poses per object, seed {seed}); every number and "
-        "picture below comes from that run.\n"
+        f"Generated by `.venv/bin/python -m ham.experiments.crosscheck2d{command}` "
+        f"(MuJoCo {mujoco.__version__}, {poses} poses per object"
+        f"{f', seed {seed}' if grid is None else ''}); every number and picture below comes from "
+        "that run.\n"
     )
     md.append("## What is compared\n")
     md.append(
@@ -260,9 +360,7 @@ def report(
     )
     md.append("## Results\n")
     md.append(
-        f"Poses: {poses} per object, the same for all objects, seeded: `q_x`, `q_y` uniform in "
-        f"[-1, 1] (the pad centre anywhere over the base), `phi`, `phi_y` uniform in "
-        f"[-{TILT}, {TILT}] rad. `corr`: Pearson correlation of the MuJoCo image with the fast one "
+        f"Poses: {pose_text}. `corr`: Pearson correlation of the MuJoCo image with the fast one "
         f"at the same pose (two uniform images count as 1); `dh`: MuJoCo's contact height minus "
         "the fast model's (mm); `blocked`: stopped below 2 N by a rigid part (the housing; for "
         "MuJoCo also a step limit); `blocked agree`: both or neither.\n"
@@ -378,14 +476,32 @@ def report(
         "points in the fast model; the two differ by design, not by error. Most large height "
         "differences are such contacts: a corner of the base under a pad tilted about both axes, "
         "the saddle's rise at the pad's rim, a cylinder's crest under a tilted pad.\n"
-        "* **The bowl** (a sphere of 7 cm radius on a 9 cm base) is too deep for the flat "
-        "8 cm pad: every glance rests on the bowl's wall with the pad's rim or housing (the fast "
-        f"model is blocked by its housing at {bowl_blocked:.0%} of poses). The two pads' rims "
-        "differ: MuJoCo's are sphere taxels and a box housing, the fast model's a flat face "
-        "and housing sides sampled at a few points; and on a steep wall MuJoCo's push has a "
-        "small vertical share, so its glance there ends at the step limit (`MuJoCo settled`). "
-        f"Where neither is blocked ({bowl_free[0]} poses), the bowl's heights differ by at "
-        f"most {bowl_free[1]:.2f} mm.\n"
+        "* **The bowl.** A flat pad on a concave surface rests on its rim: at 2 N the foam "
+        "compresses by micrometres over an area, so a bowl under the 8 cm pad is touched by the "
+        "pad's corners or edges. The set's bowl was a sphere of 7 cm radius over the whole base: "
+        "every glance put a corner of the pad on its steep wall, where the foam bottoms out or "
+        "the housing holds the pad, and where the two pads' rims differ (MuJoCo's sphere taxels "
+        "and box housing, the fast model's flat face and sampled housing). It is now a shallow "
+        "bowl (a spherical cap 7 cm across and 6 mm deep in a flat top at 3.5 cm): the pad rests "
+        "on the flat ring around it or on its gentle slope, with a ring-shaped image around the "
+        f"hollow; here the fast model is blocked at {bowl_blocked:.0%} of the poses, and where "
+        f"neither is blocked ({bowl_free[0]} poses) the heights differ by at most "
+        f"{bowl_free[1]:.2f} mm. The same {BOWL_POSES} random poses (seed {seed}, tilts up to "
+        f"{tilt:g} rad) on deeper bowls:\n\n"
+        + fmt_table(
+            [
+                "bowl",
+                "corr mean",
+                "median",
+                f"abs dh <= {HEIGHT_GOAL_MM:g} mm",
+                "max abs dh",
+                "point contacts",
+                "MuJoCo settled",
+                "fast blocked",
+            ],
+            bowl_rows,
+        )
+        + "\n\n"
         "* **One row per taxel.** The fast model's default read-out samples each taxel on its "
         "centre line along v; a contact a millimetre off that line falls into the neighbouring "
         "row or none, as an edge near a column border does in the paper set "
@@ -445,8 +561,11 @@ def report(
     md.append("```\n" + "\n".join(f"{k} = {v}" for k, v in asdict(cfg).items()) + "\n```\n")
     text = "\n".join(md)
     atomic_write(out, lambda tmp: tmp.write_text(text), what="report")
+    within = [float(np.mean(np.abs(d) <= HEIGHT_GOAL_MM)) for d in np.split(all_dh, len(objs))]
     return {
+        "poses_per_object": len(q),
         "mean_corr": dict(zip([o.name for o in objs], mean_corr, strict=True)),
+        "within_1mm": dict(zip([o.name for o in objs], within, strict=True)),
         "max_abs_dh_mm": float(np.abs(all_dh).max()),
         "mujoco_glances_per_s": n_mj / t_mj,
     }
@@ -462,11 +581,49 @@ def main(argv: list[str] | None = None) -> None:
         "--poses", type=int, default=POSES, help=f"random 4-D poses per object ({POSES})"
     )
     ap.add_argument("--seed", type=int, default=0, help="seed of the poses")
+    ap.add_argument(
+        "--grid",
+        default=None,
+        help="every pose of a table's lattice instead of random poses: points per axis, one "
+        "integer or one per pose dim (e.g. 5 or 9,9,3,3); 5 over 4 dims: 625 poses per object",
+    )
+    ap.add_argument(
+        "--pose-dims", default=",".join(POSE_DIMS), help="the lattice's dims (--grid), others 0"
+    )
+    ap.add_argument(
+        "--tilt",
+        type=float,
+        default=TILT,
+        help=f"largest tilt |phi|, |phi_y| (rad, {TILT}; pi/2 = 1.5708 is a table's full range)",
+    )
     args = ap.parse_args(argv)
-    if args.poses < CONTACT_POSES:
-        raise SystemExit(f"--poses = {args.poses}; accepted: >= {CONTACT_POSES}")
+    try:
+        if args.grid is None and args.poses < CONTACT_POSES:
+            raise HamError(f"--poses = {args.poses}; accepted: >= {CONTACT_POSES}")
+        if args.grid is not None:
+            lattice_poses(args.grid, args.pose_dims, args.tilt)  # refuse bad options up front
+        elif not 0 < args.tilt <= math.pi / 2:
+            raise HamError(f"--tilt = {args.tilt!r}; accepted: 0 < tilt <= pi/2 (rad)")
+    except HamError as exc:
+        ap.error(str(exc))
+    opts = []
+    if args.grid is not None:
+        opts += ["--grid", args.grid, "--pose-dims", args.pose_dims]
+    elif args.poses != POSES:
+        opts += ["--poses", str(args.poses)]
+    if args.tilt != TILT:
+        opts += ["--tilt", f"{args.tilt:g}"]
     torch.set_num_threads(1)
-    res = report(Path(args.out), threads=args.threads, poses=args.poses, seed=args.seed)
+    res = report(
+        Path(args.out),
+        threads=args.threads,
+        poses=args.poses,
+        seed=args.seed,
+        grid=args.grid,
+        pose_dims=args.pose_dims,
+        tilt=args.tilt,
+        command="".join(f" {o}" for o in opts),
+    )
     print(f"wrote {args.out}: {res}")
 
 

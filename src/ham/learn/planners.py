@@ -9,7 +9,8 @@ of objects with equal images (:class:`Partitions`); poses with the same split ar
 Everything below is exact dynamic programming over consistent sets (``2^K`` of them), not Monte
 Carlo:
 
-* ``random``: poses drawn uniformly from ``[-1, 1]^2`` and looked up at the nearest grid point,
+* ``random``: poses drawn uniformly from ``[-1, 1]^k`` (``k`` pose dims: 2 on the paper's
+  ``(x, phi)`` table, up to 4 on a format-2 table) and looked up at the nearest grid point,
   as the random-location model (pi_rloc) draws them; the Bayes accuracy of any classifier of such
   glances (the exact version of :mod:`ham.experiments.random_glance_bound`).
 * ``grid``: a fixed systematic sweep, the same ``G`` poses for every object (:func:`sweep`).
@@ -25,6 +26,7 @@ from glance 2 on), so learned policies can be judged against planners with the s
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 from functools import cache, lru_cache
@@ -47,8 +49,10 @@ class Partitions:
     Attributes:
         labels: ``(U, K)`` int: objects with equal labels give equal images at that action.
         weight: ``(U,)`` probability of the action under uniform poses (nearest grid point).
-        pose: ``(U, 2)`` one grid pose ``(q_x, q_phi)`` that realizes the action.
-        grid_action: ``(grid, grid)`` the action index of every grid pose.
+        pose: ``(U, k)`` one grid pose (normalized, one column per pose dim) that realizes the
+            action: ``(q_x, q_phi)`` on the paper's table.
+        grid_action: the action index of every grid pose, shaped like the table's pose lattice
+            (``(grid, grid)`` on the paper's table, ``(g_1, .., g_k)`` on a k-D one).
     """
 
     labels: np.ndarray
@@ -61,11 +65,17 @@ class Partitions:
         return self.labels.shape[1]
 
     @classmethod
-    def from_table(cls, table, tolerance: float = 1e-6, height: bool = False) -> Partitions:
+    def from_table(
+        cls, table, tolerance: float = 1e-6, height: bool = False, chunk: int = 4096
+    ) -> Partitions:
         """Split each grid pose's objects by their L2-normalized images (the agent's input):
         two images are equal when they differ by at most ``tolerance`` in L2 norm. ``height``:
         the glances' contact heights tell objects apart too (the HAM's ``height_input``: the
-        image and ``h / MAX_HEIGHT`` must both agree within ``tolerance``)."""
+        image and ``h / MAX_HEIGHT`` must both agree within ``tolerance``).
+
+        Any pose lattice held in memory: the paper's ``(x, phi)`` square or a format-2 table
+        over ``k`` pose dims (the planners see grid poses, not what they mean); ``chunk`` grid
+        poses are compared at a time (memory)."""
         from ham.world.sensor import normalize
         from ham.world.table import grid_values
 
@@ -74,38 +84,44 @@ class Partitions:
         k, g = table.n_objects, table.grid
         dims = tuple(getattr(table, "pose_dims", ("x", "phi")))
         shape = tuple(getattr(table, "grid_shape", (g, g)))
-        # Any two pose dims: the planners see grid poses, not what they mean.
-        if len(dims) != 2 or shape != (g, g) or table.pressure is None:
+        if table.pressure is None:
             raise HamError(
-                f"a table over pose grid {'x'.join(map(str, shape))} ({','.join(dims)}); the "
-                "exact planners accept a square grid over two pose dims, held in memory"
+                f"a streamed table over pose grid {'x'.join(map(str, shape))} "
+                f"({','.join(dims)}); the exact planners accept a table held in memory "
+                "(a smaller grid)"
             )
         if k > MAX_OBJECTS:
             raise HamError(
                 f"the table has {k} objects; exact planners accept at most {MAX_OBJECTS}"
             )
-        p = normalize(table.pressure.double(), "l2")  # (K, g, g, D)
-        if height:
-            from ham.world.objects import MAX_HEIGHT
+        n_poses = int(np.prod(shape))
+        images = table.pressure.reshape(k, n_poses, *table.pressure.shape[-2:])
+        heights = table.height.reshape(k, n_poses, 1) if height else None
+        labels = np.empty((n_poses, k), dtype=np.int64)
+        for start in range(0, n_poses, chunk):
+            sl = slice(start, start + chunk)
+            p = normalize(images[:, sl].double(), "l2")  # (K, c, D)
+            if height:
+                from ham.world.objects import MAX_HEIGHT
 
-            h = table.height.double().reshape(k, g, g, 1).to(p.device) / MAX_HEIGHT
-            p = torch.cat([p, h], -1)
-        p = p.permute(1, 2, 0, 3).reshape(g * g, k, -1)
-        same = (torch.cdist(p, p) <= tolerance).numpy()  # (P, K, K)
-        # label = the first object equal to this one (exact equality makes this a partition)
-        labels = same.argmax(-1).astype(np.int64)  # (P, K)
+                p = torch.cat([p, heights[:, sl].double().to(p.device) / MAX_HEIGHT], -1)
+            p = p.transpose(0, 1)  # (c, K, D)
+            same = (torch.cdist(p, p) <= tolerance).cpu().numpy()  # (c, K, K)
+            # label = the first object equal to this one (exact equality makes this a partition)
+            labels[sl] = same.argmax(-1)
         rows, action = np.unique(labels, axis=0, return_inverse=True)
         action = action.reshape(-1)
-        q = grid_values(g)
-        cell = np.full(g, 2.0 / (g - 1))
-        cell[[0, -1]] /= 2  # the nearest grid point of a uniform q: half cells at the ends
-        w_pose = np.outer(cell, cell).reshape(-1) / 4.0
-        weight = np.bincount(action, weights=w_pose, minlength=len(rows))
-        first = np.full(len(rows), -1)
-        for i in range(g * g - 1, -1, -1):
-            first[action[i]] = i
-        pose = np.stack([q[first // g], q[first % g]], axis=1)
-        return cls(rows, weight, pose, action.reshape(g, g))
+        # The nearest grid point of a uniform q: half cells at the ends, on every axis.
+        w_pose = np.ones(())
+        for n in shape:
+            cell = np.full(n, 2.0 / (n - 1))
+            cell[[0, -1]] /= 2
+            w_pose = np.multiply.outer(w_pose, cell / 2.0)
+        weight = np.bincount(action, weights=w_pose.reshape(-1), minlength=len(rows))
+        _, first = np.unique(action, return_index=True)  # the first pose of each action
+        idx = np.unravel_index(first, shape)
+        pose = np.stack([grid_values(n)[i] for n, i in zip(shape, idx, strict=True)], axis=1)
+        return cls(rows, weight, pose, action.reshape(shape))
 
     def split(self, mask: int, action: int) -> list[int]:
         """The classes (bit masks) an action splits the consistent set ``mask`` into."""
@@ -138,14 +154,18 @@ def _entropy_left(parts: list[int], size: int) -> float:
     return sum(_size(c) / size * math.log(_size(c)) for c in parts)
 
 
-def sweep(glances: int) -> np.ndarray:
+def sweep(glances: int, dims: int = 2) -> np.ndarray:
     """The grid policy's poses: ``G`` cell centres of the smallest near-square raster over
-    ``[-1, 1]^2`` with at least ``G`` cells, row by row (``(G, 2)`` of ``(q_x, q_phi)``)."""
-    nx = math.ceil(math.sqrt(glances))
-    nphi = math.ceil(glances / nx)
-    xs = -1 + (2 * np.arange(nx) + 1) / nx
-    ps = -1 + (2 * np.arange(nphi) + 1) / nphi
-    return np.array([(x, p) for p in ps for x in xs][:glances])
+    ``[-1, 1]^dims`` with at least ``G`` cells, the first axis fastest (``(G, dims)``; on the
+    paper's table ``(q_x, q_phi)``, row by row)."""
+    counts, left = [], glances
+    for axis in range(dims, 0, -1):  # each axis: ceil(the remaining cells' axis-th root)
+        n = max(1, math.ceil(left ** (1.0 / axis) - 1e-9))
+        counts.append(n)
+        left = math.ceil(left / n)
+    axes = [-1 + (2 * np.arange(n) + 1) / n for n in counts]
+    cells = itertools.product(*reversed(axes))  # the last axis slowest, the first fastest
+    return np.array([tuple(reversed(c)) for c in cells][:glances])
 
 
 class Planner:
@@ -187,11 +207,10 @@ class Planner:
         """Bayes accuracy of the fixed sweep :func:`sweep` (the same poses for every object)."""
         from ham.world.table import nearest_index
 
-        g = self.parts.grid_action.shape[0]
-        poses = torch.from_numpy(sweep(glances))
-        ix = nearest_index(poses[:, 0], g).numpy()
-        ip = nearest_index(poses[:, 1], g).numpy()
-        actions = self.parts.grid_action[ix, ip]
+        shape = self.parts.grid_action.shape
+        poses = torch.from_numpy(sweep(glances, len(shape)))
+        idx = tuple(nearest_index(poses[:, j], n).numpy() for j, n in enumerate(shape))
+        actions = self.parts.grid_action[idx]
 
         def one(k: int) -> float:
             mask = self.full

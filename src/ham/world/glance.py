@@ -682,7 +682,8 @@ def _solve_stop_height(
         z = torch.maximum(z, z0)
     rows, ez, zz = None, e, z
     spare = ("f", "a")  # the rows still moving are copied back and forth between these
-    for it in range(e.shape[1] + 1):
+    copies = 0
+    for _ in range(e.shape[1] + 1):
         # The active set as a float mask written by the comparison itself (a bool mask and its
         # conversion cost far more on CPU); the sums stay in e's dtype.
         act = torch.gt(ez, zz[:, None], out=work.get("t", ez.shape, e.dtype))
@@ -694,11 +695,15 @@ def _solve_stop_height(
             z = zz
         else:
             z.index_copy_(0, rows, zz)
-        if not bool(moved.any()):
-            break
-        # Iterate on the rows still moving only: most converge in one or two steps.
         keep = moved.nonzero().squeeze(1)
-        rows = keep if rows is None else rows.index_select(0, keep)
-        dst = work.get(spare[it % 2], (len(keep), e.shape[1]), e.dtype)
-        ez, zz = torch.index_select(ez, 0, keep, out=dst), zz.index_select(0, keep)
+        if len(keep) == 0:
+            break
+        # Iterate on the rows still moving only, once at most half of them are: copying nearly
+        # all rows costs more than another step on the few that have converged (a converged
+        # row's step finds the same active set and the same z: the result does not change).
+        if 2 * len(keep) <= len(zz):
+            rows = keep if rows is None else rows.index_select(0, keep)
+            dst = work.get(spare[copies % 2], (len(keep), e.shape[1]), e.dtype)
+            ez, zz = torch.index_select(ez, 0, keep, out=dst), zz.index_select(0, keep)
+            copies += 1
     return z

@@ -724,6 +724,21 @@ def _arc(t: np.ndarray, radius: float) -> np.ndarray:
     return np.sqrt(np.clip(radius**2 - t**2, 0.0, None)) - math.sqrt(radius**2 - _A**2)
 
 
+#: The bowl: a spherical cap of this radius (m) and depth (m) sunk into a flat top at this height.
+#: A deep bowl (once a sphere of R = 7 cm over the whole base) holds the flat 8 cm pad on its rim:
+#: every glance was a corner of the pad on a steep wall, stopped by the foam bottoming out or the
+#: housing, where MuJoCo's and the fast model's rims differ (docs/crosscheck_curvature2d.md). In
+#: this one the pad rests on the flat ring around the bowl or inside it on a gentle slope.
+BOWL_RADIUS, BOWL_DEPTH, BOWL_TOP = 0.035, 0.006, 0.035
+
+
+def _bowl(x, y):
+    sphere = (BOWL_RADIUS**2 + BOWL_DEPTH**2) / (2 * BOWL_DEPTH)  # the cap's sphere radius
+    r2 = x**2 + y**2
+    cap = BOWL_TOP - BOWL_DEPTH + sphere - np.sqrt(np.clip(sphere**2 - r2, 0.0, None))
+    return np.where(r2 < BOWL_RADIUS**2, cap, BOWL_TOP)
+
+
 def _curvature2d() -> list[tuple[str, Callable[[], HapticObject]]]:
     r_cyl, r_dome, k_saddle, slope = 0.06, 0.07, 0.015 / _A**2, 0.5
     corner = math.sqrt(r_dome**2 - 2 * _A**2)  # the dome's sphere at the base's corners
@@ -756,8 +771,8 @@ def _curvature2d() -> list[tuple[str, Callable[[], HapticObject]]]:
         ),
         (
             "bowl",
-            lambda x, y: _P + r_dome - np.sqrt(np.clip(r_dome**2 - x**2 - y**2, 0, None)),
-            "spherical bowl (R = 7 cm), concave in x and y",
+            _bowl,
+            "shallow spherical bowl (7 cm across, 6 mm deep) sunk into a flat top at 3.5 cm",
         ),
         (
             "pyramid",

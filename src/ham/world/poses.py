@@ -9,9 +9,8 @@ from __future__ import annotations
 import torch
 
 from ham.errors import HamError
+from ham.world.glance import PAPER_POSE_DIMS
 
-#: The paper's pose: ``(q_x, q_phi)``.
-PAPER_POSE_DIMS: tuple[str, ...] = ("x", "phi")
 #: Keyword of each pose dimension in ``Simulator.glance``.
 _GLANCE_ARGS: dict[str, str] = {"x": "q_x", "y": "q_y", "phi": "q_phi", "phi_y": "q_phi_y"}
 
