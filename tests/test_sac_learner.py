@@ -74,10 +74,13 @@ def test_replay_buffer_overwrites_the_oldest_and_round_trips():
 
 
 # --------------------------------------------------------------------------- what trains what
-@pytest.mark.parametrize("first_glance", ["random", "learned"])
-def test_the_parts_train_disjoint_weights(first_glance):
+@pytest.mark.parametrize(
+    "first_glance, critic_trains_core", [("random", False), ("learned", False), ("random", True)]
+)
+def test_the_parts_train_disjoint_weights(first_glance, critic_trains_core):
     """The classification reaches the tactile network, the core and the classifier; the actor's
-    loss only the location network; the critic's only the critic; the temperature's only
+    loss only the location network; the critic's only the critic (and, with
+    ``critic_trains_core``, the tactile network and the core); the temperature's only
     ``log alpha``; nothing reaches the baseline head."""
     from ham.learn.environment import HapticEnv
     from ham.world.config import WorldConfig
@@ -96,16 +99,17 @@ def test_the_parts_train_disjoint_weights(first_glance):
         played = agent(rec, objects, torch.Generator().manual_seed(0))
     sac.buffer.add(pressures=torch.stack(rec.pressures, 1), where=torch.stack(rec.where, 1),
                    locations=played.locations.transpose(0, 1), objects=objects)  # fmt: skip
-    loss = sac_losses(agent, sac, sac.buffer.sample(4, sac.generator), gamma=0.9)
+    loss = sac_losses(agent, sac, sac.buffer.sample(4, sac.generator), 0.9, critic_trains_core)
     params = {f"agent.{n}": p for n, p in agent.named_parameters()}
     params.update({f"critic.{n}": p for n, p in sac.critic.named_parameters()})
     params["log_alpha"] = sac.log_alpha
 
     def owner(name: str) -> str:
         part = name.split(".")[1] if name.startswith("agent.") else name.split(".")[0]
-        return {"tactile": "classify", "core": "classify", "classifier": "classify"}.get(part, part)
+        return {"tactile": "encoder", "core": "encoder"}.get(part, part)
 
-    expected = {"classification": {"classify"}, "actor": {"location"}, "critic": {"critic"},
+    expected = {"classification": {"encoder", "classifier"}, "actor": {"location"},
+                "critic": {"critic", "encoder"} if critic_trains_core else {"critic"},
                 "alpha": {"log_alpha"}}  # fmt: skip
     for part, owners in expected.items():
         grads = torch.autograd.grad(
@@ -180,6 +184,7 @@ def test_sac_run_on_ap_gym_checkpoints_and_resumes_bit_identically(tmp_path):
         ({"target_tau": 1.5}, "target_tau = 1.5"),
         ({"init_alpha": -1.0}, "init_alpha = -1.0"),
         ({"target_entropy": float("nan")}, "target_entropy = nan"),
+        ({"critic_trains_core": 1}, "critic_trains_core = 1"),
     ],
 )
 def test_bad_sac_options_are_refused_by_name(kw, match):
@@ -200,6 +205,6 @@ def test_config_round_trip_and_older_configs_load():
     assert TrainConfig.from_dict(json.loads(json.dumps(c.to_dict()))) == c
     old = TrainConfig().to_dict()
     for name in ("replay_size", "replay_batch", "sac_updates", "target_tau", "init_alpha",
-                 "target_entropy"):  # fmt: skip
+                 "target_entropy", "critic_trains_core"):  # fmt: skip
         old.pop(name)
     assert TrainConfig.from_dict(old) == TrainConfig()  # written before the sac learner

@@ -268,11 +268,20 @@ def replay_states(
 
 
 def sac_losses(
-    agent: HapticAttentionModel, sac: SacState, episodes: dict[str, torch.Tensor], gamma: float
+    agent: HapticAttentionModel,
+    sac: SacState,
+    episodes: dict[str, torch.Tensor],
+    gamma: float,
+    critic_trains_core: bool = False,
 ) -> SacLoss:
     """The losses of one update on stored ``episodes`` (:meth:`ReplayBuffer.sample`), with their
     graphs: ``classification`` (+ ``actor``) for the HAM's optimizer, ``critic`` and ``alpha``
-    (the temperature's loss) for theirs. Action noise comes from the learner's generator."""
+    (the temperature's loss) for theirs. Action noise comes from the learner's generator.
+
+    ``critic_trains_core``: the critic's loss also trains the tactile network and the core (it
+    reads ``tau`` undetached; its TD targets stay detached), so that the state the location
+    network reads holds what the value needs, not only what the classification needs (the
+    encoder trained by the critic, the actor on its detached output: SAC-AE's and DrQ's way)."""
     pressures = episodes["pressures"].transpose(0, 1)  # (S, B, D)
     where = episodes["where"].transpose(0, 1)
     heights = episodes["heights"].transpose(0, 1) if "heights" in episodes else None
@@ -284,12 +293,13 @@ def sac_losses(
         F.cross_entropy(logits.reshape(s * b, k), objects.repeat(s), reduction="mean") * s
     )
     gain = information_gain(logits, objects)  # (S, B), detached
-    taus = taus.detach()
+    live, taus = taus, taus.detach()
     if agent.config.first_glance == "learned":  # tau_0 = 0 chose the first glance
         states = torch.cat([torch.zeros_like(taus[:1]), taus[:-1]])
+        live = torch.cat([torch.zeros_like(taus[:1]), live[:-1]])
         acts, rewards = actions, gain
     else:
-        states, acts, rewards = taus[:-1], actions[1:], gain[1:]
+        states, live, acts, rewards = taus[:-1], live[:-1], actions[1:], gain[1:]
     next_states = taus[-states.shape[0] :]  # tau after the chosen glance
     done = torch.zeros_like(rewards)
     done[-1] = 1.0  # the last glance ends the episode: nothing follows it
@@ -301,7 +311,7 @@ def sac_losses(
         q2, logp2 = truncated_rsample(mu2, sigma2, sac.generator)
         t1, t2 = sac.target(next_states, q2)
         y = rewards + gamma * (1 - done) * (torch.minimum(t1, t2) - alpha * logp2)
-    c1, c2 = sac.critic(states, acts)
+    c1, c2 = sac.critic(live if critic_trains_core else states, acts)
     critic_loss = 0.5 * ((c1 - y) ** 2).mean() + 0.5 * ((c2 - y) ** 2).mean()
 
     # the actor: the location network, the critic's weights frozen
@@ -334,12 +344,14 @@ def sac_update(
     batch: int,
     gamma: float,
     target_tau: float,
+    critic_trains_core: bool = False,
 ) -> SacLoss:
     """One update on ``batch`` episodes drawn from the buffer (:func:`sac_losses`): the HAM's
     optimizer steps on the classification and the actor's loss, the critic's and the
     temperature's on theirs; the target critics move ``target_tau`` towards the critics.
     Returns the losses, detached."""
-    loss = sac_losses(agent, sac, sac.buffer.sample(batch, sac.generator), gamma)
+    episodes = sac.buffer.sample(batch, sac.generator)
+    loss = sac_losses(agent, sac, episodes, gamma, critic_trains_core)
     for name in ("total", "critic", "alpha"):
         v = getattr(loss, name)
         if not bool(torch.isfinite(v)):
@@ -347,8 +359,8 @@ def sac_update(
     optimizer.zero_grad(set_to_none=True)
     sac.critic_optimizer.zero_grad(set_to_none=True)
     sac.alpha_optimizer.zero_grad(set_to_none=True)
-    loss.total.backward()
-    loss.critic.backward()
+    # one backward pass: with critic_trains_core both reach the core through one graph
+    (loss.total + loss.critic).backward()
     loss.alpha.backward()
     optimizer.step()
     sac.critic_optimizer.step()

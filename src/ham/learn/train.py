@@ -153,6 +153,8 @@ class TrainConfig:
         init_alpha: the sac entropy temperature at the start (tuned from there).
         target_entropy: the entropy (nats) the sac temperature steers the policy to (None: minus
             the number of pose dims, SAC's choice).
+        critic_trains_core: the sac critic's loss also trains the tactile network and the core
+            (off: only the classification does; the critic reads the core output detached).
     """
 
     model: HamConfig = field(default_factory=HamConfig)
@@ -200,6 +202,7 @@ class TrainConfig:
     target_tau: float = 0.005
     init_alpha: float = 0.1
     target_entropy: float | None = None
+    critic_trains_core: bool = False
 
     def __post_init__(self) -> None:
         for name, kind in (("model", HamConfig), ("world", WorldConfig), ("nesterov", bool)):
@@ -332,6 +335,10 @@ class TrainConfig:
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
                               or not math.isfinite(v)):  # fmt: skip
             raise HamError(f"target_entropy = {v!r}; accepted: a finite number (or None)")
+        if not isinstance(self.critic_trains_core, bool):
+            raise HamError(
+                f"critic_trains_core = {self.critic_trains_core!r}; accepted: true or false"
+            )
         if self.learner != "sac":
             return
         refused = (
@@ -882,7 +889,10 @@ def train_step_sac(run: Run) -> SacLoss:
         objects=objects,
     )
     for _ in range(c.sac_updates):
-        loss = sac_update(run.agent, run.optimizer, sac, c.replay_batch, c.gamma, c.target_tau)
+        loss = sac_update(
+            run.agent, run.optimizer, sac, c.replay_batch, c.gamma, c.target_tau,
+            c.critic_trains_core,
+        )  # fmt: skip
     run.step += 1
     _check_weights(run)
     loss.gain = information_gain(played.logits, objects)
