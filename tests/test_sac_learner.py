@@ -44,6 +44,41 @@ def test_truncated_density_integrates_to_one_and_the_sample_follows_it(mu, sigma
                                                    torch.full_like(q, sigma)))  # fmt: skip
 
 
+@pytest.mark.parametrize("m, s", [(0.0, 0.3), (0.7, 0.8), (-2.0, 1.5)])
+def test_squashed_density_integrates_to_one_and_matches_its_sample(m, s):
+    from ham.model.policy import SquashedGaussian
+
+    x = torch.linspace(-1 + 1e-6, 1 - 1e-6, 400001, dtype=torch.float64)[:, None]
+    d = SquashedGaussian(torch.full_like(x, m), torch.full_like(x, s))
+    assert torch.trapezoid(d.log_prob(x).exp(), x[:, 0]).item() == pytest.approx(1.0, abs=1e-3)
+    big = SquashedGaussian(torch.full((5000, 2), m), torch.full((5000, 2), s))
+    q, logp = big.rsample(torch.Generator().manual_seed(2))
+    inside = q.abs().max(-1).values < 0.999  # float32's atanh near +-1 is coarse
+    assert torch.allclose(logp[inside], big.log_prob(q)[inside], atol=1e-3)
+    assert q.abs().max() <= 1
+    assert torch.allclose(big.mode(), torch.tanh(torch.full((5000, 2), m)))
+    assert q.mean().item() == pytest.approx(torch.tanh(m + s * torch.randn(200000)).mean().item(),
+                                            abs=0.03)  # fmt: skip
+
+
+def test_truncated_sample_stops_moving_with_the_mean_as_sigma_grows():
+    """Why the sac learner's policy is the squashed Gaussian: the truncated Gaussian's
+    reparametrized sample forgets its mean when its spread is wide, the squashed one does not."""
+    from ham.model.policy import SquashedGaussian
+
+    for sigma, expect_small in ((0.2, False), (20.0, True)):
+        mu = torch.zeros(1000, 1, requires_grad=True)
+        q, _ = truncated_rsample(mu, torch.full((1000, 1), sigma), torch.Generator().manual_seed(0))
+        (g,) = torch.autograd.grad(q.sum(), [mu])
+        assert (g.mean().item() < 0.01) == expect_small, (sigma, g.mean())
+    m = torch.zeros(1000, 1, requires_grad=True)
+    q, _ = SquashedGaussian(m, torch.full((1000, 1), 20.0)).rsample(
+        torch.Generator().manual_seed(0)
+    )
+    (g,) = torch.autograd.grad(q.sum(), [m])
+    assert g.mean().item() > 0.01
+
+
 def test_rsample_is_differentiable_in_the_mean_and_the_spread():
     mu = torch.tensor([[0.1, -0.4]], requires_grad=True)
     sigma = torch.tensor([[0.2, 0.7]], requires_grad=True)
@@ -88,8 +123,8 @@ def test_the_parts_train_disjoint_weights(first_glance, critic_trains_core):
 
     source, _ = make_source(None, WorldConfig())
     env = HapticEnv(source, batch_size=4, seed=0)
-    config = TrainConfig(model=HamConfig(glances=3, first_glance=first_glance), learner="sac",
-                         optimizer="adam", replay_size=16, seed=1)  # fmt: skip
+    model = HamConfig(glances=3, first_glance=first_glance, policy="squashed")
+    config = TrainConfig(model=model, learner="sac", optimizer="adam", replay_size=16, seed=1)
     torch.manual_seed(0)
     agent = HapticAttentionModel(config.model)
     sac = SacState(agent, config, torch.device("cpu"))
@@ -128,7 +163,7 @@ def _config(**kw) -> TrainConfig:
     from ham.learn.train import fit_to_ap_gym
 
     model = HamConfig(glances=3, hidden_units=32, combine_units=32, what_units=16,
-                      where_units=16)  # fmt: skip
+                      where_units=16, policy="squashed")  # fmt: skip
     base = dict(model=model, steps=4, batch_size=4, eval_every=2, eval_batches=1, seed=3,
                 learner="sac", optimizer="adam", lr=3e-3, gamma=0.9, replay_batch=6,
                 sac_updates=2, replay_size=10)  # fmt: skip

@@ -49,6 +49,7 @@ from torch.nn import functional as F
 from ham.errors import HamError
 from ham.learn.info_loss import information_gain
 from ham.model.agent import HapticAttentionModel
+from ham.model.policy import LocationDistribution, SquashedGaussian, TruncatedGaussian
 
 #: the critic's hidden layers (two of 256 ReLU units, SAC's and APPLE's size)
 CRITIC_UNITS = 256
@@ -86,6 +87,22 @@ def truncated_rsample(
     p = (a + u * (b - a)).clamp(1e-15, 1 - 1e-15)
     q = (mu.double() + sigma.double() * torch.special.ndtri(p)).clamp(-1, 1).to(mu.dtype)
     return q, truncated_log_prob(q, mu, sigma)
+
+
+def policy_rsample(
+    dist: LocationDistribution, generator: torch.Generator | None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """A reparametrized pose and its ``log pi`` from the location policy's distribution: the
+    squashed Gaussian's own (``--policy squashed``), or the truncated Gaussian's inverse-CDF
+    sample (``learned``: its gradient fades as ``sigma`` grows, docs/learners.md)."""
+    if isinstance(dist, SquashedGaussian):
+        return dist.rsample(generator)
+    if isinstance(dist, TruncatedGaussian):
+        return truncated_rsample(dist.mu, dist.sigma, generator)
+    raise HamError(
+        f"a {type(dist).__name__} location policy with learner 'sac'; accepted: --policy "
+        "squashed or learned (a reparametrized sample)"
+    )
 
 
 # --------------------------------------------------------------------------- the critic
@@ -307,8 +324,7 @@ def sac_losses(
 
     # the critic: the soft TD target from the target critics and a fresh action
     with torch.no_grad():
-        mu2, sigma2 = agent.location(next_states)
-        q2, logp2 = truncated_rsample(mu2, sigma2, sac.generator)
+        q2, logp2 = policy_rsample(agent.location.distribution(next_states), sac.generator)
         t1, t2 = sac.target(next_states, q2)
         y = rewards + gamma * (1 - done) * (torch.minimum(t1, t2) - alpha * logp2)
     c1, c2 = sac.critic(live if critic_trains_core else states, acts)
@@ -318,8 +334,7 @@ def sac_losses(
     for p in sac.critic.parameters():
         p.requires_grad_(False)
     try:
-        mu, sigma = agent.location(states)
-        q, logp = truncated_rsample(mu, sigma, sac.generator)
+        q, logp = policy_rsample(agent.location.distribution(states), sac.generator)
         a1, a2 = sac.critic(states, q)
         actor_loss = (alpha * logp - torch.minimum(a1, a2)).mean()
     finally:

@@ -342,7 +342,11 @@ class TrainConfig:
         if self.learner != "sac":
             return
         refused = (
-            ("policy", self.model.policy != "learned", "--policy learned"),
+            (
+                "policy",
+                self.model.policy not in ("squashed", "learned"),
+                "--policy squashed (or learned)",
+            ),
             ("stop", self.model.stop, "no --stop"),
             ("epochs", self.epochs > 1, "epochs = 1"),
             ("move_cost", self.move_cost > 0, "move_cost = 0"),
