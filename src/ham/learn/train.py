@@ -46,8 +46,10 @@ from ham.learn.info_loss import (
     clipped_info_loss,
     info_loss,
     info_targets,
+    information_gain,
     mean_travel_penalty,
 )
+from ham.learn.off_policy import SacLoss, SacState, sac_update
 from ham.learn.stopping import STOP_LEARNERS, stop_loss
 from ham.model.agent import Episode, HamConfig, HapticAttentionModel, count_parameters
 from ham.world.config import WorldConfig
@@ -61,7 +63,7 @@ METRICS_FILE = "metrics.json"
 CHECKPOINT_FILE = "checkpoint.pt"
 TIMING_FILE = "timing.json"
 DEVICES: tuple[str, ...] = ("cpu", "cuda")
-LEARNERS: tuple[str, ...] = ("hybrid", "info")
+LEARNERS: tuple[str, ...] = ("hybrid", "info", "sac")
 OPTIMIZERS: tuple[str, ...] = ("sgd", "adam")
 
 
@@ -100,9 +102,11 @@ class TrainConfig:
             for it); ``None``: the haptic world.
         device: ``cpu`` or ``cuda``.
         log_every: steps between TensorBoard training scalars.
-        learner: ``hybrid`` (the paper's hybrid REINFORCE loss, :mod:`ham.learn.hybrid_loss`)
-            or ``info`` (beyond the paper: cross-entropy after every glance and an actor-critic
-            on the information each glance gains, :mod:`ham.learn.info_loss`).
+        learner: ``hybrid`` (the paper's hybrid REINFORCE loss, :mod:`ham.learn.hybrid_loss`),
+            ``info`` (beyond the paper: cross-entropy after every glance and an actor-critic
+            on the information each glance gains, :mod:`ham.learn.info_loss`) or ``sac`` (the
+            same classification, the location policy by a soft actor-critic over replayed
+            episodes, :mod:`ham.learn.off_policy`).
         optimizer: ``sgd`` (the paper: SGD, Nesterov momentum) or ``adam`` (at the same
             learning-rate schedule; beta_1 = momentum).
         gamma: discount of the information reward over the glances (info learner; 0.5: a
@@ -141,6 +145,16 @@ class TrainConfig:
             (0: off, the paper).
         object_offset_max: and shifted along x and y by offsets uniform in
             [-object_offset_max, object_offset_max] m (0: off, the paper).
+        replay_size: the sac learner's replay buffer, in episodes (the oldest overwritten).
+        replay_batch: episodes replayed per sac update.
+        sac_updates: sac updates per training step (each on a fresh draw from the buffer;
+            one training step plays one batch of batch_size episodes into it).
+        target_tau: the sac critics' Polyak averaging rate of their target copies.
+        init_alpha: the sac entropy temperature at the start (tuned from there).
+        target_entropy: the entropy (nats) the sac temperature steers the policy to (None: minus
+            the number of pose dims, SAC's choice).
+        critic_trains_core: the sac critic's loss also trains the tactile network and the core
+            (off: only the classification does; the critic reads the core output detached).
     """
 
     model: HamConfig = field(default_factory=HamConfig)
@@ -182,6 +196,13 @@ class TrainConfig:
     policy_epochs: int | None = None
     object_yaw_max: float = 0.0
     object_offset_max: float = 0.0
+    replay_size: int = 100_000
+    replay_batch: int = 32
+    sac_updates: int = 4
+    target_tau: float = 0.005
+    init_alpha: float = 0.1
+    target_entropy: float | None = None
+    critic_trains_core: bool = False
 
     def __post_init__(self) -> None:
         for name, kind in (("model", HamConfig), ("world", WorldConfig), ("nesterov", bool)):
@@ -254,6 +275,7 @@ class TrainConfig:
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
             raise HamError(f"policy_lr_scale = {v!r}; accepted: a finite number > 0")
         self._check_epochs()
+        self._check_sac()
         check_device(self.device, available=False)  # spelling only: a saved GPU run loads on CPU
         if self.env is not None and self.table is not None:
             raise HamError(
@@ -296,6 +318,45 @@ class TrainConfig:
             )
         if self.epochs > 1 and self.model.stop:
             raise HamError(f"epochs = {self.epochs} with a learned stop; accepted: epochs = 1")
+
+    def _check_sac(self) -> None:
+        for name in ("replay_size", "replay_batch", "sac_updates"):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
+                raise HamError(f"{name} = {v!r}; accepted: an integer >= 1")
+        v = self.target_tau
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v <= 1:
+            raise HamError(f"target_tau = {v!r}; accepted: a number in (0, 1]")
+        v = self.init_alpha
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v)
+                                                                           and v > 0):  # fmt: skip
+            raise HamError(f"init_alpha = {v!r}; accepted: a finite number > 0")
+        v = self.target_entropy
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
+                              or not math.isfinite(v)):  # fmt: skip
+            raise HamError(f"target_entropy = {v!r}; accepted: a finite number (or None)")
+        if not isinstance(self.critic_trains_core, bool):
+            raise HamError(
+                f"critic_trains_core = {self.critic_trains_core!r}; accepted: true or false"
+            )
+        if self.learner != "sac":
+            return
+        refused = (
+            (
+                "policy",
+                self.model.policy not in ("squashed", "learned"),
+                "--policy squashed (or learned)",
+            ),
+            ("stop", self.model.stop, "no --stop"),
+            ("epochs", self.epochs > 1, "epochs = 1"),
+            ("move_cost", self.move_cost > 0, "move_cost = 0"),
+            ("entropy_coef", self.entropy_coef > 0, "entropy_coef = 0 (the temperature is tuned)"),
+        )
+        for name, bad, accepted in refused:
+            if bad:
+                value = getattr(self.model, name, None) if name in ("policy", "stop") else None
+                value = getattr(self, name) if value is None else value
+                raise HamError(f"{name} = {value!r} with learner 'sac'; accepted: {accepted}")
 
     def learning_rate(self, step: int) -> float:
         """``alpha_t = max(alpha_min, alpha_0 * delta_alpha^(t / T))`` (section "Training")."""
@@ -369,6 +430,8 @@ class Run:
     best_accumulated_accuracy: float = -1.0
     history: list = field(default_factory=list)
     objects: list = field(default_factory=list)
+    #: the sac learner's critics, temperature, replay buffer (``None`` for the other learners)
+    sac: SacState | None = None
 
     @classmethod
     def create(cls, config: TrainConfig, env: HapticEnv | ApGymGlanceEnv | None = None) -> Run:
@@ -397,7 +460,10 @@ class Run:
             )
         policy_generator = torch.Generator(device=device)
         policy_generator.manual_seed(stream_seed(config.seed, 1))
-        return cls(config, agent, env, optimizer, policy_generator, objects=list(env.objects))
+        sac = SacState(agent, config, device) if config.learner == "sac" else None
+        return cls(
+            config, agent, env, optimizer, policy_generator, objects=list(env.objects), sac=sac
+        )
 
     def close(self) -> None:
         """Release the environment (ap_gym's data loaders)."""
@@ -406,7 +472,7 @@ class Run:
             close()
 
     def state_dict(self) -> dict:
-        return {
+        state = {
             "step": self.step,
             "model": self.agent.state_dict(),
             "optimizer": self.optimizer.state_dict(),
@@ -417,6 +483,9 @@ class Run:
             "best_accumulated_accuracy": self.best_accumulated_accuracy,
             "history": self.history,
         }
+        if self.sac is not None:  # only the sac learner's checkpoints carry it
+            state["sac"] = self.sac.state_dict()
+        return state
 
     def load_state_dict(self, state: dict) -> None:
         self.step = int(state["step"])
@@ -428,6 +497,10 @@ class Run:
         self.best_step = int(state["best_step"])
         self.best_accumulated_accuracy = float(state["best_accumulated_accuracy"])
         self.history = list(state["history"])
+        if self.sac is not None:
+            if "sac" not in state:
+                raise HamError("the checkpoint has no sac learner state; accepted: a sac run's")
+            self.sac.load_state_dict(state["sac"])
 
     @property
     def env_steps(self) -> int:
@@ -661,12 +734,15 @@ def _check_weights(run: Run) -> None:
         raise HamError(f"training diverged at step {run.step}: NaN/inf in the weights {bad[0]}")
 
 
-def train_step(run: Run) -> HybridLoss | InfoLoss:
+def train_step(run: Run) -> HybridLoss | InfoLoss | SacLoss:
     """One training step: a fresh batch, one episode, the learner's loss, one optimizer step
-    (or ``epochs`` of them over the batch's recorded glances, :func:`train_step_epochs`)."""
+    (or ``epochs`` of them over the batch's recorded glances, :func:`train_step_epochs`; or the
+    sac learner's updates over its replay buffer, :func:`train_step_sac`)."""
     c = run.config
     for group in run.optimizer.param_groups:
         group["lr"] = c.learning_rate(run.step) * group.get("lr_scale", 1.0)
+    if c.learner == "sac":
+        return train_step_sac(run)
     if c.epochs > 1:
         return train_step_epochs(run)
     objects = run.env.sample_objects()  # a fresh batch, drawn uniformly
@@ -795,6 +871,35 @@ def train_step_epochs(run: Run) -> InfoLoss:
         run.optimizer.step()
     run.step += 1
     _check_weights(run)
+    return loss
+
+
+def train_step_sac(run: Run) -> SacLoss:
+    """One training step of the sac learner (:mod:`ham.learn.off_policy`): play a fresh batch
+    with sampled poses, without gradients, into the replay buffer; then ``sac_updates`` updates,
+    each on ``replay_batch`` episodes drawn from the buffer. Returns the last update's losses
+    with the fresh batch's information gain (the training reward)."""
+    c, sac = run.config, run.sac
+    sac.set_lr(c.learning_rate(run.step))
+    objects = run.env.sample_objects()
+    recorder = GlanceRecorder(run.env)
+    with torch.no_grad():
+        played = run.agent(recorder, objects, run.policy_generator)
+    sac.buffer.add(
+        pressures=torch.stack(recorder.pressures, 1),
+        where=torch.stack(recorder.where, 1),
+        heights=torch.stack(recorder.heights, 1) if recorder.heights else None,
+        locations=played.locations.transpose(0, 1),
+        objects=objects,
+    )
+    for _ in range(c.sac_updates):
+        loss = sac_update(
+            run.agent, run.optimizer, sac, c.replay_batch, c.gamma, c.target_tau,
+            c.critic_trains_core,
+        )  # fmt: skip
+    run.step += 1
+    _check_weights(run)
+    loss.gain = information_gain(played.logits, objects)
     return loss
 
 

@@ -15,7 +15,9 @@ Registered:
   N(q; mu(tau), sigma(tau))`` per stream ``x`` and ``phi``, sampled truncated to ``[-1, 1]``
   (section "The Location Network"); its parameters are trained by REINFORCE;
 * ``random`` (:class:`UniformPolicy`): poses uniform in ``[-1, 1]^2``, the paper's
-  random-location model ``pi_rloc``; no weights, no REINFORCE term.
+  random-location model ``pi_rloc``; no weights, no REINFORCE term;
+* ``squashed`` (:class:`SquashedGaussianPolicy`, beyond the paper): the location network's
+  weights as soft actor-critic's ``tanh``-squashed Gaussian (``--learner sac``).
 
 The distributions are batched: the model stacks one per glance (:meth:`LocationDistribution.stack`),
 so ``log_prob`` of the episode's poses ``(S-1, B, k)`` is ``(S-1, B)``: summed over the streams.
@@ -28,6 +30,7 @@ from typing import Any, ClassVar
 
 import torch
 from torch import nn
+from torch.nn import functional as F
 
 from ham.errors import HamError
 from ham.model.location_net import (
@@ -238,3 +241,80 @@ class UniformPolicy(LocationPolicy):
 
     def distribution(self, tau: torch.Tensor) -> Uniform:
         return Uniform((tau.shape[0],), tau.device, self.dims)
+
+
+class SquashedGaussian(LocationDistribution):
+    """``q = tanh(u)``, ``u ~ N(m, s)`` per stream: the squashed Gaussian of soft actor-critic.
+
+    Why beside the truncated Gaussian: a reparametrized sample of a Gaussian *truncated* to
+    ``[-1, 1]`` stops depending on ``mu`` and ``sigma`` as ``sigma`` grows (it tends to the
+    uniform draw), so an actor trained through its samples (``--learner sac``) loses its
+    gradient once its spread is wide; ``tanh(m + s eps)`` always moves with ``m``.
+    ``log_prob`` is the exact density of ``q`` (the Gaussian's at ``atanh q`` less
+    ``log(1 - q^2)``); ``mode`` is ``tanh(m)`` (SAC's deterministic action); ``entropy`` is the
+    Gaussian's less ``log(1 - tanh(m)^2)`` at the mode (an approximation: the exact one has no
+    closed form).
+    """
+
+    trainable = True
+    #: ``|q|`` at most ``1 - EDGE`` where ``atanh`` is taken (float32 resolution near 1)
+    EDGE = 1e-6
+
+    def __init__(self, m: torch.Tensor, s: torch.Tensor) -> None:
+        self.m = m
+        self.s = s
+
+    @property
+    def batch_shape(self) -> torch.Size:
+        return self.m.shape[:-1]
+
+    @staticmethod
+    def _log_det(u: torch.Tensor) -> torch.Tensor:
+        """``log(1 - tanh(u)^2)``, stable for large ``|u|``."""
+        return 2 * (math.log(2.0) - u - torch.nn.functional.softplus(-2 * u))
+
+    def _log_prob_u(self, u: torch.Tensor) -> torch.Tensor:
+        return (gaussian_log_prob(u, self.m, self.s) - self._log_det(u)).sum(-1)
+
+    def rsample(self, generator: torch.Generator | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """A reparametrized sample ``q`` (differentiable in ``m`` and ``s``) and ``log pi(q)``."""
+        eps = torch.randn(self.m.shape, generator=generator, device=self.m.device)
+        u = self.m + self.s * eps.to(self.m.dtype)
+        return torch.tanh(u), self._log_prob_u(u)
+
+    def sample(self, generator: torch.Generator | None) -> torch.Tensor:
+        with torch.no_grad():
+            q, _ = self.rsample(generator)
+        # a diverged network's NaN becomes pose 0 (the loss shows the NaN), as in the truncated one
+        return torch.nan_to_num(q, nan=0.0)
+
+    def log_prob(self, q: torch.Tensor) -> torch.Tensor:
+        edge = 1 - self.EDGE
+        return self._log_prob_u(torch.atanh(q.clamp(-edge, edge)))
+
+    def mode(self) -> torch.Tensor:
+        return torch.nan_to_num(torch.tanh(self.m.detach()))
+
+    def entropy(self) -> torch.Tensor:
+        return (_HALF_LOG_2PI_E + torch.log(self.s) - self._log_det(self.m)).sum(-1)
+
+    def scale(self) -> torch.Tensor:
+        return self.s.detach()
+
+    @classmethod
+    def stack(cls, dists: list[LocationDistribution]) -> SquashedGaussian:
+        return cls(torch.stack([d.m for d in dists]), torch.stack([d.s for d in dists]))
+
+
+@register_policy("squashed")
+class SquashedGaussianPolicy(GaussianPolicy):
+    """The location network's weights (heads ``mu`` and ``sigma``, as ``learned``) as a squashed
+    Gaussian: ``q = tanh(u)``, ``u ~ N(m, s)`` with ``m`` the ``mu`` head's output before its
+    ``tanh`` and ``s`` the ``sigma`` head's spread (:class:`SquashedGaussian`); its mode is
+    ``learned``'s mean pose ``tanh(m)``. Beyond the paper: the policy of ``--learner sac``."""
+
+    def distribution(self, tau: torch.Tensor) -> SquashedGaussian:
+        tau = tau.detach()  # the core is not trained through the location branch
+        s = self.sigma(tau)
+        s = F.softplus(s) if self.std_activation == "softplus" else torch.sigmoid(s)
+        return SquashedGaussian(self.mu(tau), s + self.sigma_min)
