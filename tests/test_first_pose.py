@@ -47,7 +47,11 @@ def test_the_mixture_starts_on_a_grid_over_the_poses():
     fp = FirstPose(dims=2, grid=2)
     assert fp.components == 4
     centres = torch.tanh(fp.mean).detach().double()
-    assert torch.allclose(centres, torch.tensor([[-0.5, -0.5], [-0.5, 0.5], [0.5, -0.5], [0.5, 0.5]], dtype=torch.float64), atol=1e-6)
+    assert torch.allclose(
+        centres,
+        torch.tensor([[-0.5, -0.5], [-0.5, 0.5], [0.5, -0.5], [0.5, 0.5]], dtype=torch.float64),
+        atol=1e-6,
+    )
     assert torch.allclose(fp.log_sigma.exp(), torch.full((4, 2), 0.5))
     one = FirstPose(dims=2, grid=1)
     assert torch.tanh(one.mean).tolist() == [[0.0, 0.0]] and one.log_sigma.exp().tolist() == [
@@ -67,7 +71,7 @@ def test_the_first_pose_s_log_prob_is_the_component_s_and_the_pose_s():
     c = dist.choice
     log_w = torch.log_softmax(fp.weight, -1)[c]
     mu, sigma = torch.tanh(fp.mean)[c], fp.log_sigma.exp()[c] + fp.sigma_min
-    expected = (-torch.log(sigma) - 0.5 * ((q - mu) / sigma) ** 2 - 0.5 * math.log(2 * math.pi))
+    expected = -torch.log(sigma) - 0.5 * ((q - mu) / sigma) ** 2 - 0.5 * math.log(2 * math.pi)
     assert torch.allclose(dist.log_prob(q), expected.sum(-1) + log_w)
     # components are drawn by their weights; greedy takes the heaviest's mean
     share = torch.bincount(c, minlength=4).double() / 500
@@ -105,10 +109,16 @@ def test_the_other_first_glances_build_no_first_pose_and_keep_their_weights():
     before = HapticAttentionModel(HamConfig(glances=3, first_glance="learned")).state_dict()
     torch.manual_seed(3)
     own = HapticAttentionModel(HamConfig(glances=3, first_glance="own")).state_dict()
-    assert set(own) - set(before) == {"first_pose.mean", "first_pose.log_sigma", "first_pose.weight"}
+    assert set(own) - set(before) == {
+        "first_pose.mean",
+        "first_pose.log_sigma",
+        "first_pose.weight",
+    }
     for name, w in before.items():  # created last, drawing no random numbers
         assert torch.equal(w, own[name]), name
-    assert not any(n.startswith("first_pose") for n in HapticAttentionModel(HamConfig()).state_dict())
+    assert not any(
+        n.startswith("first_pose") for n in HapticAttentionModel(HamConfig()).state_dict()
+    )
 
 
 def test_a_replayed_episode_keeps_the_components_it_played(env):
@@ -130,8 +140,12 @@ def test_the_first_pose_learns_at_its_own_rate():
         rest, location, first = run.optimizer.param_groups
         assert rest["lr"] == pytest.approx(3e-3)
         assert location["lr"] == pytest.approx(9e-4) and first["lr"] == pytest.approx(1.5e-2)
-        assert {id(p) for p in first["params"]} == {id(p) for p in run.agent.first_pose.parameters()}
-        assert {id(p) for p in location["params"]} == {id(p) for p in run.agent.location.parameters()}
+        assert {id(p) for p in first["params"]} == {
+            id(p) for p in run.agent.first_pose.parameters()
+        }
+        assert {id(p) for p in location["params"]} == {
+            id(p) for p in run.agent.location.parameters()
+        }
     finally:
         run.close()
 

@@ -130,8 +130,8 @@ class TrainConfig:
             scale-free); this can: a fast classifier, a slower policy.
         first_pose_lr_scale: the learning rate of the first glance's own pose distribution
             (``HamConfig.first_glance = "own"``) relative to ``lr``, on the same schedule (10:
-            its sigma must shrink by a factor of ~20 within the recipe's decaying schedule,
-            docs/learners.md).
+            in the recipe's decaying schedule its sigma shrinks from 1 to 0.04-0.2; at 3 to
+            0.2-0.34, docs/learners.md).
         env_steps: a budget in environment steps (glances) instead of ``steps``: when given,
             ``steps = ceil(env_steps / (batch_size * glances))``; ``None``: ``steps`` rules.
         epochs: optimizer steps per batch (info learner; 1: one, as the paper). With more, the
