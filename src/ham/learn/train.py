@@ -65,6 +65,8 @@ TIMING_FILE = "timing.json"
 DEVICES: tuple[str, ...] = ("cpu", "cuda")
 LEARNERS: tuple[str, ...] = ("hybrid", "info", "sac")
 OPTIMIZERS: tuple[str, ...] = ("sgd", "adam")
+#: ``TrainConfig.first_pose_lr_scale``'s default (docs/learners.md, "A learned stop")
+FIRST_POSE_LR_SCALE = 10.0
 
 
 @dataclass(frozen=True)
@@ -130,6 +132,10 @@ class TrainConfig:
         policy_lr_scale: the location network's learning rate relative to ``lr`` (1: one rate
             for all weights). Under Adam a loss weight cannot slow a part down (its steps are
             scale-free); this can: a fast classifier, a slower policy.
+        first_pose_lr_scale: the learning rate of the first glance's own pose distribution
+            (``HamConfig.first_glance = "own"``) relative to ``lr``, on the same schedule (10:
+            in the recipe's decaying schedule its sigma shrinks from 1 to 0.04-0.2; at 3 to
+            0.2-0.34, docs/learners.md).
         env_steps: a budget in environment steps (glances) instead of ``steps``: when given,
             ``steps = ceil(env_steps / (batch_size * glances))``; ``None``: ``steps`` rules.
         epochs: optimizer steps per batch (info learner; 1: one, as the paper). With more, the
@@ -190,6 +196,7 @@ class TrainConfig:
     stop_learner: str = field(default="value", metadata={"choices": STOP_LEARNERS})
     normalize_advantage: bool = False
     policy_lr_scale: float = 1.0
+    first_pose_lr_scale: float = FIRST_POSE_LR_SCALE
     env_steps: int | None = None
     epochs: int = 1
     clip: float = 0.2
@@ -274,6 +281,14 @@ class TrainConfig:
         v = self.policy_lr_scale
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
             raise HamError(f"policy_lr_scale = {v!r}; accepted: a finite number > 0")
+        v = self.first_pose_lr_scale
+        if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise HamError(f"first_pose_lr_scale = {v!r}; accepted: a finite number > 0")
+        if v != FIRST_POSE_LR_SCALE and self.model.first_glance != "own":
+            raise HamError(
+                f"first_pose_lr_scale = {v!r} with first_glance {self.model.first_glance!r}; "
+                "accepted: with --first-glance own (its own first pose)"
+            )
         self._check_epochs()
         self._check_sac()
         check_device(self.device, available=False)  # spelling only: a saved GPU run loads on CPU
@@ -397,16 +412,22 @@ def model_for_source(
     return replace(model, pressure_dim=dim, n_objects=n, pose_dims=dims)
 
 
-def parameter_groups(agent: HapticAttentionModel, policy_lr_scale: float) -> list[dict]:
+def parameter_groups(
+    agent: HapticAttentionModel, policy_lr_scale: float, first_pose_lr_scale: float = 1.0
+) -> list[dict]:
     """The optimizer's parameter groups: one (every weight at ``lr``), or, when the location
-    network learns at its own rate, the rest and the location network (``lr_scale`` each)."""
-    if policy_lr_scale == 1.0:
+    network or the first glance's own pose (``first_glance = "own"``) learns at its own rate,
+    the rest, the location network and the first pose (``lr_scale`` each)."""
+    first = getattr(agent, "first_pose", None)
+    if policy_lr_scale == 1.0 and first is None:
         return [{"params": list(agent.parameters()), "lr_scale": 1.0}]
-    policy = {id(p) for p in agent.location.parameters()}
-    rest = [p for p in agent.parameters() if id(p) not in policy]
-    return [
-        {"params": rest, "lr_scale": 1.0},
-        {"params": list(agent.location.parameters()), "lr_scale": policy_lr_scale},
+    parts = [(agent.location, policy_lr_scale)]
+    if first is not None:
+        parts.append((first, first_pose_lr_scale))
+    own = {id(p) for module, _ in parts for p in module.parameters()}
+    rest = [p for p in agent.parameters() if id(p) not in own]
+    return [{"params": rest, "lr_scale": 1.0}] + [
+        {"params": list(module.parameters()), "lr_scale": scale} for module, scale in parts
     ]
 
 
@@ -445,7 +466,7 @@ class Run:
         _check_env(config.model, env)
         torch.manual_seed(config.seed)  # the initial weights
         agent = HapticAttentionModel(config.model).to(device)
-        params = parameter_groups(agent, config.policy_lr_scale)
+        params = parameter_groups(agent, config.policy_lr_scale, config.first_pose_lr_scale)
         if config.optimizer == "adam":
             optimizer = torch.optim.Adam(
                 params, lr=config.lr, betas=(config.momentum, 0.999), foreach=True
@@ -821,10 +842,11 @@ def replay_episode(
     batch, glances = pressures.shape[1], pressures.shape[0]
     dists, logits, baselines = [], [], []
     first_baseline = None
-    if played.first_baseline is not None:  # the learned first glance, chosen from tau_0 = 0
-        tau0 = pressures.new_zeros(batch, agent.config.hidden_units)
-        dists.append(agent.location.distribution(tau0))
-        first_baseline = agent.baseline(tau0)
+    if played.first_baseline is not None:  # a chosen first glance
+        dist, first_baseline = agent.first_glance(
+            batch, pressures.device, choice=played.first_choice
+        )
+        dists.append(dist)
     state = agent.core.initial_state(batch, pressures)
     for s in range(glances):
         height = None if heights is None else heights[s]
@@ -840,6 +862,7 @@ def replay_episode(
         baselines=torch.stack(baselines),
         policy=type(dists[0]).stack(dists) if dists else None,
         first_baseline=first_baseline,
+        first_choice=played.first_choice,
     )
 
 

@@ -33,12 +33,12 @@ from ham.model.baseline import Baseline
 from ham.model.classifier import Classifier
 from ham.model.core import ACTIVATIONS, CORES, State, make_core
 from ham.model.location_net import STD_ACTIVATIONS, uniform_locations
-from ham.model.policy import POLICIES, LocationDistribution, make_policy
+from ham.model.policy import POLICIES, FirstPose, LocationDistribution, make_policy
 from ham.model.tactile_net import COMBINERS, TactileNetwork
 from ham.world.glance import PAPER_POSE_DIMS, check_pose_dims
 from ham.world.objects import MAX_HEIGHT
 
-FIRST_GLANCES: tuple[str, ...] = ("random", "learned")
+FIRST_GLANCES: tuple[str, ...] = ("random", "learned", "own")
 #: What the learned stop's head reads (``HamConfig.stop_input``).
 STOP_INPUTS: tuple[str, ...] = ("confidence", "core")
 #: ``phi`` and ``phi_y`` of the pose dims (:data:`ham.world.glance.POSE_DIMS`) are angles, fed to
@@ -85,7 +85,13 @@ class HamConfig:
             the first version).
         first_glance: ``random`` (paper: uniform, the location network acts from glance 2 on)
             or ``learned`` (beyond the paper: the policy also chooses the first pose, from the
-            core output before any glance, zeros; its learned biases make it a learned pose).
+            core output before any glance, zeros; its learned biases make it a learned pose)
+            or ``own`` (beyond the paper: a learned pose distribution of its own, a mean and a
+            sigma, the same for every episode, :class:`ham.model.policy.FirstPose`; its
+            learning rate is ``TrainConfig.first_pose_lr_scale``).
+        first_pose_grid: with ``first_glance = "own"``, the components of its mixture per pose
+            dimension (``grid^k`` Gaussians, started on a regular grid over the poses; 1: one
+            Gaussian at pose 0).
         pose_dims: the pose dimensions the policy chooses, in the world's order (the paper's
             ``x, phi``; any non-empty subset of ``x, y, phi, phi_y``): one location stream and
             one where-input each. Set from the world by :func:`ham.learn.train.model_for_source`.
@@ -115,6 +121,7 @@ class HamConfig:
     first_glance: str = field(default="random", metadata={"choices": FIRST_GLANCES})
     stop: bool = False
     stop_input: str = field(default="confidence", metadata={"choices": STOP_INPUTS})
+    first_pose_grid: int = 1
     pose_dims: tuple[str, ...] = PAPER_POSE_DIMS
     height_input: bool = False
 
@@ -125,10 +132,15 @@ class HamConfig:
             raise HamError(f"height_input = {self.height_input!r}; accepted: true or false")
         for name in ("glances", "n_objects", "pressure_dim", "what_units", "where_units",
                      "combine_units", "hidden_units", "transformer_layers",
-                     "transformer_heads"):  # fmt: skip
+                     "transformer_heads", "first_pose_grid"):  # fmt: skip
             v = getattr(self, name)
             if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
                 raise HamError(f"{name} = {v!r}; accepted: an integer >= 1")
+        if self.first_pose_grid != 1 and self.first_glance != "own":
+            raise HamError(
+                f"first_pose_grid = {self.first_pose_grid} with first_glance "
+                f"{self.first_glance!r}; accepted: with first_glance 'own' (--first-glance own)"
+            )
         if self.n_objects < 2:
             raise HamError(f"n_objects = {self.n_objects}; accepted: >= 2 objects to classify")
         check_choices(self)
@@ -177,6 +189,8 @@ class Episode:
     first_baseline: torch.Tensor | None = None
     #: ``(S, B)`` the stop head's logits after each glance (``None`` without a learned stop)
     stop_logits: torch.Tensor | None = None
+    #: ``(B,)`` the mixture component that drew each first pose (``first_glance = "own"``)
+    first_choice: torch.Tensor | None = None
 
     @property
     def chosen(self) -> slice:
@@ -275,8 +289,34 @@ class HapticAttentionModel(nn.Module):
             else:
                 self.stop_head = StopHead()
             he_normal_init(self.stop_head)
+        if self.chooses_first_glance and c.first_glance == "own":  # draws no random numbers
+            self.first_pose = FirstPose(len(c.pose_dims), c.first_pose_grid, c.sigma_min)
         # where-input column i: q_i, times phi_scale for an angle
         self._angle = [d in ANGLE_DIMS for d in c.pose_dims]
+
+    @property
+    def chooses_first_glance(self) -> bool:
+        """The policy chooses the first pose too (``first_glance`` not ``random``, and a policy
+        with weights)."""
+        return self.config.first_glance != "random" and self.config.policy != "random"
+
+    def first_glance(
+        self,
+        batch: int,
+        device: torch.device | str = "cpu",
+        generator: torch.Generator | None = None,
+        greedy: bool = False,
+        choice: torch.Tensor | None = None,
+    ) -> tuple[LocationDistribution, torch.Tensor]:
+        """The distribution of a chosen first pose ``(batch,)`` and the baseline ``b(tau_0)`` of
+        the state that chooses it, ``tau_0 = 0`` (the core before any glance): the location
+        network's at ``tau_0`` (``learned``) or the first pose's own (``own``; its mixture
+        components drawn from ``generator``, the heaviest when ``greedy``, or ``choice``)."""
+        tau0 = torch.zeros((batch, self.config.hidden_units), device=device)
+        if self.config.first_glance == "own":
+            dist = self.first_pose.distribution(batch, generator, greedy, choice)
+            return dist, self.baseline(tau0)
+        return self.location.distribution(tau0), self.baseline(tau0)
 
     def where(self, q: torch.Tensor, height: torch.Tensor | None = None) -> torch.Tensor:
         """The tactile network's where-input: ``(q_x, q_phi * phi_scale)`` in the paper; angles
@@ -319,12 +359,10 @@ class HapticAttentionModel(nn.Module):
         batch = objects.shape[0]
         locations, logits, baselines, dists, stops = [], [], [], [], []
         first_baseline = None
-        if self.config.first_glance == "learned" and self.config.policy != "random":
-            tau0 = objects.new_zeros((batch, self.config.hidden_units), dtype=torch.float32)
-            dist = self.location.distribution(tau0)
+        if self.chooses_first_glance:
+            dist, first_baseline = self.first_glance(batch, objects.device, generator, greedy)
             q = dist.act(generator, greedy)
             dists.append(dist)
-            first_baseline = self.baseline(tau0)
         else:
             # the paper: random
             q = uniform_locations(batch, generator, objects.device, len(self.config.pose_dims))
@@ -358,6 +396,7 @@ class HapticAttentionModel(nn.Module):
             policy=type(dists[0]).stack(dists) if dists else None,
             first_baseline=first_baseline,
             stop_logits=torch.stack(stops) if stops else None,
+            first_choice=getattr(dists[0], "choice", None) if first_baseline is not None else None,
         )
 
     def replay(

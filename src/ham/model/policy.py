@@ -99,9 +99,16 @@ class TruncatedGaussian(LocationDistribution):
 
     trainable = True
 
-    def __init__(self, mu: torch.Tensor, sigma: torch.Tensor) -> None:
+    def __init__(
+        self, mu: torch.Tensor, sigma: torch.Tensor, choice_log_prob: torch.Tensor | None = None
+    ) -> None:
         self.mu = mu
         self.sigma = sigma
+        #: ``(*batch_shape)`` the log-probability of a discrete choice made before the pose (the
+        #: mixture component of :class:`FirstPose`), added to :meth:`log_prob`; ``None``: none
+        self.choice_log_prob = choice_log_prob
+        #: ``(*batch_shape)`` that choice (the component drawn), where one was made
+        self.choice: torch.Tensor | None = None
 
     @property
     def batch_shape(self) -> torch.Size:
@@ -111,7 +118,8 @@ class TruncatedGaussian(LocationDistribution):
         return truncated_normal(self.mu, self.sigma, generator)
 
     def log_prob(self, q: torch.Tensor) -> torch.Tensor:
-        return gaussian_log_prob(q, self.mu, self.sigma).sum(-1)
+        log_p = gaussian_log_prob(q, self.mu, self.sigma).sum(-1)
+        return log_p if self.choice_log_prob is None else log_p + self.choice_log_prob
 
     def mode(self) -> torch.Tensor:
         # tanh keeps mu inside [-1, 1]; a diverged network's NaN becomes pose 0, as in sampling.
@@ -125,7 +133,14 @@ class TruncatedGaussian(LocationDistribution):
 
     @classmethod
     def stack(cls, dists: list[LocationDistribution]) -> TruncatedGaussian:
-        return cls(torch.stack([d.mu for d in dists]), torch.stack([d.sigma for d in dists]))
+        mu, sigma = torch.stack([d.mu for d in dists]), torch.stack([d.sigma for d in dists])
+        if all(d.choice_log_prob is None for d in dists):
+            return cls(mu, sigma)
+        choice = [
+            d.mu.new_zeros(d.batch_shape) if d.choice_log_prob is None else d.choice_log_prob
+            for d in dists
+        ]
+        return cls(mu, sigma, torch.stack(choice))
 
 
 class Uniform(LocationDistribution):
@@ -225,6 +240,79 @@ class GaussianPolicy(LocationNetwork, LocationPolicy):
     def distribution(self, tau: torch.Tensor) -> TruncatedGaussian:
         mu, sigma = self(tau)
         return TruncatedGaussian(mu, sigma)
+
+
+class FirstPose(nn.Module):
+    """The first glance's own pose distribution (``HamConfig.first_glance = "own"``, beyond the
+    paper), the same for every episode (there is nothing to condition on before the first
+    glance): a mixture of ``M`` Gaussians over the pose space, component ``m`` with weight
+    ``softmax(w)_m``, mean ``tanh(a_m)`` and ``sigma_m = exp(l_m) + sigma_min`` per pose
+    dimension. A first pose is drawn in two steps, a component ``c ~ softmax(w)`` and the pose
+    ``q ~ N(tanh(a_c), sigma_c)`` truncated to ``[-1, 1]``; the policy gradient trains the
+    joint action, ``log pi(c, q) = log softmax(w)_c + log N(q; tanh(a_c), sigma_c)``, with the
+    later glances' (:attr:`TruncatedGaussian.choice_log_prob`). Greedy: the mean of the heaviest
+    component.
+
+    Why parameters of its own: the ``learned`` first glance is the location network at a zero
+    core output, its biases alone, which every later glance's gradient pulls too, at the
+    location network's small, decaying learning rate; under Adam a weight moves at most about
+    its learning rate a step, so sigma could not shrink onto the few poses that tell all objects
+    apart (docs/learners.md). Here they learn at their own rate
+    (``TrainConfig.first_pose_lr_scale``); ``log sigma``: an Adam step changes sigma by a factor.
+    Why a mixture is offered: the expected information of one glance is flat over wide regions
+    of poses that tell 3 of 4 objects apart, next to narrow bands that tell all 4; one Gaussian
+    climbs into the plateau nearest to where it started and narrows there. ``grid`` components
+    per pose dimension (``M = grid^k``) start at the centres of a regular grid over ``[-1,
+    1]^k`` with sigma ``1 / grid`` (half their spacing), each climbs locally, and the weights
+    choose among them. Measured on the paper's table it ends on a 3-of-4 plateau as the single
+    Gaussian does (docs/learners.md), so the default is ``grid = 1``: one Gaussian at pose 0
+    with sigma 1.
+    """
+
+    def __init__(self, dims: int = 2, grid: int = 1, sigma_min: float = 1e-3) -> None:
+        super().__init__()
+        if not sigma_min >= 0:
+            raise HamError(f"sigma_min = {sigma_min!r}; accepted: >= 0")
+        if not (isinstance(grid, int) and not isinstance(grid, bool) and grid >= 1):
+            raise HamError(f"first pose grid = {grid!r}; accepted: an integer >= 1")
+        self.sigma_min = sigma_min
+        centres = (2 * torch.arange(grid, dtype=torch.float64) + 1) / grid - 1
+        mesh = torch.cartesian_prod(*[centres] * dims).reshape(-1, dims)
+        self.mean = nn.Parameter(torch.atanh(mesh).float())  # (M, k): tanh(a) = the centres
+        self.log_sigma = nn.Parameter(torch.full_like(self.mean, -math.log(grid)))
+        self.weight = nn.Parameter(torch.zeros(mesh.shape[0]))  # (M,) logits, uniform
+
+    @property
+    def components(self) -> int:
+        return self.weight.shape[0]
+
+    def distribution(
+        self,
+        batch: int,
+        generator: torch.Generator | None = None,
+        greedy: bool = False,
+        choice: torch.Tensor | None = None,
+    ) -> TruncatedGaussian:
+        """The first poses' distribution for ``batch`` episodes ``(batch,)``: each episode's
+        component drawn from ``generator`` (greedy: the heaviest; or ``choice`` ``(batch,)``,
+        the components an episode played), a Gaussian at it. The components drawn are
+        :attr:`TruncatedGaussian.choice`."""
+        log_w = torch.log_softmax(self.weight, -1)
+        if choice is not None:
+            c = choice
+        elif greedy:
+            c = log_w.detach().argmax().expand(batch)
+        elif self.components == 1:  # no draw: one component
+            c = torch.zeros(batch, dtype=torch.long, device=log_w.device)
+        else:
+            c = torch.multinomial(
+                log_w.detach().exp(), batch, replacement=True, generator=generator
+            )
+        mu = torch.tanh(self.mean)[c]
+        sigma = self.log_sigma.exp()[c] + self.sigma_min
+        dist = TruncatedGaussian(mu, sigma, log_w[c] if self.components > 1 else None)
+        dist.choice = c
+        return dist
 
 
 @register_policy("random")
