@@ -1,7 +1,9 @@
 """Environment steps per second of each learner, and its ratio to the bare network's.
 
 Learners: ``hybrid`` (the paper's loss, SGD), ``info`` (the information learner's recipe: Adam,
-learned first glance) and ``info+stop`` (the same with a learned stop, ``--glance-cost 0.1``).
+learned first glance), ``info+stop`` (the same with a learned stop, ``--glance-cost 0.1``) and
+``sac`` (the off-policy learner with the squashed policy: a fresh batch played into the replay
+buffer, then its updates on replayed episodes).
 Each full training step (fresh batch, S glances from the glance source, location sampling, the
 learner's loss, backward, optimizer step, NaN checks) is timed against the bare network's
 forward + backward on recorded glances of the same batch (``HapticAttentionModel.replay``: no
@@ -36,6 +38,7 @@ LEARNERS: dict[str, dict] = {
         "policy_lr_scale": 0.3,
         "glance_cost": 0.1,
     },
+    "sac": {"learner": "sac", "optimizer": "adam", "lr": 1e-3, "gamma": 0.95},
 }
 
 
@@ -43,8 +46,9 @@ def make_run(name: str, glances: int, batch: int, table: str | None, device: str
     kw = dict(LEARNERS[name])
     model = HamConfig(
         glances=glances,
-        first_glance="random" if name == "hybrid" else "learned",
+        first_glance="learned" if name.startswith("info") else "random",
         stop=name.endswith("+stop"),
+        policy="squashed" if name == "sac" else "learned",
     )
     config = TrainConfig(model=model, batch_size=batch, table=table, device=device, **kw)
     return Run.create(config)
