@@ -49,6 +49,20 @@ def assert_same_run(batched: Path, single: Path, atol: float = 1e-6) -> None:
         assert torch.allclose(p, q, rtol=1e-4, atol=atol)
 
 
+def train_both(tmp_path: Path, configs: list[TrainConfig]) -> list:
+    """Train ``configs`` as single runs (``single<seed>``), then as one batched group
+    (``b<seed>``); returns the batched results."""
+    for c in configs:
+        train(c, tmp_path / f"single{c.seed}", progress=False)
+    return train_batched(configs, [tmp_path / f"b{c.seed}" for c in configs])
+
+
+def assert_same_runs(tmp_path: Path, configs: list[TrainConfig], atol: float = 1e-6) -> None:
+    """Every batched run of :func:`train_both` is its single run, to float tolerance."""
+    for c in configs:
+        assert_same_run(tmp_path / f"b{c.seed}", tmp_path / f"single{c.seed}", atol)
+
+
 @pytest.mark.parametrize(
     "model",
     [
@@ -69,12 +83,9 @@ def assert_same_run(batched: Path, single: Path, atol: float = 1e-6) -> None:
 )
 def test_batched_equals_single_runs(tmp_path, model):
     configs = [tiny(s, model=model) for s in range(3)]
-    for c in configs:
-        train(c, tmp_path / f"single{c.seed}", progress=False)
-    results = train_batched(configs, [tmp_path / f"b{c.seed}" for c in configs])
+    results = train_both(tmp_path, configs)
     assert [r["steps"] for r in results] == [8, 8, 8]
-    for c in configs:
-        assert_same_run(tmp_path / f"b{c.seed}", tmp_path / f"single{c.seed}")
+    assert_same_runs(tmp_path, configs)
     # different seeds stay different runs: the stacking mixes nothing
     assert metrics(tmp_path / "b0")["history"][-1]["train_loss"] != pytest.approx(
         metrics(tmp_path / "b1")["history"][-1]["train_loss"]
@@ -93,14 +104,11 @@ def test_batched_equals_single_runs(tmp_path, model):
 )
 def test_batched_optimizers_equal_single_runs(tmp_path, kw):
     configs = [tiny(s, steps=6, **kw) for s in range(2)]
-    for c in configs:
-        train(c, tmp_path / f"single{c.seed}", progress=False)
-    train_batched(configs, [tmp_path / f"b{c.seed}" for c in configs])
+    train_both(tmp_path, configs)
     # Adam divides by the root of the squared gradients' average: a weight whose gradient is
     # rounding noise moves by up to lr either way (measured: 13 of 524,288 LSTM weights, 2e-5)
     atol = 1e-4 if kw.get("optimizer") == "adam" else 1e-6
-    for c in configs:
-        assert_same_run(tmp_path / f"b{c.seed}", tmp_path / f"single{c.seed}", atol)
+    assert_same_runs(tmp_path, configs, atol)
 
 
 def test_the_portable_path_equals_single_runs(tmp_path, monkeypatch):
@@ -109,11 +117,8 @@ def test_the_portable_path_equals_single_runs(tmp_path, monkeypatch):
     monkeypatch.setattr(batched, "_LINEAR_ONEDNN", None)
     monkeypatch.setattr(batched, "_FUSED_SGD", None)
     configs = [tiny(s) for s in range(2)]
-    for c in configs:
-        train(c, tmp_path / f"single{c.seed}", progress=False)
-    train_batched(configs, [tmp_path / f"b{c.seed}" for c in configs])
-    for c in configs:
-        assert_same_run(tmp_path / f"b{c.seed}", tmp_path / f"single{c.seed}")
+    train_both(tmp_path, configs)
+    assert_same_runs(tmp_path, configs)
 
 
 @pytest.mark.parametrize(
@@ -155,12 +160,9 @@ def test_cuda_batched_equals_single_runs(tmp_path, kw):
     # the CUDA path (one bmm per layer for all runs, foreach optimizer steps) against single
     # runs on the same GPU
     configs = [tiny(s, device="cuda", **kw) for s in range(3)]
-    for c in configs:
-        train(c, tmp_path / f"single{c.seed}", progress=False)
-    train_batched(configs, [tmp_path / f"b{c.seed}" for c in configs])
+    train_both(tmp_path, configs)
     atol = 1e-4 if kw.get("optimizer") == "adam" else 1e-5
-    for c in configs:
-        assert_same_run(tmp_path / f"b{c.seed}", tmp_path / f"single{c.seed}", atol)
+    assert_same_runs(tmp_path, configs, atol)
 
 
 def test_the_onednn_path_equals_single_runs(tmp_path, monkeypatch):
@@ -176,13 +178,10 @@ def test_the_onednn_path_equals_single_runs(tmp_path, monkeypatch):
     onednn = batched._LINEAR_ONEDNN
     monkeypatch.setattr(batched, "_LINEAR_ONEDNN", linear)
     configs = [tiny(s, batch_size=16, steps=4) for s in range(2)]
-    for c in configs:
-        train(c, tmp_path / f"single{c.seed}", progress=False)
-    train_batched(configs, [tmp_path / f"b{c.seed}" for c in configs])
+    train_both(tmp_path, configs)
     assert (1024, 256) in calls  # the gates' first glance: the weight's g columns alone
     assert (1024, 512) in calls
-    for c in configs:
-        assert_same_run(tmp_path / f"b{c.seed}", tmp_path / f"single{c.seed}")
+    assert_same_runs(tmp_path, configs)
 
 
 def test_each_run_has_the_directory_of_a_single_run(tmp_path):

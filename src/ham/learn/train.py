@@ -745,6 +745,14 @@ def _check_loss(run: Run, loss: torch.Tensor) -> None:
         raise HamError(f"training diverged at step {run.step + 1}: the loss is {loss.item()}")
 
 
+def _descend(run: Run, loss: torch.Tensor) -> None:
+    """One optimizer step on ``loss``, after checking it is finite."""
+    _check_loss(run, loss)
+    run.optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    run.optimizer.step()
+
+
 def _check_weights(run: Run) -> None:
     """Stop a diverged run with the step named: NaN or inf in any weight after the update."""
     # One reduction instead of one check per tensor: NaN and inf propagate into the sum (which
@@ -785,10 +793,7 @@ def train_step(run: Run) -> HybridLoss | InfoLoss | SacLoss:
             )
     else:
         loss = hybrid_loss(episode, c.beta, c.classification_reduction, c.reinforce_reduction)
-    _check_loss(run, loss.total)
-    run.optimizer.zero_grad(set_to_none=True)
-    loss.total.backward()
-    run.optimizer.step()
+    _descend(run, loss.total)
     run.step += 1
     _check_weights(run)
     return loss
@@ -888,10 +893,7 @@ def train_step_epochs(run: Run) -> InfoLoss:
             loss.total = loss.total + mean_travel_penalty(episode, c.move_cost)
         if epoch >= policy_epochs:  # the classifier and the critic only
             loss.total = loss.classification + loss.critic
-        _check_loss(run, loss.total)
-        run.optimizer.zero_grad(set_to_none=True)
-        loss.total.backward()
-        run.optimizer.step()
+        _descend(run, loss.total)
     run.step += 1
     _check_weights(run)
     return loss
