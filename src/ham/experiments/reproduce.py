@@ -407,9 +407,15 @@ def run_batch(
     """Train the jobs of one shape as one batched model (:mod:`ham.learn.batched`); each run
     resumes from its checkpoint if it has one. Returns one result per job, as :func:`run_job`:
     a run that diverged fails alone; then each finished run's ``evaluate`` specs."""
+    import torch
+
     from ham.learn.batched import train_batched
     from ham.learn.train import TrainConfig
 
+    # one torch thread, as run_job and the pool's workers: in this process (one worker or one
+    # group) the default thread count made only the first group use every core, and on a loaded
+    # machine two spinning threads per process slowed its step many times over
+    torch.set_num_threads(1)
     started = time.perf_counter()
     todo = [j for j in jobs if not is_finished(run_dir(Path(root), j["key"]), j["config"]["steps"])]
     errors: dict[str, str] = {}
