@@ -31,8 +31,15 @@ Model (:class:`ExtendedSimulator`):
   reads the mean compression over its points times the foam stiffness, now varying in u and v.
 * **Rigid stops** (as the line glance): the pad body behind the foam (a point compressed through
   the whole foam stops the pad) and the housing's four sides, sampled on
-  ``housing_samples`` (6) points along each edge (corners included) by ``housing_samples`` along
-  the pad normal from the foam's back to the housing's back.
+  ``housing_edge_samples`` (3) points along each edge (corners included) by ``housing_samples``
+  (6) along the pad normal from the foam's back to the housing's back. And the pad's back (the
+  foam's back) where a block's edge meets it: where each rim line of the face crosses each edge
+  line of the base, and the base's corners under the face (:meth:`ExtendedSimulator._edge_points`,
+  20 points). The base's sides are vertical, so over a rim line the block is highest where the
+  line leaves the base, often between the samples: without these points a pad tilted over a
+  block's edge or corner sank its back up to 2.5 mm into the block (docs/crosscheck_curvature2d.md,
+  "Which model is off"). The line glance has no such points (the paper's world is unchanged): on
+  extruded objects the two differ where the line glance's back passes through a block's end.
 * **Narrow features.** Points sample the surface every ``pitch / supersample`` (1.25 mm) along u
   and ``pitch / rows_per_taxel`` (5 mm) along v. The line glance's *feature points* (narrow peaks
   of an extruded profile, :meth:`ham.world.glance.FastSimulator._set_features`) are carried over
