@@ -9,7 +9,7 @@ import torch
 from ham.errors import HamError
 from ham.world import objects
 from ham.world.config import WorldConfig, make_simulator
-from ham.world.extended_glance import ExtendedSimulator
+from ham.world.extended_glance import EDGE_POINTS, ExtendedSimulator
 from ham.world.glance import POSE_DIMS, FastSimulator, glance_at
 from ham.world.objects import HapticObject
 
@@ -39,6 +39,30 @@ def test_agrees_with_the_line_glance_on_extruded_objects(paper_pair):
     n = 3000
     ids = torch.randint(0, len(EXTRUDED), (n,), generator=g)
     qx, qp = torch.rand(n, generator=g) * 2 - 1, torch.rand(n, generator=g) * 2 - 1
+    a_all = fast.glance(ids, qx, qp)
+    b_all = ext.glance(ids, qx, qp, torch.zeros(n), torch.zeros(n))
+    # Where the block's end meets the rim of the pad's rigid back, the extended glance stops the
+    # pad (ExtendedSimulator._edge_stops); the line glance, kept as the paper's, lets its back
+    # pass through the block: 10 of these 3,000 glances (steep pads over the trough's high ends
+    # and the convex's end), the line glance's back 0.27 to 11 mm inside the block.
+    edge = (b_all.z - a_all.z).abs() >= 2e-6
+    assert 0 < int(edge.sum()) <= 15
+    assert {EXTRUDED[int(i)].name for i in ids[edge]} <= {"trough", "convex"}
+    assert bool((b_all.blocked[edge] & ~a_all.blocked[edge] & (b_all.z > a_all.z)[edge]).all())
+    u = np.linspace(-0.04, 0.04, 160_001)
+    f = fast.sensor.foam_thickness
+    for k in edge.nonzero().flatten().tolist():  # the pad's back line (w = f) against the block
+        obj, x, phi = EXTRUDED[int(ids[k])], float(a_all.x[k]), float(a_all.phi[k])
+        px = x + u * math.cos(phi) + f * math.sin(phi)
+        on, edge_x = np.abs(px) <= obj.width / 2, np.clip(px, -obj.width / 2, obj.width / 2)
+        top = np.where(on, obj.height_at(edge_x), 0.0)
+        depth = [
+            (top - float(r.z[k]) + u * math.sin(phi) - f * math.cos(phi)).max()
+            for r in (a_all, b_all)
+        ]
+        assert depth[0] > 2e-4 and depth[1] < 1e-5, depth
+    ids, qx, qp = ids[~edge], qx[~edge], qp[~edge]  # everywhere else, the same glance
+    n = len(ids)
     a = fast.glance(ids, qx, qp)
     b = ext.glance(ids, qx, qp, torch.zeros(n), torch.zeros(n))
     assert float((a.z - b.z).abs().max()) < 2e-6  # within 2 micrometres (measured: 0.5 um)
@@ -152,6 +176,47 @@ def test_bad_poses_are_refused_by_name():
         sim.glance([0, 0], [0.0, 0.1, 0.2], [0.0])
     with pytest.raises(HamError, match="rows_per_taxel"):
         ExtendedSimulator([DOME], rows_per_taxel=0)
+
+
+def _back_depth(obj, res, k=0, n=801):
+    """How deep (m) the pad's rigid back (the plane ``w = foam_thickness`` over the 8 cm face)
+    reaches into the block ``obj`` (vertical sides) at glance ``k`` of ``res``: > 0 inside."""
+    s = np.linspace(-0.04, 0.04, n)
+    u, v = np.meshgrid(s, s)
+    phi, phi_y = float(res.phi[k]), float(res.phi_y[k])
+    cp, sp, cy, sy = math.cos(phi), math.sin(phi), math.cos(phi_y), math.sin(phi_y)
+    w = 0.003
+    x = float(res.x[k]) + u * cp - v * sy * sp + w * sp * cy
+    y = float(res.y[k]) + v * cy + w * sy
+    z = float(res.z[k]) - u * sp - v * sy * cp + w * cp * cy
+    on = (np.abs(x) <= obj.width / 2) & (np.abs(y) <= obj.depth / 2)
+    top = obj.surface(
+        np.clip(x, -obj.width / 2, obj.width / 2), np.clip(y, -obj.depth / 2, obj.depth / 2)
+    )
+    return float((np.where(on, top, 0.0) - z).max())
+
+
+def test_the_pads_back_stops_where_a_blocks_edge_meets_it():
+    """The pad tilted 0.5 rad about both axes over the flat block's corner (a pose of the
+    cross-check lattice): the block's edge meets the rim of the pad's rigid back between the
+    housing's samples and the read-out rows. The glance stops the pad there, touching and not
+    inside (checked on a 0.1 mm grid of the back); without the edge points the back passed
+    0.5 mm into the block (docs/crosscheck_curvature2d.md, "Which model is off")."""
+    flat = [o for o in objects.resolve_set("curvature2d") if o.name == "flat_low"]
+    q = ([-1.0], [0.5 / (math.pi / 2)], [-1.0], [-0.5 / (math.pi / 2)])  # x, phi, y, phi_y
+    sim = ExtendedSimulator(flat)
+    r = sim.glance([0], *q)
+    assert bool(r.blocked[0]) and -5e-5 < _back_depth(flat[0], r) < 1e-5  # grid: 0.1 mm
+    no_edges = ExtendedSimulator(flat)
+    none = torch.zeros(1, EDGE_POINTS)
+    no_edges._edge_points = lambda ids, *a: (none + no_edges._hu[0], none + no_edges._hv[0])
+    old = no_edges.glance([0], *q)
+    assert not bool(old.blocked[0]) and _back_depth(flat[0], old) > 4e-4
+    assert float(r.height[0]) - float(old.height[0]) > 4e-4
+    with pytest.raises(HamError, match="housing_edge_samples = 1; accepted: an integer 2 .. 256"):
+        ExtendedSimulator([DOME], housing_edge_samples=1)
+    assert "housing_edge_samples" not in sim.describe()
+    assert ExtendedSimulator([DOME], housing_edge_samples=9).describe()["housing_edge_samples"] == 9
 
 
 def test_the_line_glance_refuses_y_and_phi_y():

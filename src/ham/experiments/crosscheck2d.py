@@ -31,7 +31,7 @@ from ham.errors import HamError  # noqa: E402
 from ham.experiments.crosscheck import draw_grid, fmt_table  # noqa: E402
 from ham.world.extended_glance import ExtendedSimulator  # noqa: E402
 from ham.world.files import atomic_write  # noqa: E402
-from ham.world.glance import POSE_DIMS, check_pose_dims  # noqa: E402
+from ham.world.glance import POSE_DIMS, GlanceConfig, check_pose_dims  # noqa: E402
 from ham.world.mujoco_sim import (  # noqa: E402
     SETTLED,
     STATUS_NAMES,
@@ -54,6 +54,10 @@ POINT_CELLS = 4
 #: Objects and poses of the hfield contact comparison (``deepest`` against ``all``).
 CONTACT_OBJECTS = ("dome", "saddle", "bowl", "pyramid")
 CONTACT_POSES = 12
+#: The converged foam: the fast model's foam resolved finely enough that its heights no longer
+#: move (16 x 16 read-out points per taxel, 0.25 mm surface grid, the housing's sides sampled
+#: every 2.5 mm by 13 points along the normal): the physics both simulators approximate.
+FOAM_POINTS, FOAM_GRID_STEP, FOAM_HOUSING_EDGE, FOAM_HOUSING_NORMAL = 16, 2.5e-4, 33, 13
 #: Picture poses (q_x, q_y, phi, phi_y in rad) on the saddle and the pyramid.
 SADDLE_POSES = [
     (0.0, 0.0, 0.0, 0.0),
@@ -117,6 +121,20 @@ def bowl_variants() -> list[tuple[str, HapticObject]]:
     return out + [("the set's bowl (7 cm across, 6 mm deep, in a flat top)", bowl)]
 
 
+def converged_foam(objs: list[HapticObject], sensor: SensorConfig) -> ExtendedSimulator:
+    """The foam model both simulators approximate, resolved until its heights stop moving
+    (:data:`FOAM_POINTS` and the rest): the reference that tells which of the two is off."""
+    fine = SensorConfig(**{**sensor.to_dict(), "supersample": FOAM_POINTS})
+    return ExtendedSimulator(
+        objs,
+        fine,
+        glance=GlanceConfig(housing_samples=FOAM_HOUSING_NORMAL),
+        rows_per_taxel=FOAM_POINTS,
+        grid_step=FOAM_GRID_STEP,
+        housing_edge_samples=FOAM_HOUSING_EDGE,
+    )
+
+
 def _glance(sim, oid: int, q: np.ndarray):
     ids = np.full(len(q), oid)
     return sim.glance(ids, q[:, 0], q[:, 2], q[:, 1], q[:, 3])
@@ -159,6 +177,7 @@ def report(
     mj = MujocoSimulator(objs, sensor, threads=threads, **(mujoco_options or {}))
     fast = ExtendedSimulator(objs, sensor)
     iso = ExtendedSimulator(objs, sensor, rows_per_taxel=sensor.supersample)
+    foam = converged_foam(objs, sensor)
     cfg = mj.config
     if grid is None:
         q = random_poses(poses, seed, tilt)
@@ -184,6 +203,7 @@ def report(
     qn[:, 2:] *= math.pi / 2  # metric tilts for the tables
 
     rows, area_rows, worst, all_dh, all_corr, all_area, all_free = [], [], [], [], [], [], []
+    ref_rows, ref_err, ref_blocked, ref_h = [], {"mj": [], "fast": [], "iso": []}, [], []
     t_mj = t_fast = 0.0
     bowl_blocked, bowl_free = math.nan, (0, math.nan)
     n_mj = 0
@@ -199,6 +219,23 @@ def report(
         corr = image_correlation(r.pressure, f.pressure)
         corr_iso = image_correlation(r.pressure, g.pressure)
         dh = (r.height - f.height).double().numpy() * 1e3
+        ref = _glance(foam, oid, q)
+        errs = {
+            k: (res.height - ref.height).double().numpy() * 1e3
+            for k, res in (("mj", r), ("fast", f), ("iso", g))
+        }
+        for k, e in errs.items():
+            ref_err[k].append(e)
+        ref_blocked.append(ref.blocked.numpy())
+        ref_h.append(ref.height.double().numpy())
+        ref_rows.append(
+            [obj.name]
+            + [
+                f"{np.mean(np.abs(errs[k]) <= HEIGHT_GOAL_MM):.1%} / {np.abs(errs[k]).max():.2f}"
+                for k in ("mj", "fast", "iso")
+            ]
+            + [f"{image_correlation(res.pressure, ref.pressure).mean():.3f}" for res in (r, f, g)]
+        )
         st = r.info["status"].numpy()
         mjb, fb = st != SETTLED, f.blocked.numpy()
         free = ~mjb & ~fb
@@ -258,6 +295,25 @@ def report(
         np.concatenate, (all_dh, all_corr, all_area, all_free)
     )
     mean_corr = [float(c.mean()) for c in np.split(all_corr, len(objs))]
+    ref_err = {k: np.concatenate(v) for k, v in ref_err.items()}
+    ref_blocked = np.concatenate(ref_blocked)
+
+    # ---------------------------------------------------------------- which model is off
+    classes = []
+    for label, m in (
+        ("point contact, the foam not bottomed out", ~all_area & ~ref_blocked),
+        ("point contact, a rigid part stops the pad", ~all_area & ref_blocked),
+        ("contact over an area, not bottomed out", all_area & ~ref_blocked),
+        ("contact over an area, a rigid part stops the pad", all_area & ref_blocked),
+    ):
+        if not m.any():
+            continue
+        cells = [label, str(int(m.sum())), f"{np.mean(np.abs(all_dh[m]) <= HEIGHT_GOAL_MM):.1%}"]
+        for k in ("mj", "fast", "iso"):
+            e = ref_err[k][m]
+            cells.append(f"{np.mean(np.abs(e) <= HEIGHT_GOAL_MM):.1%} / {np.abs(e).max():.2f}")
+        cells.append(f"{np.mean(ref_err['mj'][m]):+.2f} / {np.mean(ref_err['fast'][m]):+.2f}")
+        classes.append(cells)
 
     # ---------------------------------------------------------------- deepest vs all contacts
     raw = MujocoSimulator(
@@ -403,12 +459,11 @@ def report(
     md.append(
         f"A glance whose image (MuJoCo's or the fast one) presses at most {POINT_CELLS} cells "
         "(at >= 1% of its largest cell) touches a point: a corner of the base, a point of the "
-        "rim, a ridge's end. There the two models differ by design: 2 N on one or two MuJoCo "
-        f"taxels, each a spring of {cfg.contact_stiffness:g} N/m, sinks the pad about a "
-        "millimetre; the fast foam carries the same force on the few read-out points under the "
-        f"point, each {sensor.foam_stiffness * sensor.taxel_area / sensor.supersample:g} N/m "
-        "(a quarter of a cell), and sinks deeper: MuJoCo stops higher, by up to the second "
-        "column below. Over an area the two agree (the calibration on the flat box).\n"
+        "rim, a ridge's end. There 2 N rests on one or two MuJoCo taxels, each one sphere, a "
+        f"spring of {cfg.contact_stiffness:g} N/m that answers as if the whole 5 x 5 mm cell "
+        "were pressed as deep as its deepest point; the foam under a point is pressed only "
+        'where the point is, and sinks deeper: MuJoCo stops higher ("Which model is off" '
+        "below). Over an area the two agree (the calibration on the flat box).\n"
     )
     md.append(
         fmt_table(
@@ -469,13 +524,71 @@ def report(
         )
         + "\n"
     )
+    md.append("## Which model is off: the converged foam\n")
+    md.append(
+        "Both simulators approximate one physics: a Winkler foam of "
+        f"{sensor.foam_stiffness:.4g} Pa/m, {sensor.foam_thickness * 1e3:g} mm thick, on the 8 cm "
+        "face, with the rigid pad body behind it and the housing's sides. MuJoCo samples that "
+        "foam with one contact sphere per taxel (a spring of "
+        f"{cfg.contact_stiffness:g} N/m for the whole 5 x 5 mm cell); the fast model with "
+        "4 x 1 read-out points per taxel (the outermost row 2.5 mm inside the face's rim along "
+        "v), its housing's sides at 3 points per edge, and its rigid back (the foam's back) "
+        "also at the 20 points where a block's edge meets it (the rim lines' crossings with the "
+        "base's edges, the base's corners under the face: "
+        "`ExtendedSimulator._edge_points`). Resolved until its heights stop "
+        f"moving ({FOAM_POINTS} x {FOAM_POINTS} points per taxel, a {FOAM_GRID_STEP * 1e3:g} mm "
+        f"surface grid, the housing's sides every {sensor.size / (FOAM_HOUSING_EDGE - 1) * 1e3:g} "
+        f"mm by {FOAM_HOUSING_NORMAL} points along the normal), the foam model is the reference: "
+        "a height far from it is that simulator's error. Per object, within 1 mm of the "
+        "converged foam / largest difference (mm), and the mean image correlation with the "
+        "foam's image:\n"
+    )
+    md.append(
+        fmt_table(
+            [
+                "object",
+                "MuJoCo",
+                "fast",
+                "fast 4x4",
+                "corr mean: MuJoCo vs foam",
+                "fast vs foam",
+                "fast 4x4 vs foam",
+            ],
+            ref_rows,
+        )
+        + "\n"
+    )
+    md.append(
+        "By pose class (a rigid part stops the pad: blocked in the converged foam); the last "
+        "column is the mean signed difference from the foam (mm; + stops higher):\n"
+    )
+    md.append(
+        fmt_table(
+            [
+                "pose class",
+                "poses",
+                "MuJoCo vs fast within 1 mm",
+                "MuJoCo vs foam",
+                "fast vs foam",
+                "fast 4x4 vs foam",
+                "mean MuJoCo / fast - foam",
+            ],
+            classes,
+        )
+        + "\n"
+    )
     md.append("## Why they disagree\n")
     md.append(
-        "* **Point contacts** (above): the height of a glance that touches a point depends on how "
-        "stiff the pad is at a point, a taxel sphere's spring in MuJoCo, a few foam read-out "
-        "points in the fast model; the two differ by design, not by error. Most large height "
-        "differences are such contacts: a corner of the base under a pad tilted about both axes, "
-        "the saddle's rise at the pad's rim, a cylinder's crest under a tilted pad.\n"
+        '* **Point contacts** (above; "Which model is off"): where the foam is not pressed '
+        "through, MuJoCo's one sphere per taxel is stiffer than the foam it stands for (the "
+        "cell answers as if pressed all over as deep as at its deepest point): MuJoCo stops "
+        "higher, by up to 1.5 mm on the saddle's rim. Where a rigid part stops the pad (a "
+        "block's edge or corner reaches the pad's back), the fast model's rigid back was "
+        "sampled at the housing's 3 points per side and the read-out points, and a block's "
+        "edge between them passed through it: the fast model sank up to 2.5 mm too deep. It "
+        "now also stops at the 20 points where a block's edge meets its back "
+        "(`ExtendedSimulator._edge_points`, exact where a block's top is flat at its edges; "
+        "elsewhere the edges' ends under the face).\n"
         "* **The bowl.** A flat pad on a concave surface rests on its rim: at 2 N the foam "
         "compresses by micrometres over an area, so a bowl under the 8 cm pad is touched by the "
         "pad's corners or edges. The set's bowl was a sphere of 7 cm radius over the whole base: "

@@ -31,8 +31,15 @@ Model (:class:`ExtendedSimulator`):
   reads the mean compression over its points times the foam stiffness, now varying in u and v.
 * **Rigid stops** (as the line glance): the pad body behind the foam (a point compressed through
   the whole foam stops the pad) and the housing's four sides, sampled on
-  ``housing_samples`` (6) points along each edge (corners included) by ``housing_samples`` along
-  the pad normal from the foam's back to the housing's back.
+  ``housing_edge_samples`` (3) points along each edge (corners included) by ``housing_samples``
+  (6) along the pad normal from the foam's back to the housing's back. And the pad's back (the
+  foam's back) where a block's edge meets it: where each rim line of the face crosses each edge
+  line of the base, and the base's corners under the face (:meth:`ExtendedSimulator._edge_points`,
+  20 points). The base's sides are vertical, so over a rim line the block is highest where the
+  line leaves the base, often between the samples: without these points a pad tilted over a
+  block's edge or corner sank its back up to 2.5 mm into the block (docs/crosscheck_curvature2d.md,
+  "Which model is off"). The line glance has no such points (the paper's world is unchanged): on
+  extruded objects the two differ where the line glance's back passes through a block's end.
 * **Narrow features.** Points sample the surface every ``pitch / supersample`` (1.25 mm) along u
   and ``pitch / rows_per_taxel`` (5 mm) along v. The line glance's *feature points* (narrow peaks
   of an extruded profile, :meth:`ham.world.glance.FastSimulator._set_features`) are carried over
@@ -79,6 +86,9 @@ GRID_STEP = 5e-4
 #: Points along each edge of the housing's sides (corners included), times ``housing_samples``
 #: along the pad's normal: 8 x 6 = 48 rigid points.
 HOUSING_EDGE_SAMPLES = 3
+#: Points of the pad's rigid back where a block's edge meets it (:meth:`_edge_points`): 4 rim
+#: lines x 4 edge lines, and the base's 4 corners.
+EDGE_POINTS = 20
 #: Most grid cells per object: float32 map coordinates index cells exactly below 2^24.
 MAX_CELLS = 1 << 24
 #: Batches of at least this many glances are computed in object order (cache locality; measured
@@ -129,6 +139,7 @@ class ExtendedSimulator:
         grid_step: float = GRID_STEP,
         resolution: int = 4096,
         rows_per_taxel: int = 1,
+        housing_edge_samples: int = HOUSING_EDGE_SAMPLES,
         chunk: int | None = None,
     ) -> None:
         if not objects:
@@ -139,6 +150,10 @@ class ExtendedSimulator:
             raise HamError(f"resolution = {resolution!r}; accepted: an integer 2 .. 65536")
         if not (isinstance(rows_per_taxel, int) and 1 <= rows_per_taxel <= 16):
             raise HamError(f"rows_per_taxel = {rows_per_taxel!r}; accepted: an integer 1 .. 16")
+        if not (isinstance(housing_edge_samples, int) and 2 <= housing_edge_samples <= 256):
+            raise HamError(
+                f"housing_edge_samples = {housing_edge_samples!r}; accepted: an integer 2 .. 256"
+            )
         if chunk is not None and not (isinstance(chunk, int) and chunk >= 1):
             raise HamError(f"chunk = {chunk!r}; accepted: None (automatic) or an integer >= 1")
         self.objects = list(objects)
@@ -165,7 +180,8 @@ class ExtendedSimulator:
         # Each side at its two corners and its middle: the rigid stops are for steep tilts,
         # where a side lies nearly flat; fewer points, since each costs a scattered lookup.
         m = self.glance_config.housing_samples
-        edge = np.linspace(-0.5 * s.size, 0.5 * s.size, HOUSING_EDGE_SAMPLES)
+        self.housing_edge_samples = housing_edge_samples
+        edge = np.linspace(-0.5 * s.size, 0.5 * s.size, housing_edge_samples)
         half = np.full(len(edge), 0.5 * s.size)
         hu = np.concatenate([-half, half, edge[1:-1], edge[1:-1]])
         hv = np.concatenate([edge, edge, -half[1:-1], half[1:-1]])
@@ -173,6 +189,9 @@ class ExtendedSimulator:
         self._hu = torch.tensor(np.repeat(hu, m), **f32)
         self._hv = torch.tensor(np.repeat(hv, m), **f32)
         self._hw = torch.tensor(np.tile(w, len(hu)), **f32)
+        # The edge points (:meth:`_edge_points`) lie on the foam's back: w = foam_thickness.
+        self._hw_all = torch.cat([self._hw, torch.full((EDGE_POINTS,), s.foam_thickness, **f32)])
+        self._rims = torch.tensor([-0.5 * s.size, 0.5 * s.size], **f32)
         # Force per metre of compression at one read-out point.
         self._c0 = s.foam_stiffness * s.taxel_area / (s.supersample * sv)
         self._direct_image = (
@@ -234,6 +253,12 @@ class ExtendedSimulator:
         self._hi_x = torch.tensor([m[0] + _f32_step(m[0]) for m in meta], **f32)
         self._hi_y = torch.tensor([m[1] + _f32_step(m[1]) for m in meta], **f32)
         self._lo = torch.full((len(meta),), -1.0, **f32)
+        # Each base's edge lines in cell coordinates (n_objects, 2), a thousandth of a cell (half
+        # a micrometre) inside: x in {0, nx}, y in {0, ny}. A point computed on the line itself
+        # lands a float32 rounding on either side, and beside the base the table is read.
+        inset = 1e-3
+        self._edge_x = torch.stack([torch.full_like(self._nx, inset), self._nx - inset], 1)
+        self._edge_y = torch.stack([torch.full_like(self._ny, inset), self._ny - inset], 1)
         self._stride = torch.tensor([m[0] + 2 for m in meta], dtype=torch.float32, device=dev)
         # First cell (i, j) = (-1, -1) of each object: base + 0; (i, j) is at (j+1)(nx+2) + i+1.
         first = [m[4] + m[0] + 3 for m in meta]
@@ -389,7 +414,7 @@ class ExtendedSimulator:
 
     def _workspace(self, rows: int) -> _Workspace:
         """This thread's workspace for ``rows`` glances per chunk, kept between calls."""
-        size = rows * max(len(self._u) * len(self._v), len(self._hu))
+        size = rows * max(len(self._u) * len(self._v), len(self._hu) + EDGE_POINTS)
         cache = self.__dict__.setdefault("_work", {})
         work = cache.get(threading.get_ident())
         if work is None or work.size < size:
@@ -473,9 +498,14 @@ class ExtendedSimulator:
                 sub = torch.maximum(sub, per[..., k], out=sub)
             z0 = _solve_stop_height(sub, target, work)
         z_force = _solve_stop_height(e, target, work, z0)
-        # Rigid parts: the pad behind the foam (foam fully compressed) and the housing's sides.
-        hu, hv, hw = self._hu, self._hv, self._hw
-        hshape = (b, len(hu))
+        # Rigid parts: the pad behind the foam (foam fully compressed), the housing's sides and
+        # the back's points where a block's edge meets it (:meth:`_edge_points`), in one lookup.
+        nh = len(self._hu)
+        eu, ev = self._edge_points(ids, tx0, ty0, xu, yu, xv, yv, xw, yw)
+        hshape = (b, nh + eu.shape[1])
+        hu, hv, hw = work.get("u", hshape), work.get("v", hshape), self._hw_all
+        hu[:, :nh], hu[:, nh:] = self._hu, eu
+        hv[:, :nh], hv[:, nh:] = self._hv, ev
         tx = work.get("t", hshape)
         torch.addcmul(tx0[:, None], xu[:, None], hu, out=tx)
         tx.addcmul_(xv[:, None], hv).addcmul_(xw[:, None], hw)
@@ -504,6 +534,54 @@ class ExtendedSimulator:
         else:
             cells = compression.view(b, n, sv, n, su).mean((2, 4))
             _put(out.pressure, dst, self.myrmex.postprocess(cells * s.foam_stiffness))
+
+    def _edge_points(self, ids, tx0, ty0, xu, yu, xv, yv, xw, yw):
+        """Pad coordinates ``(u, v)`` (B, 20) on the pad's rigid back (the foam's back, ``w =
+        foam_thickness``) where a block's edge meets it: where each of the face's four rim lines
+        crosses each of the base's four edge lines, and the base's four corners under the face
+        (each clamped into the face: any point of the back is rigid).
+
+        The base's sides are vertical, so on a block whose top rises towards an edge (a flat top,
+        the saddle along x) the highest point of the object over a rim line is where the line
+        leaves the base: a point between the housing's samples and the read-out rows, which the
+        pad's back would otherwise pass through (docs/crosscheck_curvature2d.md)."""
+        half = 0.5 * self.sensor.size
+        f = self.sensor.foam_thickness
+        b = len(ids)
+        ox, oy = torch.add(tx0, xw, alpha=f), torch.add(ty0, yw, alpha=f)  # the back's centre
+        ex, ey = self._edge_x[ids][:, None, :], self._edge_y[ids][:, None, :]  # (B, 1, 2)
+        side = self._rims  # (2,): -L/2, +L/2
+        # Rim lines v = -+L/2, along u: tx = ox + xv v + xu u (ty likewise); the u where each
+        # meets each edge line, (B, 2 rims, 4 edges); then the rims u = -+L/2, along v.
+        free_u = torch.cat(
+            [
+                (ex - torch.addcmul(ox[:, None], xv[:, None], side)[:, :, None])
+                / xu[:, None, None],
+                (ey - torch.addcmul(oy[:, None], yv[:, None], side)[:, :, None])
+                / yu[:, None, None],
+            ],
+            2,
+        )
+        free_v = torch.cat(
+            [
+                (ex - torch.addcmul(ox[:, None], xu[:, None], side)[:, :, None])
+                / xv[:, None, None],
+                (ey - torch.addcmul(oy[:, None], yu[:, None], side)[:, :, None])
+                / yv[:, None, None],
+            ],
+            2,
+        )
+        # The base's corners on the back plane: (xu xv; yu yv) (u, v) = corner - centre.
+        rx = (ex - ox[:, None, None]).expand(b, 2, 2).reshape(b, 4)
+        ry = (ey - oy[:, None, None]).transpose(1, 2).expand(b, 2, 2).reshape(b, 4)
+        det = (xu * yv - xv * yu)[:, None]
+        fixed = side[None, :, None].expand(b, 2, 4).reshape(b, 8)
+        u = torch.cat([free_u.reshape(b, 8), fixed, (rx * yv[:, None] - xv[:, None] * ry) / det], 1)
+        v = torch.cat([fixed, free_v.reshape(b, 8), (xu[:, None] * ry - yu[:, None] * rx) / det], 1)
+        return (
+            torch.nan_to_num_(u, nan=0.0).clamp_(-half, half),
+            torch.nan_to_num_(v, nan=0.0).clamp_(-half, half),
+        )
 
     def _add_features(self, e: torch.Tensor, ids, frame) -> None:
         """Raise the touch height ``e`` (B, R, C) of the read-out point whose cell a feature line
@@ -541,6 +619,11 @@ class ExtendedSimulator:
             "grid_step": self.grid_step,
             "height_map_resolution": self.resolution,
             "rows_per_taxel": self.rows_per_taxel,
+            **(
+                {"housing_edge_samples": self.housing_edge_samples}
+                if self.housing_edge_samples != HOUSING_EDGE_SAMPLES
+                else {}
+            ),
         }
 
 
