@@ -1,6 +1,7 @@
 """The learned "stay" gate of the location policy (``--stay-gate``, HamConfig.stay_gate): the mean
-next pose mixes the pad's pose and the location network's, the gate is created last, what trains
-it, resume, the CLI and bad input."""
+next pose mixes the pad's pose and the location network's by a gate on the classifier's
+confidence; the gate is created last and starts open, what trains it, replay, resume, the CLI
+and bad input."""
 
 from __future__ import annotations
 
@@ -41,7 +42,14 @@ def test_the_gate_is_created_last_and_keeps_every_other_weight():
     before = HapticAttentionModel(HamConfig(glances=3)).state_dict()
     torch.manual_seed(3)
     gated = HapticAttentionModel(GATED).state_dict()
-    assert set(gated) - set(before) == {"stay.weight", "stay.bias"}
+    assert {n for n in set(gated) - set(before)} == {
+        f"stay.net.{i}.{w}" for i in (0, 2) for w in ("weight", "bias")
+    }
+    # it starts open: g = sigmoid(-3) in every state
+    agent = HapticAttentionModel(GATED)
+    assert torch.allclose(
+        torch.sigmoid(agent.stay(torch.randn(6, 4))), torch.tensor(0.0474), atol=1e-4
+    )
     for name, w in before.items():
         assert torch.equal(w, gated[name]), name
 
@@ -53,11 +61,14 @@ def test_the_mean_mixes_the_pad_s_pose_and_the_network_s(env):
     q = torch.rand(5, 2) * 2 - 1
     free = agent.location.distribution(tau)
     dist = agent.next_distribution(tau, q)
-    g = torch.sigmoid(agent.stay(tau))
-    assert torch.allclose(dist.mu, g * q + (1 - g) * free.mu)
+    with torch.no_grad():
+        agent.stay.net[-1].weight.normal_()  # a gate that tells states apart
+    dist = agent.next_distribution(tau, q)
+    g = torch.sigmoid(agent.stay(agent.classifier(tau)))[:, None]
+    assert g.std() > 0 and torch.allclose(dist.mu, g * q + (1 - g) * free.mu)
     assert torch.equal(dist.sigma, free.sigma)
     with torch.no_grad():  # a shut gate: the mean stays where the pad is, no travel to pay
-        agent.stay.bias.fill_(50.0)
+        agent.stay.net[-1].bias.fill_(50.0)
     episode = agent(env, env.sample_objects(), None, greedy=True)
     assert torch.allclose(episode.locations[1:], episode.locations[:1].expand(2, 8, 2))
     assert float(mean_travel_penalty(episode, 1.0).detach()) < 1e-4
@@ -76,10 +87,11 @@ def test_the_gate_is_trained_by_the_policy_term_and_the_travel_penalty_only(env)
                                     allow_unused=True)  # fmt: skip
         reached = {n for n, gr in zip(params, grads, strict=True)
                    if gr is not None and bool(gr.abs().sum() > 0)}  # fmt: skip
-        assert {"stay.weight", "stay.bias"} <= reached
+        assert {"stay.net.2.weight", "stay.net.2.bias"} <= reached
         assert all(n.startswith(("location.", "stay.")) for n in reached), reached
-    grads = torch.autograd.grad(loss.classification, [params["stay.weight"]], allow_unused=True)
-    assert grads[0] is None
+    grads = torch.autograd.grad(loss.classification, [params["stay.net.2.weight"]],
+                                allow_unused=True)  # fmt: skip
+    assert grads[0] is None  # it reads the classifier's output detached
 
 
 def test_a_replayed_episode_has_the_gated_distributions(env):

@@ -33,6 +33,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import torch
+from torch import nn
 from tqdm.auto import tqdm
 
 from ham.errors import HamError, check_choices, check_known_fields
@@ -123,7 +124,7 @@ class TrainConfig:
         move_cost_on: where the move cost acts (:func:`ham.learn.info_loss.info_loss`):
             ``mean`` (a differentiable penalty on the distance from the pad's pose to the
             policy's mean next pose; halves the path, docs/learners.md) or ``reward`` (in the
-            policy's REINFORCE reward, the first version).
+            policy's REINFORCE reward, the first version) or ``both``.
         glance_cost: with a learned stop (``HamConfig.stop``), what each glance costs the stop
             head's return (info learner; :mod:`ham.learn.stopping`).
         stop_learner: how the stop head learns (:mod:`ham.learn.stopping`): ``value`` (a
@@ -500,11 +501,14 @@ def parameter_groups(
 ) -> list[dict]:
     """The optimizer's parameter groups: one (every weight at ``lr``), or, when the location
     network or the first glance's own pose (``first_glance = "own"``) learns at its own rate,
-    the rest, the location network and the first pose (``lr_scale`` each)."""
+    the rest, the location network (with the stay gate) and the first pose (``lr_scale`` each)."""
     first = getattr(agent, "first_pose", None)
     if policy_lr_scale == 1.0 and first is None:
         return [{"params": list(agent.parameters()), "lr_scale": 1.0}]
-    parts = [(agent.location, policy_lr_scale)]
+    location = [agent.location]
+    if getattr(agent, "stay", None) is not None:  # the stay gate is the location policy's
+        location.append(agent.stay)
+    parts = [(nn.ModuleList(location), policy_lr_scale)]
     if first is not None:
         parts.append((first, first_pose_lr_scale))
     own = {id(p) for module, _ in parts for p in module.parameters()}
@@ -956,7 +960,7 @@ def replay_episode(
         logits.append(agent.classifier(tau))
         baselines.append(agent.baseline(tau))
         if s < glances - 1:
-            dists.append(agent.next_distribution(tau, played.locations[s]))
+            dists.append(agent.next_distribution(tau, played.locations[s], logits[-1]))
     return Episode(
         objects=played.objects,
         locations=played.locations,
@@ -978,7 +982,7 @@ def train_step_epochs(run: Run) -> InfoLoss:
     recorder = GlanceRecorder(run.env)
     with torch.no_grad():
         played = run.agent(recorder, objects, run.policy_generator)
-    on_reward = c.move_cost if c.move_cost_on == "reward" else 0.0
+    on_reward = c.move_cost if c.move_cost_on in ("reward", "both") else 0.0
     targets = info_targets(played, c.gamma, c.gae_lambda, on_reward)
     pressures, where = torch.stack(recorder.pressures), torch.stack(recorder.where)
     heights = torch.stack(recorder.heights) if recorder.heights else None
@@ -986,7 +990,7 @@ def train_step_epochs(run: Run) -> InfoLoss:
     for epoch in range(c.epochs):
         episode = replay_episode(run.agent, played, pressures, where, heights)
         loss = clipped_info_loss(episode, targets, c.clip, c.entropy_coef)
-        if c.move_cost > 0 and c.move_cost_on == "mean":
+        if c.move_cost > 0 and c.move_cost_on in ("mean", "both"):
             loss.total = loss.total + mean_travel_penalty(episode, c.move_cost)
         if epoch >= policy_epochs:  # the classifier and the critic only
             loss.total = loss.classification + loss.critic

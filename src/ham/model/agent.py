@@ -46,6 +46,8 @@ from ham.world.glance import PAPER_POSE_DIMS, check_pose_dims
 from ham.world.objects import MAX_HEIGHT
 
 FIRST_GLANCES: tuple[str, ...] = ("random", "learned", "own", "probe")
+#: The stay gate's initial logit (``HamConfig.stay_gate``): ``g = sigmoid(-3) = 0.047``.
+STAY_GATE_BIAS = -3.0
 #: What the learned stop's head reads (``HamConfig.stop_input``).
 STOP_INPUTS: tuple[str, ...] = ("confidence", "core")
 #: ``phi`` and ``phi_y`` of the pose dims (:data:`ham.world.glance.POSE_DIMS`) are angles, fed to
@@ -102,9 +104,10 @@ class HamConfig:
             dimension (``grid^k`` Gaussians, started on a regular grid over the poses; 1: one
             Gaussian at pose 0).
         stay_gate: a learned "stay" gate on the location policy (beyond the paper): the mean
-            next pose is ``g q_{s-1} + (1 - g) mu(tau)``, ``g = sigmoid(w . tau + b)``, so
-            staying where the pad is needs one unit, not the linear map ``mu(tau)`` to recall
-            the pose (``--move-cost``, docs/learners.md).
+            next pose is ``g q_{s-1} + (1 - g) mu(tau)``, ``g`` a small MLP (as the stop
+            head's) on the classifier's confidence after glance ``s - 1``, so staying where the
+            pad is needs one unit, not the linear map ``mu(tau)`` to recall the pose
+            (``--move-cost``, docs/learners.md).
         probe_grid: with ``first_glance = "probe"``, the lattice's candidate first poses per
             pose dimension, from -1 to 1 (21: spacing 0.1; ``grid^k`` candidates).
         pose_dims: the pose dimensions the policy chooses, in the world's order (the paper's
@@ -326,8 +329,14 @@ class HapticAttentionModel(nn.Module):
         if c.first_glance == "probe":  # buffers only: draws no random numbers
             self.first_probe = ProbedFirstPose(len(c.pose_dims), c.probe_grid)
         if c.stay_gate:  # last: every other part's initial weights stay those of a run without
-            self.stay = nn.Linear(c.hidden_units, 1, bias=c.bias)
+            # On the classifier's confidence (as the stop head): stay once sure, move while
+            # unsure; a gate on the core output learned to stay everywhere (docs/learners.md).
+            # Starts open (g = sigmoid(-3) = 0.05 in every state): the policy is first the
+            # location network's.
+            self.stay = StopHead()
             he_normal_init(self.stay)
+            nn.init.zeros_(self.stay.net[-1].weight)
+            nn.init.constant_(self.stay.net[-1].bias, STAY_GATE_BIAS)
         # where-input column i: q_i, times phi_scale for an angle
         self._angle = [d in ANGLE_DIMS for d in c.pose_dims]
 
@@ -355,14 +364,19 @@ class HapticAttentionModel(nn.Module):
             return dist, self.baseline(tau0)
         return self.location.distribution(tau0), self.baseline(tau0)
 
-    def next_distribution(self, tau: torch.Tensor, q: torch.Tensor) -> LocationDistribution:
+    def next_distribution(
+        self, tau: torch.Tensor, q: torch.Tensor, logits: torch.Tensor | None = None
+    ) -> LocationDistribution:
         """The distribution of the next pose after the glance at ``q`` ``(B, k)`` that left the
-        core at ``tau``: the location policy's, its mean gated towards ``q`` with
-        ``stay_gate``."""
+        core at ``tau`` and the classifier at ``logits``: the location policy's, its mean gated
+        towards ``q`` with ``stay_gate`` (the gate reads the classifier's confidence, detached:
+        :meth:`StopHead.confidence`)."""
         dist = self.location.distribution(tau)
         if not self.config.stay_gate:
             return dist
-        g = torch.sigmoid(self.stay(tau.detach()))  # (B, 1); the core is not trained here
+        if logits is None:
+            logits = self.classifier(tau)
+        g = torch.sigmoid(self.stay(logits))[:, None]  # (B, 1); reads detached inputs
         return TruncatedGaussian(g * q.detach() + (1 - g) * dist.mu, dist.sigma)
 
     def where(self, q: torch.Tensor, height: torch.Tensor | None = None) -> torch.Tensor:
@@ -434,7 +448,7 @@ class HapticAttentionModel(nn.Module):
                     stops.append(self.stop_head(logits[-1]))
             if s == self.config.glances - 1:
                 break
-            dist = self.next_distribution(tau, q)
+            dist = self.next_distribution(tau, q, logits[-1])
             q = dist.act(generator, greedy)
             dists.append(dist)
         return Episode(
@@ -467,7 +481,7 @@ class HapticAttentionModel(nn.Module):
             logits.append(self.classifier(tau))
             baselines.append(self.baseline(tau))
             if s < pressures.shape[0] - 1:
-                dists.append(self.next_distribution(tau, locations[s]))
+                dists.append(self.next_distribution(tau, locations[s], logits[-1]))
         return (
             torch.stack(logits),
             torch.stack(baselines),
