@@ -306,6 +306,16 @@ def test_the_mean_move_cost_pulls_each_mean_pose_towards_the_previous_pose(env, 
         info_loss(episode, move_cost=0.5, move_cost_on="path")
 
 
+def test_the_move_cost_in_both_places_is_the_reward_s_and_the_mean_penalty(env):
+    from ham.learn.info_loss import mean_travel_penalty
+
+    _, episode = _episode(env, glances=4)
+    on_reward = info_loss(episode, gamma=1.0, move_cost=0.5, move_cost_on="reward")
+    both = info_loss(episode, gamma=1.0, move_cost=0.5, move_cost_on="both")
+    assert torch.equal(both.critic, on_reward.critic) and torch.equal(both.policy, on_reward.policy)
+    assert torch.allclose(both.total - on_reward.total, mean_travel_penalty(episode, 0.5))
+
+
 def test_a_run_trains_with_the_mean_move_cost_and_refuses_an_unknown_one(tmp_path):
     with pytest.raises(HamError, match="move_cost_on"):
         tiny(move_cost=0.2, move_cost_on="path")

@@ -94,6 +94,11 @@ def check_batchable(config: TrainConfig) -> None:
             f"policy {config.model.policy!r} cannot be batched; accepted: learned, random "
             "(train it with ham train or --executor local)"
         )
+    if config.model.stay_gate:
+        raise HamError(
+            "stay_gate cannot be batched; accepted: no --stay-gate (train it with ham train or "
+            "--executor local)"
+        )
     if config.model.first_glance != "random":
         raise HamError(
             f"first_glance {config.model.first_glance!r} cannot be batched; accepted: random "

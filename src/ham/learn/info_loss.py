@@ -38,7 +38,7 @@ from ham.errors import HamError
 from ham.model.agent import Episode
 
 #: Where the move cost acts (``TrainConfig.move_cost_on``; :func:`info_loss`).
-MOVE_COSTS: tuple[str, ...] = ("mean", "reward")
+MOVE_COSTS: tuple[str, ...] = ("mean", "reward", "both")
 
 
 @dataclass
@@ -117,7 +117,7 @@ def info_loss(
     trajectories), where ``move_cost_on`` says (:data:`MOVE_COSTS`): ``mean`` (default): the
     loss gains :func:`mean_travel_penalty`; ``reward`` (the first version): the reward of glance
     ``s >= 2`` is its information gain minus ``move_cost`` times the distance ``||q_s -
-    q_{s-1}||`` the pad travelled to it (normalized pose units)."""
+    q_{s-1}||`` the pad travelled to it (normalized pose units); ``both``: the two at once."""
     for name, v, low, high in (("gamma", gamma, 0, 1), ("gae_lambda", gae_lambda, 0, 1)):
         if not (math.isfinite(v) and low <= v <= high):
             raise HamError(f"{name} = {v!r}; accepted: {low} <= {name} <= {high}")
@@ -136,7 +136,7 @@ def info_loss(
     if move_cost_on not in MOVE_COSTS:
         raise HamError(f"move_cost_on = {move_cost_on!r}; accepted: {', '.join(MOVE_COSTS)}")
     values = episode.values()  # V(tau_{1:s-1}) of the state that chose the glance q_s
-    reward = _reward(episode, gain, move_cost if move_cost_on == "reward" else 0.0)
+    reward = _reward(episode, gain, move_cost if move_cost_on in ("reward", "both") else 0.0)
     adv, ret = advantages(reward[episode.chosen], values.detach(), gamma, gae_lambda)
     critic = ((ret.detach() - values) ** 2).sum(0).mean()
     a = adv.detach()
@@ -146,7 +146,7 @@ def info_loss(
     policy_term = -(a * log_p).sum(0).mean()
     entropy = policy.entropy().sum(0).mean()
     total = classification + policy_coef * policy_term + critic - entropy_coef * entropy
-    if move_cost > 0 and move_cost_on == "mean":
+    if move_cost > 0 and move_cost_on in ("mean", "both"):
         total = total + mean_travel_penalty(episode, move_cost)
     return InfoLoss(total, classification, policy_term, critic, entropy, gain)
 

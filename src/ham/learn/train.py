@@ -33,6 +33,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import torch
+from torch import nn
 from tqdm.auto import tqdm
 
 from ham.errors import HamError, check_choices, check_known_fields
@@ -50,6 +51,7 @@ from ham.learn.info_loss import (
     mean_travel_penalty,
 )
 from ham.learn.off_policy import SacLoss, SacState, sac_update
+from ham.learn.probe import PROBE_SCORES, probe_due, probe_glances, probe_round, probe_schedule
 from ham.learn.stopping import STOP_LEARNERS, stop_loss
 from ham.model.agent import Episode, HamConfig, HapticAttentionModel, count_parameters
 from ham.world.config import WorldConfig
@@ -67,6 +69,8 @@ LEARNERS: tuple[str, ...] = ("hybrid", "info", "sac")
 OPTIMIZERS: tuple[str, ...] = ("sgd", "adam")
 #: ``TrainConfig.first_pose_lr_scale``'s default (docs/learners.md, "A learned stop")
 FIRST_POSE_LR_SCALE = 10.0
+#: the first pose's search (``first_glance = "probe"``): its defaults (docs/learners.md)
+PROBE_WARMUP, PROBE_EVERY, PROBE_KEEP = 100, 10, 0.5
 
 
 @dataclass(frozen=True)
@@ -120,7 +124,7 @@ class TrainConfig:
         move_cost_on: where the move cost acts (:func:`ham.learn.info_loss.info_loss`):
             ``mean`` (a differentiable penalty on the distance from the pad's pose to the
             policy's mean next pose; halves the path, docs/learners.md) or ``reward`` (in the
-            policy's REINFORCE reward, the first version).
+            policy's REINFORCE reward, the first version) or ``both``.
         glance_cost: with a learned stop (``HamConfig.stop``), what each glance costs the stop
             head's return (info learner; :mod:`ham.learn.stopping`).
         stop_learner: how the stop head learns (:mod:`ham.learn.stopping`): ``value`` (a
@@ -137,7 +141,17 @@ class TrainConfig:
             in the recipe's decaying schedule its sigma shrinks from 1 to 0.04-0.2; at 3 to
             0.2-0.34, docs/learners.md).
         env_steps: a budget in environment steps (glances) instead of ``steps``: when given,
-            ``steps = ceil(env_steps / (batch_size * glances))``; ``None``: ``steps`` rules.
+            ``steps = ceil((env_steps - probes) / (batch_size * glances))`` with ``probes``
+            the glances of the first pose's search (``first_glance = "probe"``; 0 otherwise);
+            ``None``: ``steps`` rules.
+        probe_warmup: with ``HamConfig.first_glance = "probe"`` (:mod:`ham.learn.probe`),
+            training steps before the search's first round (100), first glances drawn among
+            all the lattice's candidates.
+        probe_every: training steps between the search's rounds (10).
+        probe_keep: the share of the candidates a round keeps (0.5: successive halving).
+        probe_score: how a round ranks the candidates (:func:`ham.learn.probe.rank`):
+            ``errors`` (the objects the classifier answers wrong after the one glance, then its
+            cross-entropy) or ``ce`` (the cross-entropy alone, the first version).
         epochs: optimizer steps per batch (info learner; 1: one, as the paper). With more, the
             batch is played once and its recorded glances replayed ``epochs`` times, each pass
             one step on the clipped (PPO) policy loss (:func:`ham.learn.info_loss.clipped_info_loss`):
@@ -198,6 +212,10 @@ class TrainConfig:
     policy_lr_scale: float = 1.0
     first_pose_lr_scale: float = FIRST_POSE_LR_SCALE
     env_steps: int | None = None
+    probe_warmup: int = PROBE_WARMUP
+    probe_every: int = PROBE_EVERY
+    probe_keep: float = PROBE_KEEP
+    probe_score: str = field(default="errors", metadata={"choices": PROBE_SCORES})
     epochs: int = 1
     clip: float = 0.2
     policy_epochs: int | None = None
@@ -225,10 +243,18 @@ class TrainConfig:
             v = self.env_steps
             if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
                 raise HamError(f"env_steps = {v!r}; accepted: an integer >= 1 (or None)")
+            self._check_probe()
             if isinstance(self.batch_size, int) and self.batch_size >= 1:
-                # frozen: the budget in glances defines the steps (recorded both ways)
+                # frozen: the budget in glances defines the steps (recorded both ways); the
+                # first pose's probe glances are environment steps too
                 per_step = self.batch_size * self.model.glances
-                object.__setattr__(self, "steps", math.ceil(v / per_step))
+                probes = self.probe_glances
+                if probes >= v:
+                    raise HamError(
+                        f"env_steps = {v}: the first pose's search alone spends {probes} "
+                        f"glances; accepted: env_steps > {probes} (or a smaller --probe-grid)"
+                    )
+                object.__setattr__(self, "steps", math.ceil((v - probes) / per_step))
         for name in ("steps", "batch_size", "lr_step", "eval_every", "eval_batches", "log_every"):
             v = getattr(self, name)
             low = 0 if name == "steps" else 1
@@ -289,6 +315,8 @@ class TrainConfig:
                 f"first_pose_lr_scale = {v!r} with first_glance {self.model.first_glance!r}; "
                 "accepted: with --first-glance own (its own first pose)"
             )
+        self._check_probe()
+        self._check_probe_run()
         self._check_epochs()
         self._check_sac()
         check_device(self.device, available=False)  # spelling only: a saved GPU run loads on CPU
@@ -311,6 +339,60 @@ class TrainConfig:
     def object_pose(self) -> ObjectPoseConfig:
         """The random object pose per episode (:class:`ham.world.source.ObjectPoseConfig`)."""
         return ObjectPoseConfig(self.object_yaw_max, self.object_offset_max)
+
+    @property
+    def probe_glances(self) -> int:
+        """Environment steps the first pose's search spends (0 unless ``first_glance =
+        "probe"``)."""
+        if self.model.first_glance != "probe":
+            return 0
+        n = self.model.probe_grid ** len(self.model.pose_dims)
+        return probe_glances(n, self.probe_keep, self.model.n_objects)
+
+    def _check_probe(self) -> None:
+        for name in ("probe_warmup", "probe_every"):
+            v = getattr(self, name)
+            low = 0 if name == "probe_warmup" else 1
+            if not (isinstance(v, int) and not isinstance(v, bool) and v >= low):
+                raise HamError(f"{name} = {v!r}; accepted: an integer >= {low}")
+        v = self.probe_keep
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < 1:
+            raise HamError(f"probe_keep = {v!r}; accepted: a number in (0, 1)")
+        defaults = (PROBE_WARMUP, PROBE_EVERY, PROBE_KEEP, "errors")
+        given = (self.probe_warmup, self.probe_every, self.probe_keep, self.probe_score)
+        names = ("probe_warmup", "probe_every", "probe_keep", "probe_score")
+        for name, value, default in zip(names, given, defaults, strict=True):
+            if value != default and self.model.first_glance != "probe":
+                raise HamError(
+                    f"{name} = {value!r} with first_glance {self.model.first_glance!r}; "
+                    "accepted: with --first-glance probe (the first pose's search)"
+                )
+
+    def _check_probe_run(self) -> None:
+        if self.model.first_glance != "probe":
+            return
+        where = (
+            f"env {self.env.env!r}" if self.env is not None
+            else f"a random object pose ({self.object_pose})" if self.object_pose.enabled
+            else None
+        )  # fmt: skip
+        if self.learner != "info" or where is not None:
+            raise HamError(
+                f"first_glance 'probe' with {where or 'learner ' + repr(self.learner)}; "
+                "accepted: --learner info in the haptic world (a table or online glances, "
+                "objects at their pose)"
+            )
+        rounds = len(probe_schedule(self.model.probe_grid ** len(self.model.pose_dims),
+                                    self.probe_keep))  # fmt: skip
+        last = self.probe_warmup + (rounds - 1) * self.probe_every
+        # a budget counts the whole search's glances: it must fit (a run of explicit --steps
+        # may stop inside the search and be resumed)
+        if self.env_steps is not None and last >= self.steps:
+            raise HamError(
+                f"the first pose's search ends before step {last + 1} (probe_warmup "
+                f"{self.probe_warmup} + {rounds - 1} rounds x probe_every {self.probe_every}) "
+                f"but the budget gives {self.steps} steps; accepted: a budget of more steps"
+            )
 
     def _check_epochs(self) -> None:
         if not (isinstance(self.epochs, int) and not isinstance(self.epochs, bool)
@@ -365,11 +447,13 @@ class TrainConfig:
             ("stop", self.model.stop, "no --stop"),
             ("epochs", self.epochs > 1, "epochs = 1"),
             ("move_cost", self.move_cost > 0, "move_cost = 0"),
+            ("stay_gate", self.model.stay_gate, "no --stay-gate"),
             ("entropy_coef", self.entropy_coef > 0, "entropy_coef = 0 (the temperature is tuned)"),
         )
         for name, bad, accepted in refused:
             if bad:
-                value = getattr(self.model, name, None) if name in ("policy", "stop") else None
+                in_model = name in ("policy", "stop", "stay_gate")
+                value = getattr(self.model, name, None) if in_model else None
                 value = getattr(self, name) if value is None else value
                 raise HamError(f"{name} = {value!r} with learner 'sac'; accepted: {accepted}")
 
@@ -417,11 +501,14 @@ def parameter_groups(
 ) -> list[dict]:
     """The optimizer's parameter groups: one (every weight at ``lr``), or, when the location
     network or the first glance's own pose (``first_glance = "own"``) learns at its own rate,
-    the rest, the location network and the first pose (``lr_scale`` each)."""
+    the rest, the location network (with the stay gate) and the first pose (``lr_scale`` each)."""
     first = getattr(agent, "first_pose", None)
     if policy_lr_scale == 1.0 and first is None:
         return [{"params": list(agent.parameters()), "lr_scale": 1.0}]
-    parts = [(agent.location, policy_lr_scale)]
+    location = [agent.location]
+    if getattr(agent, "stay", None) is not None:  # the stay gate is the location policy's
+        location.append(agent.stay)
+    parts = [(nn.ModuleList(location), policy_lr_scale)]
     if first is not None:
         parts.append((first, first_pose_lr_scale))
     own = {id(p) for module, _ in parts for p in module.parameters()}
@@ -525,13 +612,18 @@ class Run:
 
     @property
     def env_steps(self) -> int:
-        """Environment steps so far, counted as the field counts them: glances."""
-        return self.step * self.config.batch_size * self.config.model.glances
+        """Environment steps so far, counted as the field counts them: glances (the first
+        pose's probe glances included)."""
+        played = self.step * self.config.batch_size * self.config.model.glances
+        search = getattr(self.agent, "first_probe", None)
+        return played if search is None else played + int(search.probes)
 
     def reached(self, accuracy: float) -> int | None:
         """Environment steps at the first evaluation whose final accuracy was >= ``accuracy``."""
         for row in self.history:
             if row["accuracy"] >= accuracy:
+                if "env_steps" in row:  # with the first pose's probe glances
+                    return row["env_steps"]
                 return row["step"] * self.config.batch_size * self.config.model.glances
         return None
 
@@ -763,6 +855,13 @@ def _check_weights(run: Run) -> None:
         raise HamError(f"training diverged at step {run.step}: NaN/inf in the weights {bad[0]}")
 
 
+def _probe(run: Run) -> None:
+    """A round of the first pose's search (:mod:`ham.learn.probe`) when one is due."""
+    c = run.config
+    if probe_due(run.step, c.probe_warmup, c.probe_every, run.agent.first_probe):
+        probe_round(run.agent, run.env, c.probe_keep, c.probe_score)
+
+
 def train_step(run: Run) -> HybridLoss | InfoLoss | SacLoss:
     """One training step: a fresh batch, one episode, the learner's loss, one optimizer step
     (or ``epochs`` of them over the batch's recorded glances, :func:`train_step_epochs`; or the
@@ -772,6 +871,8 @@ def train_step(run: Run) -> HybridLoss | InfoLoss | SacLoss:
         group["lr"] = c.learning_rate(run.step) * group.get("lr_scale", 1.0)
     if c.learner == "sac":
         return train_step_sac(run)
+    if c.model.first_glance == "probe":
+        _probe(run)
     if c.epochs > 1:
         return train_step_epochs(run)
     objects = run.env.sample_objects()  # a fresh batch, drawn uniformly
@@ -859,7 +960,7 @@ def replay_episode(
         logits.append(agent.classifier(tau))
         baselines.append(agent.baseline(tau))
         if s < glances - 1:
-            dists.append(agent.location.distribution(tau))
+            dists.append(agent.next_distribution(tau, played.locations[s], logits[-1]))
     return Episode(
         objects=played.objects,
         locations=played.locations,
@@ -881,7 +982,7 @@ def train_step_epochs(run: Run) -> InfoLoss:
     recorder = GlanceRecorder(run.env)
     with torch.no_grad():
         played = run.agent(recorder, objects, run.policy_generator)
-    on_reward = c.move_cost if c.move_cost_on == "reward" else 0.0
+    on_reward = c.move_cost if c.move_cost_on in ("reward", "both") else 0.0
     targets = info_targets(played, c.gamma, c.gae_lambda, on_reward)
     pressures, where = torch.stack(recorder.pressures), torch.stack(recorder.where)
     heights = torch.stack(recorder.heights) if recorder.heights else None
@@ -889,7 +990,7 @@ def train_step_epochs(run: Run) -> InfoLoss:
     for epoch in range(c.epochs):
         episode = replay_episode(run.agent, played, pressures, where, heights)
         loss = clipped_info_loss(episode, targets, c.clip, c.entropy_coef)
-        if c.move_cost > 0 and c.move_cost_on == "mean":
+        if c.move_cost > 0 and c.move_cost_on in ("mean", "both"):
             loss.total = loss.total + mean_travel_penalty(episode, c.move_cost)
         if epoch >= policy_epochs:  # the classifier and the critic only
             loss.total = loss.classification + loss.critic
@@ -962,6 +1063,14 @@ def _evaluate(
         "train_reward": train_reward,
         "lr": c.learning_rate(run.step),
     }
+    search = getattr(run.agent, "first_probe", None)
+    if search is not None:  # the first pose's search (only its runs' records have the key)
+        record["first_probe"] = {
+            "committed": bool(search.committed),
+            "pose": search.pose.tolist() if bool(search.committed) else None,
+            "candidates": int(search.alive.sum()),
+            "probe_glances": int(search.probes),
+        }
     run.history.append(record)
     return record
 

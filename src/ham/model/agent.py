@@ -33,12 +33,21 @@ from ham.model.baseline import Baseline
 from ham.model.classifier import Classifier
 from ham.model.core import ACTIVATIONS, CORES, State, make_core
 from ham.model.location_net import STD_ACTIVATIONS, uniform_locations
-from ham.model.policy import POLICIES, FirstPose, LocationDistribution, make_policy
+from ham.model.policy import (
+    POLICIES,
+    FirstPose,
+    LocationDistribution,
+    ProbedFirstPose,
+    TruncatedGaussian,
+    make_policy,
+)
 from ham.model.tactile_net import COMBINERS, TactileNetwork
 from ham.world.glance import PAPER_POSE_DIMS, check_pose_dims
 from ham.world.objects import MAX_HEIGHT
 
-FIRST_GLANCES: tuple[str, ...] = ("random", "learned", "own")
+FIRST_GLANCES: tuple[str, ...] = ("random", "learned", "own", "probe")
+#: The stay gate's initial logit (``HamConfig.stay_gate``): ``g = sigmoid(-3) = 0.047``.
+STAY_GATE_BIAS = -3.0
 #: What the learned stop's head reads (``HamConfig.stop_input``).
 STOP_INPUTS: tuple[str, ...] = ("confidence", "core")
 #: ``phi`` and ``phi_y`` of the pose dims (:data:`ham.world.glance.POSE_DIMS`) are angles, fed to
@@ -88,10 +97,19 @@ class HamConfig:
             core output before any glance, zeros; its learned biases make it a learned pose)
             or ``own`` (beyond the paper: a learned pose distribution of its own, a mean and a
             sigma, the same for every episode, :class:`ham.model.policy.FirstPose`; its
-            learning rate is ``TrainConfig.first_pose_lr_scale``).
+            learning rate is ``TrainConfig.first_pose_lr_scale``) or ``probe`` (beyond the
+            paper: one pose for every episode, found by probe glances on a lattice of candidates
+            and successive halving, :mod:`ham.learn.probe`; uniform until the search starts).
         first_pose_grid: with ``first_glance = "own"``, the components of its mixture per pose
             dimension (``grid^k`` Gaussians, started on a regular grid over the poses; 1: one
             Gaussian at pose 0).
+        stay_gate: a learned "stay" gate on the location policy (beyond the paper): the mean
+            next pose is ``g q_{s-1} + (1 - g) mu(tau)``, ``g`` a small MLP (as the stop
+            head's) on the classifier's confidence after glance ``s - 1``, so staying where the
+            pad is needs one unit, not the linear map ``mu(tau)`` to recall the pose
+            (``--move-cost``, docs/learners.md).
+        probe_grid: with ``first_glance = "probe"``, the lattice's candidate first poses per
+            pose dimension, from -1 to 1 (21: spacing 0.1; ``grid^k`` candidates).
         pose_dims: the pose dimensions the policy chooses, in the world's order (the paper's
             ``x, phi``; any non-empty subset of ``x, y, phi, phi_y``): one location stream and
             one where-input each. Set from the world by :func:`ham.learn.train.model_for_source`.
@@ -122,6 +140,8 @@ class HamConfig:
     stop: bool = False
     stop_input: str = field(default="confidence", metadata={"choices": STOP_INPUTS})
     first_pose_grid: int = 1
+    probe_grid: int = 21
+    stay_gate: bool = False
     pose_dims: tuple[str, ...] = PAPER_POSE_DIMS
     height_input: bool = False
 
@@ -140,6 +160,21 @@ class HamConfig:
             raise HamError(
                 f"first_pose_grid = {self.first_pose_grid} with first_glance "
                 f"{self.first_glance!r}; accepted: with first_glance 'own' (--first-glance own)"
+            )
+        if not (isinstance(self.probe_grid, int) and not isinstance(self.probe_grid, bool)
+                and self.probe_grid >= 2):  # fmt: skip
+            raise HamError(f"probe_grid = {self.probe_grid!r}; accepted: an integer >= 2")
+        if self.probe_grid != 21 and self.first_glance != "probe":
+            raise HamError(
+                f"probe_grid = {self.probe_grid} with first_glance {self.first_glance!r}; "
+                "accepted: with first_glance 'probe' (--first-glance probe)"
+            )
+        if not isinstance(self.stay_gate, bool):
+            raise HamError(f"stay_gate = {self.stay_gate!r}; accepted: true or false")
+        if self.stay_gate and self.policy != "learned":
+            raise HamError(
+                f"stay_gate with policy {self.policy!r}; accepted: --policy learned (a mean pose "
+                "to gate)"
             )
         if self.n_objects < 2:
             raise HamError(f"n_objects = {self.n_objects}; accepted: >= 2 objects to classify")
@@ -291,14 +326,25 @@ class HapticAttentionModel(nn.Module):
             he_normal_init(self.stop_head)
         if self.chooses_first_glance and c.first_glance == "own":  # draws no random numbers
             self.first_pose = FirstPose(len(c.pose_dims), c.first_pose_grid, c.sigma_min)
+        if c.first_glance == "probe":  # buffers only: draws no random numbers
+            self.first_probe = ProbedFirstPose(len(c.pose_dims), c.probe_grid)
+        if c.stay_gate:  # last: every other part's initial weights stay those of a run without
+            # On the classifier's confidence (as the stop head): stay once sure, move while
+            # unsure; a gate on the core output learned to stay everywhere (docs/learners.md).
+            # Starts open (g = sigmoid(-3) = 0.05 in every state): the policy is first the
+            # location network's.
+            self.stay = StopHead()
+            he_normal_init(self.stay)
+            nn.init.zeros_(self.stay.net[-1].weight)
+            nn.init.constant_(self.stay.net[-1].bias, STAY_GATE_BIAS)
         # where-input column i: q_i, times phi_scale for an angle
         self._angle = [d in ANGLE_DIMS for d in c.pose_dims]
 
     @property
     def chooses_first_glance(self) -> bool:
-        """The policy chooses the first pose too (``first_glance`` not ``random``, and a policy
-        with weights)."""
-        return self.config.first_glance != "random" and self.config.policy != "random"
+        """The policy chooses the first pose too (``first_glance`` ``learned`` or ``own``, and a
+        policy with weights; ``probe``'s first pose is the search's, not the policy's)."""
+        return self.config.first_glance in ("learned", "own") and self.config.policy != "random"
 
     def first_glance(
         self,
@@ -317,6 +363,21 @@ class HapticAttentionModel(nn.Module):
             dist = self.first_pose.distribution(batch, generator, greedy, choice)
             return dist, self.baseline(tau0)
         return self.location.distribution(tau0), self.baseline(tau0)
+
+    def next_distribution(
+        self, tau: torch.Tensor, q: torch.Tensor, logits: torch.Tensor | None = None
+    ) -> LocationDistribution:
+        """The distribution of the next pose after the glance at ``q`` ``(B, k)`` that left the
+        core at ``tau`` and the classifier at ``logits``: the location policy's, its mean gated
+        towards ``q`` with ``stay_gate`` (the gate reads the classifier's confidence, detached:
+        :meth:`StopHead.confidence`)."""
+        dist = self.location.distribution(tau)
+        if not self.config.stay_gate:
+            return dist
+        if logits is None:
+            logits = self.classifier(tau)
+        g = torch.sigmoid(self.stay(logits))[:, None]  # (B, 1); reads detached inputs
+        return TruncatedGaussian(g * q.detach() + (1 - g) * dist.mu, dist.sigma)
 
     def where(self, q: torch.Tensor, height: torch.Tensor | None = None) -> torch.Tensor:
         """The tactile network's where-input: ``(q_x, q_phi * phi_scale)`` in the paper; angles
@@ -363,6 +424,8 @@ class HapticAttentionModel(nn.Module):
             dist, first_baseline = self.first_glance(batch, objects.device, generator, greedy)
             q = dist.act(generator, greedy)
             dists.append(dist)
+        elif self.config.first_glance == "probe":  # not the policy's: glances 2..S are
+            q = self.first_probe.first_poses(batch, generator, objects.device)
         else:
             # the paper: random
             q = uniform_locations(batch, generator, objects.device, len(self.config.pose_dims))
@@ -385,7 +448,7 @@ class HapticAttentionModel(nn.Module):
                     stops.append(self.stop_head(logits[-1]))
             if s == self.config.glances - 1:
                 break
-            dist = self.location.distribution(tau)
+            dist = self.next_distribution(tau, q, logits[-1])
             q = dist.act(generator, greedy)
             dists.append(dist)
         return Episode(
@@ -418,7 +481,7 @@ class HapticAttentionModel(nn.Module):
             logits.append(self.classifier(tau))
             baselines.append(self.baseline(tau))
             if s < pressures.shape[0] - 1:
-                dists.append(self.location.distribution(tau))
+                dists.append(self.next_distribution(tau, locations[s], logits[-1]))
         return (
             torch.stack(logits),
             torch.stack(baselines),

@@ -315,6 +315,57 @@ class FirstPose(nn.Module):
         return dist
 
 
+class ProbedFirstPose(nn.Module):
+    """The first glance's pose found by a global search (``HamConfig.first_glance = "probe"``,
+    beyond the paper): the state of the search over a lattice of candidate first poses, and the
+    first poses it gives. The search itself (probe glances, successive halving) is
+    :mod:`ham.learn.probe`; this holds what a checkpoint must keep.
+
+    Two phases: searching (warm-up included): a pose drawn uniformly among the surviving
+    candidates, at first all of them (training teaches the classifier every candidate, then
+    keeps teaching it the ones still in the race); committed: the winner, for every episode
+    (greedy or not). Why lattice poses from the start and not uniform ones: the bands that tell
+    all objects apart are narrow (on the paper's table the one at ``q_phi = 0`` is one grid
+    point wide), a classifier trained on uniform poses has hardly seen them, and the search
+    would drop them in its first round for a score of the unknown (measured, docs/learners.md).
+
+    Why a search beside the policy gradient (``own``): the expected information of one glance
+    is flat over wide plateaus of poses that tell 3 of 4 objects apart and peaks in narrow bands
+    that tell all 4; a Gaussian climbs the nearest plateau and never sees a band 0.1-0.2 away
+    (docs/learners.md). A lattice sees every band at least one candidate wide.
+
+    Buffers: ``candidates`` ``(N, k)`` (``grid`` points per pose dimension from -1 to 1,
+    rebuilt, not saved), ``alive`` ``(N,)``, ``committed``, ``pose`` ``(k,)``, ``probes``
+    (probe glances spent, environment steps). Draws no random numbers when built.
+    """
+
+    def __init__(self, dims: int = 2, grid: int = 21) -> None:
+        super().__init__()
+        if not (isinstance(grid, int) and not isinstance(grid, bool) and grid >= 2):
+            raise HamError(f"probe grid = {grid!r}; accepted: an integer >= 2")
+        axis = torch.linspace(-1.0, 1.0, grid, dtype=torch.float64)
+        mesh = torch.cartesian_prod(*[axis] * dims).reshape(-1, dims).float()
+        self.register_buffer("candidates", mesh, persistent=False)
+        self.register_buffer("alive", torch.ones(mesh.shape[0], dtype=torch.bool))
+        self.register_buffer("committed", torch.tensor(False))
+        self.register_buffer("pose", torch.zeros(dims))
+        self.register_buffer("probes", torch.tensor(0, dtype=torch.long))
+
+    @property
+    def dims(self) -> int:
+        return self.candidates.shape[1]
+
+    def first_poses(
+        self, batch: int, generator: torch.Generator | None, device: torch.device | str = "cpu"
+    ) -> torch.Tensor:
+        """``(batch, k)`` first poses for the phase the search is in (see the class)."""
+        if bool(self.committed):
+            return self.pose.to(device).expand(batch, -1).clone()
+        idx = self.alive.nonzero()[:, 0]
+        pick = torch.randint(len(idx), (batch,), generator=generator, device=idx.device)
+        return self.candidates[idx[pick]].to(device)
+
+
 @register_policy("random")
 class UniformPolicy(LocationPolicy):
     """Random locations (the paper's ``pi_rloc``): uniform poses, whatever the core says."""
