@@ -78,6 +78,34 @@ def test_train_writes_metrics_with_env_steps(tmp_path, algo, kwargs):
     assert [h["env_steps"] for h in saved["history"]] == [64, 128]
     assert (tmp_path / algo / "model.zip").is_file() and (tmp_path / algo / "head.pt").is_file()
     assert not list((tmp_path / algo).glob("*.tmp"))
+    progress = json.loads((tmp_path / algo / "history.json").read_text())
+    assert progress["history"] == saved["history"] and progress["env_steps"] == 128
+
+
+def test_a_run_stopped_early_leaves_its_history_so_far(tmp_path, monkeypatch):
+    """A long run killed before its end: the evaluations so far are in history.json, and no
+    metrics.json pretends to be the final result."""
+    from ham.learn import sb3_agents
+
+    evaluate, calls = sb3_agents.evaluate_agent, []
+
+    def stop_at_the_second(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return evaluate(*args, **kwargs)
+
+    monkeypatch.setattr(sb3_agents, "evaluate_agent", stop_at_the_second)
+    config = Sb3Config(
+        algo="sac", env="ham/HapticGlanceAP-v0", env_kwargs={"glances": 2}, env_steps=128,
+        eval_every=64, eval_episodes=8, algo_kwargs={"learning_starts": 32, "batch_size": 32},
+    )  # fmt: skip
+    with pytest.raises(KeyboardInterrupt):
+        train_sb3(config, tmp_path / "run")
+    progress = json.loads((tmp_path / "run" / "history.json").read_text())
+    assert progress["env_steps"] == 64 and [h["env_steps"] for h in progress["history"]] == [64]
+    assert 0 <= progress["history"][0]["final_accuracy"] <= 1 and progress["seed"] == 0
+    assert not (tmp_path / "run" / "metrics.json").exists()
 
 
 def test_bad_configs():

@@ -15,7 +15,8 @@ in one box, so :class:`SupervisedPrediction` splits the job as the APPLE study d
 The reward the agent sees is the environment's own, computed with the head's prediction: the
 drop of cross-entropy per glance, a dense information reward. Environment steps count glances,
 as the APPLE study counts them. :func:`train_sb3` trains, evaluates and writes
-``metrics.json``/``config.json`` (atomically) and the SB3 model and head beside them.
+``metrics.json``/``config.json`` (atomically) and the SB3 model and head beside them, and
+``history.json`` (the evaluations so far) after each evaluation.
 """
 
 from __future__ import annotations
@@ -241,7 +242,8 @@ def evaluate_agent(model, env: SupervisedPrediction, episodes: int, seed: int) -
 
 def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dict:
     """Train ``config.algo`` on ``config.env`` with a supervised prediction head; evaluate every
-    ``eval_every`` environment steps; write ``out/metrics.json``, ``config.json``, the model."""
+    ``eval_every`` environment steps; write ``out/metrics.json``, ``config.json``, the model, and
+    after each evaluation ``out/history.json`` (the curve so far, for runs stopped early)."""
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.vec_env import DummyVecEnv
@@ -281,7 +283,14 @@ def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dic
             if self.num_timesteps % config.eval_every < config.n_envs:
                 row = evaluate_agent(model, eval_env, config.eval_episodes, 10**6)
                 row["env_steps"] = int(self.num_timesteps)
+                row["seconds"] = time.time() - started
                 history.append(row)
+                # A long run that is stopped early still leaves its curve so far (metrics.json
+                # is written only at the end, so it is never a partial result).
+                _write_json(out / "history.json", {
+                    "algo": config.algo, "env": config.env, "seed": config.seed,
+                    "env_steps": row["env_steps"], "history": history,
+                })  # fmt: skip
             return True
 
     model.learn(total_timesteps=config.env_steps, callback=Evaluate(), progress_bar=progress)
