@@ -238,6 +238,26 @@ def test_another_config_in_the_same_folder_is_refused(tiny_run, tmp_path):
         run_grid(tmp_path / "tiny.toml", out, workers=1, progress=False)  # fmt: skip
 
 
+def test_a_run_written_before_a_field_existed_is_skipped_not_refused(tiny_run, tmp_path):
+    """A config.json written before a field existed loads with the field's default (as resume
+    loads it): a rerun skips that finished run instead of calling it another config."""
+    import shutil
+
+    from ham.experiments.grid_run import run_grid
+
+    out, _ = tiny_run
+    copy = tmp_path / "out"
+    shutil.copytree(out, copy)
+    run = copy / "runs" / "glances=1-s0"
+    config = json.loads((run / "config.json").read_text())
+    del config["model"]["probe_grid"], config["move_cost_on"]  # fields of later versions
+    (run / "config.json").write_text(json.dumps(config))
+    before = (run / "metrics.json").read_bytes()
+    summary = run_grid(copy / "grid.json", copy, workers=1, retries=0, progress=False)
+    assert summary["skipped"] == 4  # the four finished runs; the diverging cell ran again
+    assert (run / "metrics.json").read_bytes() == before
+
+
 def test_grid_arguments(tmp_path, capsys):
     from ham.cli.main import main
 

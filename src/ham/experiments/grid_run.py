@@ -129,7 +129,7 @@ def _check_existing_runs(root: Path, jobs: list[GridJob]) -> None:
             old = json.loads(path.read_text())
         except (OSError, ValueError):
             continue
-        new = json.loads(json.dumps(job.config))  # tuples -> lists, as in the file
+        old, new = _canonical(old), _canonical(job.config)
         for k in _PLACE_KEYS:
             old.pop(k, None)
             new.pop(k, None)
@@ -139,6 +139,19 @@ def _check_existing_runs(root: Path, jobs: list[GridJob]) -> None:
                 f"{path.parent} holds a run with another config ({diff}); "
                 "use another --out or remove that run"
             )
+
+
+def _canonical(config: dict) -> dict:
+    """A run's config as this version writes it: a field added since the run was written takes
+    its default, as resume loads it (else every new option would make older runs "another
+    config"); tuples become lists, as in the file. A config this version cannot load is kept."""
+    from ham.learn.train import TrainConfig
+
+    try:
+        config = TrainConfig.from_dict(config).to_dict()
+    except (HamError, TypeError, ValueError):
+        pass
+    return json.loads(json.dumps(config))
 
 
 def _first_difference(old: dict, new: dict, prefix: str = "") -> str:
