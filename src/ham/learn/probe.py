@@ -67,14 +67,7 @@ def probe_scores(
     objects = torch.arange(k, device=device).repeat(m)  # pose-major: pose i, objects 0..K-1
     q = poses.to(device).repeat_interleave(k, 0)
     with torch.no_grad():
-        height = None
-        if agent.config.height_input:
-            pressure, height = env.glance_height(objects, q)
-        else:
-            pressure = env.glance(objects, q)
-        where = getattr(env, "observed_location", None)
-        state = agent.core.initial_state(len(objects), q)
-        tau, _ = agent.step(pressure, q if where is None else where, state, height)
+        tau, _ = agent.glance_step(env, objects, q, agent.core.initial_state(len(objects), q))
         logits = agent.classifier(tau)
         ce = F.cross_entropy(logits, objects, reduction="none")
         wrong = (logits.argmax(-1) != objects).to(ce.dtype)

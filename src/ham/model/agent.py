@@ -403,6 +403,20 @@ class HapticAttentionModel(nn.Module):
         """One glance through tactile network and core: ``(p_s, q_s[, h_s]) -> tau_{1:s}``."""
         return self.core(self.tactile(pressure, self.where(q, height)), state)
 
+    def glance_step(
+        self, env, objects: torch.Tensor, q: torch.Tensor, state: State
+    ) -> tuple[torch.Tensor, State]:
+        """Glance ``objects`` at ``q`` in ``env`` and take the :meth:`step` on it: the contact
+        height too with ``height_input``; the where-input is ``env.observed_location`` when the
+        environment reports one, else ``q``."""
+        height = None
+        if self.config.height_input:
+            pressure, height = env.glance_height(objects, q)
+        else:
+            pressure = env.glance(objects, q)
+        where = getattr(env, "observed_location", None)
+        return self.step(pressure, q if where is None else where, state, height)
+
     def forward(
         self,
         env,
@@ -431,13 +445,7 @@ class HapticAttentionModel(nn.Module):
             q = uniform_locations(batch, generator, objects.device, len(self.config.pose_dims))
         state = self.core.initial_state(batch, q)
         for s in range(self.config.glances):
-            height = None
-            if self.config.height_input:
-                pressure, height = env.glance_height(objects, q)
-            else:
-                pressure = env.glance(objects, q)
-            where = getattr(env, "observed_location", None)
-            tau, state = self.step(pressure, q if where is None else where, state, height)
+            tau, state = self.glance_step(env, objects, q, state)
             locations.append(q)
             logits.append(self.classifier(tau))
             baselines.append(self.baseline(tau))
