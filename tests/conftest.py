@@ -37,6 +37,17 @@ def one_line_error(r: subprocess.CompletedProcess) -> str:
     return lines[0]
 
 
+@pytest.fixture(scope="module")
+def env():
+    """The paper world online (the fast simulator), batches of 8, seed 0: one per test module."""
+    from ham.learn.environment import HapticEnv
+    from ham.world.config import WorldConfig
+    from ham.world.source import make_source
+
+    source, _ = make_source(None, WorldConfig())
+    return HapticEnv(source, batch_size=8, seed=0)
+
+
 @pytest.fixture
 def ham_cli():
     return run_ham

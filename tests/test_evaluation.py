@@ -9,18 +9,9 @@ import torch
 
 from ham.errors import HamError
 from ham.experiments.figures import plot_confusion
-from ham.learn.environment import HapticEnv
 from ham.learn.evaluation import evaluate
 from ham.learn.train import TrainConfig, train
 from ham.model.agent import HamConfig, HapticAttentionModel
-from ham.world.config import WorldConfig
-from ham.world.source import make_source
-
-
-@pytest.fixture(scope="module")
-def env() -> HapticEnv:
-    source, _ = make_source(None, WorldConfig())
-    return HapticEnv(source, batch_size=8, seed=0)
 
 
 @pytest.mark.parametrize("policy", ["learned", "random"])

@@ -11,7 +11,6 @@ import pytest
 import torch
 
 from ham.errors import HamError
-from ham.learn.environment import HapticEnv
 from ham.learn.info_loss import info_loss
 from ham.learn.train import (
     GlanceRecorder,
@@ -25,14 +24,7 @@ from ham.learn.train import (
 from ham.model.agent import HamConfig, HapticAttentionModel
 from ham.model.policy import FirstPose
 from ham.world.config import WorldConfig
-from ham.world.source import make_source
 from tests.conftest import ok, one_line_error
-
-
-@pytest.fixture(scope="module")
-def env() -> HapticEnv:
-    source, _ = make_source(None, WorldConfig())
-    return HapticEnv(source, batch_size=8, seed=0)
 
 
 def tiny(**kw) -> TrainConfig:

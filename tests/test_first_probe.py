@@ -10,7 +10,6 @@ import pytest
 import torch
 
 from ham.errors import HamError
-from ham.learn.environment import HapticEnv
 from ham.learn.probe import (
     probe_glances,
     probe_round,
@@ -22,18 +21,10 @@ from ham.learn.probe import (
 from ham.learn.train import Run, TrainConfig, resume, train, train_step
 from ham.model.agent import HamConfig, HapticAttentionModel
 from ham.model.policy import ProbedFirstPose
-from ham.world.config import WorldConfig
-from ham.world.source import make_source
 from tests.conftest import ok, one_line_error
 
 #: a 3 x 3 lattice: rounds on 9, 5, 3, 2 candidates, 4 objects: 76 probe glances
 GRID3 = HamConfig(glances=3, first_glance="probe", probe_grid=3)
-
-
-@pytest.fixture(scope="module")
-def env() -> HapticEnv:
-    source, _ = make_source(None, WorldConfig())
-    return HapticEnv(source, batch_size=8, seed=0)
 
 
 def tiny(**kw) -> TrainConfig:

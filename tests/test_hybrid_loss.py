@@ -6,13 +6,10 @@ import pytest
 import torch
 
 from ham.errors import HamError
-from ham.learn.environment import HapticEnv
 from ham.learn.hybrid_loss import hybrid_loss, reinforce_term, reward
 from ham.model.agent import HamConfig, HapticAttentionModel
 from ham.model.location_net import gaussian_log_prob
 from ham.model.policy import TruncatedGaussian
-from ham.world.config import WorldConfig
-from ham.world.source import make_source
 
 
 def zeta_mu(q, mu, sigma):
@@ -23,12 +20,6 @@ def zeta_mu(q, mu, sigma):
 def zeta_sigma(q, mu, sigma):
     """Eq reinforce_std."""
     return ((q - mu) ** 2 - sigma**2) / sigma**3
-
-
-@pytest.fixture(scope="module")
-def env() -> HapticEnv:
-    source, _ = make_source(None, WorldConfig())
-    return HapticEnv(source, batch_size=8, seed=0)
 
 
 def _episode(env, **kw):

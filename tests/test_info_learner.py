@@ -11,20 +11,11 @@ import torch
 from torch.nn import functional as F
 
 from ham.errors import HamError
-from ham.learn.environment import HapticEnv
 from ham.learn.info_loss import advantages, info_loss, information_gain
 from ham.learn.train import TrainConfig, load_run, resume, train
 from ham.model.agent import HamConfig, HapticAttentionModel
-from ham.world.config import WorldConfig
-from ham.world.source import make_source
 
 INFO = ["--learner", "info", "--optimizer", "adam", "--lr", "0.003", "--no-progress"]
-
-
-@pytest.fixture(scope="module")
-def env() -> HapticEnv:
-    source, _ = make_source(None, WorldConfig())
-    return HapticEnv(source, batch_size=8, seed=0)
 
 
 def _episode(env, glances=3, **kw):

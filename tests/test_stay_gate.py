@@ -12,21 +12,12 @@ import torch
 
 from ham.errors import HamError
 from ham.learn.batched import check_batchable
-from ham.learn.environment import HapticEnv
 from ham.learn.info_loss import info_loss, mean_travel_penalty
 from ham.learn.train import GlanceRecorder, TrainConfig, replay_episode, resume, train
 from ham.model.agent import HamConfig, HapticAttentionModel
-from ham.world.config import WorldConfig
-from ham.world.source import make_source
 from tests.conftest import ok, one_line_error
 
 GATED = HamConfig(glances=3, stay_gate=True)
-
-
-@pytest.fixture(scope="module")
-def env() -> HapticEnv:
-    source, _ = make_source(None, WorldConfig())
-    return HapticEnv(source, batch_size=8, seed=0)
 
 
 def tiny(**kw) -> TrainConfig:

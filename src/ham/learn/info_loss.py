@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
 from torch.nn import functional as F
@@ -41,21 +42,18 @@ from ham.model.agent import Episode
 MOVE_COSTS: tuple[str, ...] = ("mean", "reward", "both")
 
 
-@dataclass
-class InfoLoss:
-    """The loss to minimize (``total``) and its parts (scalars); ``gain`` is ``(S, B)``."""
+class GainLoss:
+    """The names the training loop logs for every learner (``reinforce``, ``baseline``,
+    ``reward``), for a loss of a learner rewarded by the information gained: its policy part is
+    the field named by ``POLICY_PART``, its critic ``critic``, its gain ``gain`` ``(S, B)``."""
 
-    total: torch.Tensor
-    classification: torch.Tensor
-    policy: torch.Tensor
+    POLICY_PART: ClassVar[str] = "policy"
     critic: torch.Tensor
-    entropy: torch.Tensor
     gain: torch.Tensor
 
-    # the names the training loop logs for every learner
     @property
     def reinforce(self) -> torch.Tensor:
-        return self.policy
+        return getattr(self, self.POLICY_PART)
 
     @property
     def baseline(self) -> torch.Tensor:
@@ -65,6 +63,18 @@ class InfoLoss:
     def reward(self) -> torch.Tensor:
         """The information an episode gained, ``log K - CE_S`` ``(B,)``."""
         return self.gain.sum(0)
+
+
+@dataclass
+class InfoLoss(GainLoss):
+    """The loss to minimize (``total``) and its parts (scalars); ``gain`` is ``(S, B)``."""
+
+    total: torch.Tensor
+    classification: torch.Tensor
+    policy: torch.Tensor
+    critic: torch.Tensor
+    entropy: torch.Tensor
+    gain: torch.Tensor
 
 
 def information_gain(logits: torch.Tensor, objects: torch.Tensor) -> torch.Tensor:

@@ -41,13 +41,14 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
 from torch import nn
 from torch.nn import functional as F
 
 from ham.errors import HamError
-from ham.learn.info_loss import information_gain
+from ham.learn.info_loss import GainLoss, information_gain
 from ham.model.agent import HapticAttentionModel
 from ham.model.policy import LocationDistribution, SquashedGaussian, TruncatedGaussian
 
@@ -238,7 +239,7 @@ class SacState:
 
 # --------------------------------------------------------------------------- one update
 @dataclass
-class SacLoss:
+class SacLoss(GainLoss):
     """The parts of one SAC update (scalars; ``gain`` ``(S, B)`` of the replayed episodes).
     ``total`` is what the HAM's optimizer minimizes (classification + actor); ``alpha`` is the
     temperature's loss; ``entropy`` the policy's, estimated by ``-log pi`` of its samples."""
@@ -251,19 +252,7 @@ class SacLoss:
     entropy: torch.Tensor
     gain: torch.Tensor
 
-    # the names the training loop logs for every learner
-    @property
-    def reinforce(self) -> torch.Tensor:
-        return self.actor
-
-    @property
-    def baseline(self) -> torch.Tensor:
-        return self.critic
-
-    @property
-    def reward(self) -> torch.Tensor:
-        """The information an episode gained, ``log K - CE_S`` ``(B,)``."""
-        return self.gain.sum(0)
+    POLICY_PART: ClassVar[str] = "actor"
 
 
 def replay_states(
