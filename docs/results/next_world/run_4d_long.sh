@@ -2,7 +2,7 @@
 # Longer 4-D runs for #12: curvature2d, pose dims x,y,phi,phi_y, 6 glances, 3000 steps (10x the grid's), 3 seeds
 set -uo pipefail
 OUT=${OUT:-runs/next_world_4d}; mkdir -p "$OUT"; cd "$OUT"
-HAM="ham"
+HAM=${HAM:-ham}
 COMMON=(--glances 6 --height-input --optimizer adam --lr 0.003 --batch-size 16 --lr-step 1000
         --lr-decay 0.6 --policy-lr-scale 0.3 --steps 3000 --eval-every 500 --eval-batches 10
         --threads 1 --no-progress)
