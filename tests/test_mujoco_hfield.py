@@ -232,3 +232,62 @@ def test_dome_agrees_with_the_fast_extended_glance():
     for k in ("x", "y", "phi", "phi_y"):
         assert torch.equal(getattr(r, k), getattr(f, k)), k  # one pose mapping
     assert image_correlation(r.pressure, f.pressure).mean() >= 0.95
+
+
+def test_foam_taxel_sinks_like_the_foam_at_the_saddles_point_contact():
+    """Issue 12: at the saddle pose where the sphere taxel stopped highest above the fast model
+    (the pad's corner on the saddle's rim, docs/crosscheck_curvature2d_grid.md), the sphere
+    taxel answers as if its whole cell were pressed (1.85 mm high); the foam taxel model pushes
+    with the cell's mean compression and stops within 0.8 mm of the fast foam model."""
+    from ham.world.extended_glance import ExtendedSimulator
+
+    saddle = next(o for o in resolve_set("curvature2d") if o.name == "saddle")
+    sensor = SensorConfig(foam_stiffness=MujocoConfig().contact_stiffness / 25e-6)
+    t = 0.5 / PHI_MAX
+    q = np.array([[-1.0, -1.0, -t, -t], [1.0, 1.0, t, t]])  # (q_x, q_y, q_phi, q_phi_y)
+    ids = np.zeros(len(q), dtype=np.int64)
+    f = ExtendedSimulator([saddle], sensor).glance(ids, q[:, 0], q[:, 2], q[:, 1], q[:, 3])
+    assert not f.blocked.any()
+    dh = {}
+    for model in ("sphere", "foam"):
+        mj = MujocoSimulator([saddle], sensor, threads=1, taxel_model=model, max_steps=400)
+        r = mj.glance(ids, q[:, 0], q[:, 2], q[:, 1], q[:, 3])
+        assert (r.info["status"].numpy() == SETTLED).all(), model
+        dh[model] = (r.height - f.height).numpy() * 1e3
+        if model == "foam":
+            assert image_correlation(r.pressure, f.pressure).min() >= 0.95
+    assert (dh["sphere"] > 1.5).all()
+    assert (np.abs(dh["foam"]) < 0.8).all()
+
+
+def test_foam_taxel_pushes_with_the_cells_mean_compression_on_a_flat_top():
+    """Over a whole flat top every cell is pressed evenly: the foam taxel and the sphere taxel
+    are the same spring, so the pad stops at the same height (the flat-box calibration holds)."""
+    flat = next(o for o in resolve_set("curvature2d") if o.name == "flat_low")
+    heights = []
+    for model in ("sphere", "foam"):
+        mj = MujocoSimulator([flat], threads=1, taxel_model=model)
+        r = mj.glance([0], [0.0], [0.0], [0.0], [0.0])
+        assert int(r.info["status"][0]) == SETTLED
+        heights.append(float(r.height[0]))
+    assert abs(heights[0] - heights[1]) < 2e-6
+
+
+@pytest.mark.parametrize(
+    "options, match",
+    [
+        ({"taxel_model": "springs"}, "taxel_model = 'springs'; accepted: sphere, foam"),
+        ({"taxel_model": "foam", "readout": "gazebo"}, "accepted: readout = 'taxels'"),
+        ({"taxel_model": "foam", "hfield_contacts": "all"}, "hfield_contacts = 'deepest'"),
+        ({"foam_points": 0}, "foam_points = 0; accepted: a positive integer"),
+    ],
+)
+def test_taxel_model_options_are_checked(options, match):
+    with pytest.raises(HamError, match=match):
+        MujocoConfig(**options)
+
+
+def test_describe_names_the_taxel_model_only_when_it_is_foam():
+    assert "taxel_model" not in MujocoSimulator([DOME], threads=1).describe()["mujoco"]
+    d = MujocoSimulator([DOME], threads=1, taxel_model="foam").describe()["mujoco"]
+    assert d["taxel_model"] == "foam" and d["foam_points"] == 8

@@ -22,7 +22,9 @@ Scene (one model for the whole object set, like the paper's Fig. "Gazebo Simulat
   flat top is an exact ``box``. (A ``mesh`` would be its convex hull: a saddle or a bowl would have
   to be cut into convex pieces.) MuJoCo collides a taxel with every triangle prism of the field
   it reaches; each taxel keeps only its deepest contact (``hfield_contacts``), else a taxel near a
-  vertex would be a dozen springs (docs/crosscheck_curvature2d.md);
+  vertex would be a dozen springs (docs/crosscheck_curvature2d.md). With ``taxel_model =
+  "foam"`` that one contact pushes with the cell's mean foam compression instead of the sphere's
+  depth (:class:`MujocoConfig`), so a point under a cell is as soft as on the foam;
 * the pad (section "The Tactile Sensor Array - Myrmex") hangs from a massless carriage on one slide
   joint along z. Its pose ``(x, phi)`` (or the extended glance's ``(x, y, phi, phi_y)``, rotation
   ``R_y(phi) R_x(phi_y)`` as in :mod:`ham.world.extended_glance`) is *pinned*: it is written into
@@ -98,6 +100,7 @@ from ham.world.sensor import READOUTS, Myrmex, SensorConfig
 Readout = Literal["taxels", "gazebo"]
 FailureMode = Literal["flag", "raise"]
 HfieldContacts = Literal["deepest", "all"]
+TaxelModel = Literal["sphere", "foam"]
 
 # Status codes of one glance (``GlanceResult.info["status"]``).
 SETTLED, BLOCKED, STEP_LIMIT, UNSTABLE = 0, 1, 2, 3
@@ -106,6 +109,8 @@ STATUS_NAMES: tuple[str, ...] = ("settled", "blocked", "step_limit", "unstable")
 PAPER_TAXEL_RADIUS = 0.005
 #: A glance whose pad leaves its start height by more than this (m) has diverged.
 _DIVERGED = 0.05
+#: The ``foam`` taxels' contact margin, in taxel radii (:func:`scene_xml`).
+FOAM_MARGIN = 0.3
 
 
 @dataclass(frozen=True)
@@ -153,7 +158,18 @@ class MujocoConfig:
             its deepest; ``all`` keeps every contact MuJoCo makes with the field's triangle
             prisms (up to a dozen per taxel, each a full spring; for comparison only). The
             ``gazebo`` face always keeps all of its contact points, as the plugin read them.
-        on_failure: ``flag`` (default) marks a failed glance in the result; ``raise`` raises.
+        taxel_model: ``sphere`` (default, the paper set's): each taxel is one sphere contact, a
+            spring of ``contact_stiffness`` on the sphere's penetration, as if the whole cell were
+            pressed as deep as its deepest point. ``foam``: each taxel's one contact (its
+            deepest, found with a margin of ``0.3 taxel_radius``) is a spring of
+            ``contact_stiffness`` on the cell's *mean* vertical compression, read from the
+            object's surface at ``foam_points`` x ``foam_points`` points of the cell (the
+            Winkler foam of the fast model): a point under the cell presses it only where it
+            is, so the pad sinks as deep as on the foam (docs/crosscheck_curvature2d.md, "What
+            was tried"). Needs the ``taxels`` read-out; MuJoCo still finds the contacts, the
+            housing and the dynamics.
+        foam_points: points per cell side of the ``foam`` taxel model (8: 64 per cell; 4 puts
+            a ridge on a cell border between points: see "What was tried").
 
     The pad mass is not a free parameter: MuJoCo's soft-contact force at rest is
     ``3 m / ((1 - d) * timeconst^2 * dampratio^2)`` per metre of penetration for this one-DOF pad
@@ -188,6 +204,8 @@ class MujocoConfig:
     hfield_spacing: float = 2.0e-3
     hfield_contacts: HfieldContacts = "deepest"
     on_failure: FailureMode = "flag"
+    taxel_model: TaxelModel = "sphere"
+    foam_points: int = 8
 
     def __post_init__(self) -> None:
         if self.readout not in READOUTS:
@@ -196,6 +214,15 @@ class MujocoConfig:
             raise HamError(f"on_failure = {self.on_failure!r}; accepted: flag, raise")
         if self.hfield_contacts not in ("deepest", "all"):
             raise HamError(f"hfield_contacts = {self.hfield_contacts!r}; accepted: deepest, all")
+        if self.taxel_model not in ("sphere", "foam"):
+            raise HamError(f"taxel_model = {self.taxel_model!r}; accepted: sphere, foam")
+        if self.taxel_model == "foam" and (
+            self.readout != "taxels" or self.hfield_contacts != "deepest"
+        ):
+            raise HamError(
+                f"taxel_model = 'foam' with readout = {self.readout!r}, hfield_contacts = "
+                f"{self.hfield_contacts!r}; accepted: readout = 'taxels', hfield_contacts = 'deepest'"
+            )
         if self.taxel_radius is not None and not (
             isinstance(self.taxel_radius, (int, float))
             and math.isfinite(self.taxel_radius)
@@ -245,7 +272,7 @@ class MujocoConfig:
             )
         if not (isinstance(self.clearance, (int, float)) and 0 <= self.clearance < 0.05):
             raise HamError(f"clearance = {self.clearance!r}; accepted: 0 <= clearance < 0.05 (m)")
-        for name in ("check_every", "max_steps"):
+        for name in ("check_every", "max_steps", "foam_points"):
             v = getattr(self, name)
             if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
                 raise HamError(f"{name} = {v!r}; accepted: a positive integer")
@@ -508,6 +535,10 @@ def scene_xml(
             f'pos="{_fmt([0, 0, f / 2])}"/>'
         )
     flags = '<flag multiccd="enable"/>' if c.readout == "gazebo" else ""
+    # The foam taxel model sets each taxel contact's force per step (MujocoSimulator.
+    # _one_contact_per_taxel); a margin lets a sphere carry a cell pressed off its centre
+    # (0.75 r, which reaches a cell's corners, read the same on the grid but 35% slower).
+    taxel_margin = f' margin="{FOAM_MARGIN * r:.9g}"' if c.taxel_model == "foam" else ""
     big = _fmt([L, L, 0.05])
     return f"""<mujoco model="ham_glance">
   <compiler angle="radian" autolimits="true"/>
@@ -518,7 +549,7 @@ def scene_xml(
     <geom condim="1" friction="0 0 0"/>
     <default class="object"><geom rgba="0.76 0.6 0.42 1"/></default>
     <default class="taxel"><geom priority="1" solref="{taxel_ref}" solimp="{taxel_imp}"
-        rgba="0.1 0.1 0.1 1" mass="0"/></default>
+        rgba="0.1 0.1 0.1 1" mass="0"{taxel_margin}/></default>
     <default class="gazebo"><geom priority="1" solref="{taxel_ref}" solimp="{gazebo_imp}"
         rgba="0.1 0.1 0.1 1" mass="0"/></default>
     <default class="housing"><geom priority="1" solref="{taxel_ref}" solimp="{housing_imp}"
@@ -770,6 +801,18 @@ class MujocoSimulator:
         self._points, self._sphere_centres = _pad_points(self.sensor, config)
         # One contact per taxel on height fields; the gazebo face keeps its contact points.
         self._thin_taxels = config.readout == "taxels" and config.hfield_contacts == "deepest"
+        self._foam = config.taxel_model == "foam"
+        if self._foam:
+            # Pad coordinates (u, v, 0) of each cell's foam points: (n * n, P * P, 3).
+            p = config.foam_points
+            off = ((np.arange(p) + 0.5) / p - 0.5) * self.sensor.pitch
+            c = (np.arange(n) + 0.5) * self.sensor.pitch - 0.5 * self.sensor.size
+            cu, cv = np.meshgrid(c, c)  # [i, j]: taxel i * n + j at (u_j, v_i)
+            ou, ov = np.meshgrid(off, off)
+            pts = np.zeros((n * n, p * p, 3))
+            pts[:, :, 0] = cu.reshape(-1, 1) + ou.reshape(1, -1)
+            pts[:, :, 1] = cv.reshape(-1, 1) + ov.reshape(1, -1)
+            self._cell_points = pts
         self._threads = config.threads or os.cpu_count() or 1
         self._workers: list[_Worker] = []
         self._pool: ThreadPoolExecutor | None = None
@@ -1055,11 +1098,11 @@ class MujocoSimulator:
         steps, status = 0, STEP_LIMIT
         h_tol = 1e-3 * target
         idle = 0  # consecutive checks with only the housing touching
-        thin = self.objects[obj].varies_in_y and self._thin_taxels
+        thin = self._foam or (self.objects[obj].varies_in_y and self._thin_taxels)
         while steps < c.max_steps:
             if thin:
                 for _ in range(c.check_every):
-                    self._step_one_contact_per_taxel(m, d)
+                    self._step_one_contact_per_taxel(m, d, obj)
             else:
                 mujoco.mj_step(m, d, nstep=c.check_every)
             steps += c.check_every
@@ -1097,37 +1140,47 @@ class MujocoSimulator:
         pressure, total = self._read(m, d)
         return pressure, total, float(d.qpos[0]), steps, status
 
-    def _step_one_contact_per_taxel(self, m: mujoco.MjModel, d: mujoco.MjData) -> None:
+    def _step_one_contact_per_taxel(self, m: mujoco.MjModel, d: mujoco.MjData, obj: int) -> None:
         """One ``mj_step`` in which each taxel keeps only its deepest contact
         (:meth:`_one_contact_per_taxel` between collision and dynamics)."""
         mujoco.mj_step1(m, d)
-        self._one_contact_per_taxel(m, d)
+        self._one_contact_per_taxel(m, d, obj)
         mujoco.mj_step2(m, d)
 
-    def _one_contact_per_taxel(self, m: mujoco.MjModel, d: mujoco.MjData) -> bool:
+    def _one_contact_per_taxel(self, m: mujoco.MjModel, d: mujoco.MjData, obj: int) -> bool:
         """Exclude every contact of a taxel but its deepest, and make the constraints again.
 
         A height field is a mesh of triangle prisms, and MuJoCo collides a sphere with each prism
         it reaches: a taxel resting near a vertex gets up to a dozen contacts, each a full spring,
         so it would be many times stiffer than its neighbours. The others are marked as MuJoCo
         marks contacts in the margin gap (``exclude = 1``) and lose their constraint address, so
-        neither the solver nor the sensors count them. Returns whether any was dropped; call
-        after the position stage (``mj_step1``, ``mj_fwdPosition``).
+        neither the solver nor the sensors count them. With the ``foam`` taxel model the kept
+        contact is then set to the cell's foam (:meth:`_foam_contacts`). Returns whether any
+        contact was changed; call after the position stage (``mj_step1``, ``mj_fwdPosition``).
         """
         ncon = d.ncon
-        if ncon < 2:
+        if ncon < (1 if self._foam else 2):
             return False
         con = d.contact
         geoms = con.geom[:ncon]
         tax = np.maximum(self._geom_taxel[geoms[:, 0]], self._geom_taxel[geoms[:, 1]])
         sel = np.flatnonzero(tax >= 0)
-        if len(sel) < 2:
+        if len(sel) < (1 if self._foam else 2):
             return False
         order = sel[np.lexsort((con.dist[sel], tax[sel]))]
         first = np.ones(len(order), dtype=bool)
         first[1:] = tax[order[1:]] != tax[order[:-1]]
         drop = order[~first]
-        if not len(drop):
+        if self._foam:
+            keep = order[first]
+            depth = self._cell_compression(d, obj, tax[keep])
+            # The spring acts on dist - includemargin: set it to minus the mean compression, so
+            # the contact pushes with contact_stiffness times the cell's mean compression.
+            margin = con.includemargin[:ncon].copy()
+            margin[keep] = con.dist[keep] + depth
+            con.includemargin[:ncon] = margin
+            drop = np.concatenate([drop, keep[depth <= 0]])
+        elif not len(drop):
             return False
         exclude = con.exclude[:ncon].copy()
         exclude[drop] = 1
@@ -1141,6 +1194,15 @@ class MujocoSimulator:
         mujoco.mj_projectConstraint(m, d)
         mujoco.mj_fwdVelocity(m, d)
         return True
+
+    def _cell_compression(self, d: mujoco.MjData, obj: int, taxels: np.ndarray) -> np.ndarray:
+        """Mean vertical compression (m) of the foam over each of ``taxels``' cells: the object's
+        surface above the face at the cell's ``foam_points`` x ``foam_points`` points, 0 where
+        below (the fast model's foam, :mod:`ham.world.extended_glance`)."""
+        rot = d.xmat[self._pad].reshape(3, 3)
+        w = self._cell_points[taxels] @ rot.T + d.xpos[self._pad]
+        surf = self.objects[obj].surface(w[..., 0] - self._x_offsets[obj], w[..., 1])
+        return np.maximum(surf - w[..., 2], 0.0).mean(-1)
 
     def _read(self, m: mujoco.MjModel, d: mujoco.MjData) -> tuple[np.ndarray, float]:
         """The image (Pa) from the last step's contacts, and their summed normal force (N)."""
@@ -1198,8 +1260,8 @@ class MujocoSimulator:
             z0 += self.config.clearance
         self._glance_one(m, d, int(object_id), x, phi, z0, y=y, phi_y=phi_y, general=general)
         mujoco.mj_forward(m, d)
-        thin = self.objects[int(object_id)].varies_in_y and self._thin_taxels
-        if thin and self._one_contact_per_taxel(m, d):
+        thin = self._foam or (self.objects[int(object_id)].varies_in_y and self._thin_taxels)
+        if thin and self._one_contact_per_taxel(m, d, int(object_id)):
             mujoco.mj_fwdActuation(m, d)
             mujoco.mj_fwdAcceleration(m, d)
             mujoco.mj_fwdConstraint(m, d)
@@ -1214,6 +1276,9 @@ class MujocoSimulator:
             # Only height fields use it: worlds of the paper's objects describe themselves (and
             # their tables' attributes) as before.
             del mj["hfield_spacing"], mj["hfield_contacts"]
+        if c.taxel_model == "sphere":
+            # The default taxel describes itself (and its tables' attributes) as before.
+            del mj["taxel_model"], mj["foam_points"]
         return {
             "simulator": self.name,
             "engine": f"mujoco {mujoco.__version__}",
