@@ -57,6 +57,7 @@ import torch
 
 from ham.errors import HamError, check_known_fields
 from ham.model.agent import HamConfig
+from ham.model.policy import raster_counts
 from ham.world.devices import check_device
 
 ACTIONS: tuple[str, ...] = ("relative", "absolute")
@@ -499,8 +500,34 @@ def sized_model(config: ApGymConfig, model: HamConfig, phi_scale: float = 1.0) -
     probe = make_ap_env(config, 1, normalization="none")  # the size does not depend on it
     try:
         probe.check_glances(model.glances)
+        changes = {}
+        if model.policy == "grid" and config.actions == "relative":
+            # only the grid policy reads it: every other policy's config stays as it was
+            changes["moves"] = True
+            _check_grid_fits(model.glances, probe.env_max_step, config.env)
         return dataclasses.replace(
-            model, n_objects=probe.n_objects, pressure_dim=probe.pressure_dim, phi_scale=phi_scale
+            model,
+            n_objects=probe.n_objects,
+            pressure_dim=probe.pressure_dim,
+            phi_scale=phi_scale,
+            **changes,
         )
     finally:
         probe.close()
+
+
+def _check_grid_fits(glances: int, step: np.ndarray | None, env_id: str) -> None:
+    """A :class:`HamError` when the ``grid`` policy's walk of moves (:func:`ham.model.policy.
+    snake`, one full step per move) is wider than the image ``[-1, 1]``: its rows would be
+    clipped at the border into one another. ``step``: the environment's step length per axis
+    (``None``: not reported, not checked)."""
+    if step is None:
+        return
+    counts = raster_counts(glances, 2)
+    for axis, (n, length) in enumerate(zip(counts, step, strict=True)):
+        if (n - 1) * length > 2 + 1e-9:
+            raise HamError(
+                f"policy 'grid' with {glances} glances moves {n - 1} steps of {length:g} along "
+                f"axis {axis} of {env_id!r}, wider than its image (2); accepted: fewer glances "
+                "or a shorter --max-step-length"
+            )

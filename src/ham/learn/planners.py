@@ -26,7 +26,6 @@ from glance 2 on), so learned policies can be judged against planners with the s
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass
 from functools import cache, lru_cache
@@ -35,6 +34,7 @@ import numpy as np
 import torch
 
 from ham.errors import HamError
+from ham.model.policy import sweep  # the grid policy's poses: one definition for both
 
 POLICIES: tuple[str, ...] = ("random", "grid", "infogain", "oracle")
 FIRST: tuple[str, ...] = ("planned", "random")
@@ -152,20 +152,6 @@ def _size(mask: int) -> int:
 def _entropy_left(parts: list[int], size: int) -> float:
     """Expected posterior entropy (nats) after a split: ``sum_c |c|/|S| log|c|``."""
     return sum(_size(c) / size * math.log(_size(c)) for c in parts)
-
-
-def sweep(glances: int, dims: int = 2) -> np.ndarray:
-    """The grid policy's poses: ``G`` cell centres of the smallest near-square raster over
-    ``[-1, 1]^dims`` with at least ``G`` cells, the first axis fastest (``(G, dims)``; on the
-    paper's table ``(q_x, q_phi)``, row by row)."""
-    counts, left = [], glances
-    for axis in range(dims, 0, -1):  # each axis: ceil(the remaining cells' axis-th root)
-        n = max(1, math.ceil(left ** (1.0 / axis) - 1e-9))
-        counts.append(n)
-        left = math.ceil(left / n)
-    axes = [-1 + (2 * np.arange(n) + 1) / n for n in counts]
-    cells = itertools.product(*reversed(axes))  # the last axis slowest, the first fastest
-    return np.array([tuple(reversed(c)) for c in cells][:glances])
 
 
 class Planner:

@@ -960,7 +960,9 @@ def replay_episode(
         logits.append(agent.classifier(tau))
         baselines.append(agent.baseline(tau))
         if s < glances - 1:
-            dists.append(agent.next_distribution(tau, played.locations[s], logits[-1]))
+            dists.append(
+                agent.next_distribution(tau, played.locations[s], logits[-1], glance=s + 1)
+            )
     return Episode(
         objects=played.objects,
         locations=played.locations,

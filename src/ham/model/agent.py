@@ -14,7 +14,9 @@ Section "The Haptic Attention Model" and Fig "Illustration of the Used Model". O
    ``pi(o | tau_{1:s})``, the baseline ``b(tau_{1:s})``;
 4. the location policy (:mod:`ham.model.policy`) maps ``tau_{1:s}`` to a distribution over
    poses and the next pose ``q_{s+1}`` is drawn from it: the location network's truncated
-   Gaussian (``learned``), or uniform poses (``random``, the paper's ``pi_rloc``: no weights).
+   Gaussian (``learned``), or uniform poses (``random``, the paper's ``pi_rloc``: no weights),
+   or a fixed sweep (``grid``: the pose depends on the glance index alone, which the model
+   passes to every policy, :meth:`ham.model.policy.LocationPolicy.distribution_at`).
 
 Every hyperparameter of the network is a field of :class:`HamConfig` with the paper's value as its
 default; where the authors' code differs, the field offers the code's choice as an option.
@@ -79,7 +81,12 @@ class HamConfig:
         truncate_bptt: detach the core state between glances (authors' code) instead of full
             backpropagation through the glance sequence (paper).
         policy: a registered location policy (:mod:`ham.model.policy`): ``learned`` (the
-            location network) or ``random`` (uniform poses, ``pi_rloc``).
+            location network), ``random`` (uniform poses, ``pi_rloc``), ``squashed`` (the
+            location network as SAC's squashed Gaussian) or ``grid`` (a fixed sweep, no weights;
+            with ``first_glance`` ``random``, ``learned`` (the sweep's first pose) or ``probe``).
+        moves: the policy's poses are moves of the sensor, not targets (ap_gym's ``relative``
+            actions; set by :func:`ham.learn.ap_adapter.sized_model` for the ``grid`` policy,
+            the only one that reads it: its sweep is then a walk of moves).
         std_activation: ``softplus`` (paper) or ``sigmoid`` (authors' code) for ``sigma``.
         sigma_min: floor added to ``sigma`` for numerical safety (not in the paper).
         phi_scale: the pose fed to the tactile network is ``(q_x, q_phi * phi_scale)`` (pi/2).
@@ -144,6 +151,7 @@ class HamConfig:
     stay_gate: bool = False
     pose_dims: tuple[str, ...] = PAPER_POSE_DIMS
     height_input: bool = False
+    moves: bool = False
 
     def __post_init__(self) -> None:
         # frozen: a JSON list (a saved config) becomes the tuple
@@ -168,6 +176,13 @@ class HamConfig:
             raise HamError(
                 f"probe_grid = {self.probe_grid} with first_glance {self.first_glance!r}; "
                 "accepted: with first_glance 'probe' (--first-glance probe)"
+            )
+        if not isinstance(self.moves, bool):
+            raise HamError(f"moves = {self.moves!r}; accepted: true or false")
+        if self.policy == "grid" and self.first_glance == "own":
+            raise HamError(
+                "first_glance = 'own' with policy 'grid'; accepted: random, learned (the "
+                "sweep's first pose) or probe"
             )
         if not isinstance(self.stay_gate, bool):
             raise HamError(f"stay_gate = {self.stay_gate!r}; accepted: true or false")
@@ -362,16 +377,21 @@ class HapticAttentionModel(nn.Module):
         if self.config.first_glance == "own":
             dist = self.first_pose.distribution(batch, generator, greedy, choice)
             return dist, self.baseline(tau0)
-        return self.location.distribution(tau0), self.baseline(tau0)
+        return self.location.distribution_at(tau0, 0), self.baseline(tau0)
 
     def next_distribution(
-        self, tau: torch.Tensor, q: torch.Tensor, logits: torch.Tensor | None = None
+        self,
+        tau: torch.Tensor,
+        q: torch.Tensor,
+        logits: torch.Tensor | None = None,
+        glance: int | None = None,
     ) -> LocationDistribution:
         """The distribution of the next pose after the glance at ``q`` ``(B, k)`` that left the
         core at ``tau`` and the classifier at ``logits``: the location policy's, its mean gated
         towards ``q`` with ``stay_gate`` (the gate reads the classifier's confidence, detached:
-        :meth:`StopHead.confidence`)."""
-        dist = self.location.distribution(tau)
+        :meth:`StopHead.confidence`). ``glance``: the index (0-based) of the glance it chooses,
+        for a policy that reads it (``grid``)."""
+        dist = self.location.distribution_at(tau, glance)
         if not self.config.stay_gate:
             return dist
         if logits is None:
@@ -456,7 +476,7 @@ class HapticAttentionModel(nn.Module):
                     stops.append(self.stop_head(logits[-1]))
             if s == self.config.glances - 1:
                 break
-            dist = self.next_distribution(tau, q, logits[-1])
+            dist = self.next_distribution(tau, q, logits[-1], glance=s + 1)
             q = dist.act(generator, greedy)
             dists.append(dist)
         return Episode(
@@ -489,7 +509,7 @@ class HapticAttentionModel(nn.Module):
             logits.append(self.classifier(tau))
             baselines.append(self.baseline(tau))
             if s < pressures.shape[0] - 1:
-                dists.append(self.next_distribution(tau, locations[s], logits[-1]))
+                dists.append(self.next_distribution(tau, locations[s], logits[-1], glance=s + 1))
         return (
             torch.stack(logits),
             torch.stack(baselines),

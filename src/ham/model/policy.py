@@ -17,7 +17,13 @@ Registered:
 * ``random`` (:class:`UniformPolicy`): poses uniform in ``[-1, 1]^2``, the paper's
   random-location model ``pi_rloc``; no weights, no REINFORCE term;
 * ``squashed`` (:class:`SquashedGaussianPolicy`, beyond the paper): the location network's
-  weights as soft actor-critic's ``tanh``-squashed Gaussian (``--learner sac``).
+  weights as soft actor-critic's ``tanh``-squashed Gaussian (``--learner sac``);
+* ``grid`` (:class:`GridPolicy`, beyond the paper): a fixed systematic sweep, the same poses
+  (or moves) at the same glance for every episode; no weights, no REINFORCE term.
+
+A policy may depend on the glance it chooses: the model asks for
+``distribution_at(tau, glance)`` (glance index ``s``, 0-based, of the glance to be chosen); the
+base class ignores the index and returns ``distribution(tau)``, so only ``grid`` reads it.
 
 The distributions are batched: the model stacks one per glance (:meth:`LocationDistribution.stack`),
 so ``log_prob`` of the episode's poses ``(S-1, B, k)`` is ``(S-1, B)``: summed over the streams.
@@ -25,9 +31,11 @@ so ``log_prob`` of the episode's poses ``(S-1, B, k)`` is ``(S-1, B)``: summed o
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any, ClassVar
 
+import numpy as np
 import torch
 from torch import nn
 from torch.nn import functional as F
@@ -191,6 +199,11 @@ class LocationPolicy(nn.Module):
 
     def distribution(self, tau: torch.Tensor) -> LocationDistribution:
         raise NotImplementedError
+
+    def distribution_at(self, tau: torch.Tensor, glance: int | None) -> LocationDistribution:
+        """The distribution of glance ``glance`` (0-based) from ``tau``; the index is read only
+        by policies that need it (``grid``), the others return ``distribution(tau)``."""
+        return self.distribution(tau)
 
 
 #: name -> policy class; ``HamConfig.policy`` is one of its keys
@@ -457,3 +470,131 @@ class SquashedGaussianPolicy(GaussianPolicy):
         s = self.sigma(tau)
         s = F.softplus(s) if self.std_activation == "softplus" else torch.sigmoid(s)
         return SquashedGaussian(self.mu(tau), s + self.sigma_min)
+
+
+def raster_counts(glances: int, dims: int = 2) -> list[int]:
+    """Cells per axis of the smallest near-square raster with at least ``glances`` cells over
+    ``dims`` axes (first axis first): each axis, from the last, takes the ceiling of the
+    remaining cells' root (16 glances in 2-D: ``[4, 4]``; 10: ``[4, 3]``)."""
+    counts, left = [], glances
+    for axis in range(dims, 0, -1):
+        n = max(1, math.ceil(left ** (1.0 / axis) - 1e-9))
+        counts.append(n)
+        left = math.ceil(left / n)
+    return counts
+
+
+def sweep(glances: int, dims: int = 2) -> np.ndarray:
+    """The grid sweep's poses: ``G`` cell centres of the raster :func:`raster_counts` over
+    ``[-1, 1]^dims``, the first axis fastest (``(G, dims)``; on the paper's table ``(q_x,
+    q_phi)``, row by row). The table baseline ``grid`` (:mod:`ham.learn.planners`) and the
+    ``grid`` policy's absolute poses."""
+    counts = raster_counts(glances, dims)
+    axes = [-1 + (2 * np.arange(n) + 1) / n for n in reversed(counts)]
+    cells = itertools.product(*axes)  # the last axis slowest, the first fastest
+    return np.array([tuple(reversed(c)) for c in cells][:glances])
+
+
+def snake(glances: int, dims: int = 2) -> np.ndarray:
+    """``G`` integer lattice points ``(G, dims)`` of the raster :func:`raster_counts` in
+    boustrophedon order: the first axis fastest, each axis' direction reversed whenever the
+    (reversed) coordinates above it sum to an odd number (a reflected Gray code), so
+    consecutive points differ by one unit along one axis."""
+    counts = raster_counts(glances, dims)
+    points = []
+    for cell in itertools.product(*[range(n) for n in reversed(counts)]):
+        raw = list(reversed(cell))  # first axis first
+        out = [0] * dims
+        above = 0
+        for j in range(dims - 1, -1, -1):
+            out[j] = counts[j] - 1 - raw[j] if above % 2 else raw[j]
+            above += out[j]
+        points.append(out)
+    return np.array(points[:glances], dtype=np.int64).reshape(-1, dims)
+
+
+class FixedPose(LocationDistribution):
+    """One pose per episode, no randomness: a point mass (``log_prob`` 0, entropy 0); its mode
+    is the pose. No parameters: no REINFORCE term."""
+
+    def __init__(self, pose: torch.Tensor) -> None:
+        self.pose = pose
+
+    @property
+    def batch_shape(self) -> torch.Size:
+        return self.pose.shape[:-1]
+
+    def sample(self, generator: torch.Generator | None) -> torch.Tensor:
+        return self.pose.clone()  # draws nothing from the generator
+
+    def log_prob(self, q: torch.Tensor) -> torch.Tensor:
+        return q.new_zeros(q.shape[:-1])
+
+    def mode(self) -> torch.Tensor:
+        return self.pose.clone()
+
+    def entropy(self) -> torch.Tensor:
+        return self.pose.new_zeros(self.batch_shape)
+
+    @classmethod
+    def stack(cls, dists: list[LocationDistribution]) -> FixedPose:
+        return cls(torch.stack([d.pose for d in dists]))
+
+
+@register_policy("grid")
+class GridPolicy(LocationPolicy):
+    """A fixed systematic sweep (beyond the paper): the same pose at glance ``s`` of every
+    episode, whatever the core says; no weights, no REINFORCE term; its mode is the sweep's pose.
+
+    * Absolute poses (the haptic world, ap_gym's ``absolute`` actions): the ``n`` glances the
+      policy chooses visit the raster of :func:`sweep` over ``[-1, 1]^k`` in its order (the
+      table baseline ``grid``'s poses), ``n = S`` when it chooses the first glance
+      (``first_glance = "learned"``: then exactly the table baseline's ``G = S`` poses), else
+      ``S - 1`` (glance 1 random).
+    * Moves (``HamConfig.moves``, ap_gym's ``relative`` actions): the sensor starts where the
+      environment puts it and walks the boustrophedon :func:`snake` of the ``S`` glances: each
+      move the largest step along one axis (action ``+-1`` on it: ``max_step_length``, 0.2 on
+      CircleSquare), along the first axis (``x``) and one step along the second at each row's
+      end; 16 glances: 4 rows of 4 glimpses, 0.2 apart, a square of 0.6 x 0.6 (the image is
+      2 x 2). Open loop: it does not know where it starts, and a move past the border is
+      clipped by the environment. (The first glance's move, chosen with ``first_glance =
+      "learned"``, is zero: the environment gives the first glimpse before any move.)
+    """
+
+    def __init__(
+        self, glances: int, dims: int = 2, moves: bool = False, first_chosen: bool = False
+    ) -> None:
+        super().__init__()
+        self.dims = dims
+        if moves:
+            points = torch.from_numpy(snake(glances, dims)).double()
+            poses = torch.cat([points.new_zeros(1, dims), points.diff(dim=0)])
+        else:
+            skip = 0 if first_chosen else 1  # glance 1 random: the sweep covers the rest
+            chosen = torch.from_numpy(sweep(glances - skip, dims)).reshape(-1, dims)
+            poses = torch.cat([chosen.new_zeros(skip, dims), chosen])
+        #: ``(S, k)`` the pose (or move) of each glance; row 0 unused when glance 1 is random
+        self.register_buffer("poses", poses.float(), persistent=False)
+
+    @classmethod
+    def from_config(cls, config: Any) -> GridPolicy:
+        return cls(
+            config.glances,
+            len(config.pose_dims),
+            config.moves,
+            config.first_glance == "learned",
+        )
+
+    def distribution(self, tau: torch.Tensor) -> FixedPose:
+        raise HamError(
+            "the grid policy needs the glance index; accepted: distribution_at(tau, glance) "
+            "(the model's rollout; not --learner sac)"
+        )
+
+    def distribution_at(self, tau: torch.Tensor, glance: int | None) -> FixedPose:
+        if glance is None or not 0 <= glance < self.poses.shape[0]:
+            raise HamError(
+                f"grid policy asked for glance {glance!r}; accepted: 0 .. {self.poses.shape[0] - 1}"
+            )
+        pose = self.poses[glance].to(device=tau.device, dtype=tau.dtype)
+        return FixedPose(pose.expand(tau.shape[0], self.dims))

@@ -1,0 +1,165 @@
+"""The ``grid`` location policy (ham.model.policy.GridPolicy): a fixed sweep of poses on the
+haptic world, a boustrophedon of moves on ap_gym; trained by ``ham train`` with the info and
+hybrid learners, refused by sac."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from ham.errors import HamError
+from ham.learn.environment import HapticEnv
+from ham.learn.planners import sweep as planner_sweep
+from ham.model.agent import HamConfig, HapticAttentionModel
+from ham.model.policy import FixedPose, GridPolicy, make_policy, raster_counts, snake, sweep
+from ham.world.config import WorldConfig
+from ham.world.source import make_source
+from tests.conftest import ok, one_line_error, run_ham
+
+CS = "ap_gym:CircleSquare-v0"
+
+
+def test_absolute_sweep_is_the_table_baselines_raster():
+    # the table baseline and the policy share one definition
+    assert planner_sweep is sweep
+    # glance 1 random: glances 2..5 sweep a 2 x 2 raster of cell centres, x fastest
+    policy = GridPolicy(5, 2)
+    assert policy.poses[1:].tolist() == [[-0.5, -0.5], [0.5, -0.5], [-0.5, 0.5], [0.5, 0.5]]
+    # the policy chooses the first glance too: exactly the table baseline's G poses
+    first = make_policy(HamConfig(glances=4, policy="grid", first_glance="learned"))
+    assert torch.equal(first.poses, torch.from_numpy(sweep(4)).float())
+    assert list(first.state_dict()) == []  # no weights, nothing in a checkpoint
+
+
+def test_moves_sweep_circle_square_in_four_rows():
+    moves = GridPolicy(16, 2, moves=True).poses.tolist()
+    right, left, up = [1.0, 0.0], [-1.0, 0.0], [0.0, 1.0]
+    assert (
+        moves
+        == [[0.0, 0.0]] + [right] * 3 + [up] + [left] * 3 + [up] + [right] * 3 + [up] + [left] * 3
+    )
+    assert raster_counts(16) == [4, 4] and raster_counts(10) == [4, 3]
+
+
+@pytest.mark.parametrize("dims", [1, 2, 3])
+def test_snake_steps_one_unit_along_one_axis(dims):
+    for glances in range(1, 40):
+        points = snake(glances, dims)
+        assert points.shape == (glances, dims)
+        assert len({tuple(p) for p in points}) == glances  # each lattice point once
+        assert (points >= 0).all() and (points < np.array(raster_counts(glances, dims))).all()
+        steps = np.abs(np.diff(points, axis=0))
+        assert (steps.sum(1) == 1).all()
+
+
+def test_fixed_pose_distribution():
+    pose = torch.tensor([[0.5, -0.5]]).expand(3, 2)
+    dist = FixedPose(pose)
+    assert not dist.trainable and dist.batch_shape == (3,)
+    assert torch.equal(dist.sample(None), pose) and torch.equal(dist.mode(), pose)
+    assert torch.equal(dist.act(None, greedy=False), pose)
+    assert torch.equal(dist.log_prob(pose), torch.zeros(3))
+    assert torch.equal(dist.entropy(), torch.zeros(3))
+    assert FixedPose.stack([dist, dist]).batch_shape == (2, 3)
+    with pytest.raises(HamError, match="needs the glance index"):
+        GridPolicy(3).distribution(torch.zeros(3, 8))
+    with pytest.raises(HamError, match="asked for glance 3; accepted: 0 .. 2"):
+        GridPolicy(3).distribution_at(torch.zeros(3, 8), 3)
+
+
+def test_grid_refuses_an_own_first_pose():
+    with pytest.raises(HamError, match="first_glance = 'own' with policy 'grid'"):
+        HamConfig(policy="grid", first_glance="own")
+
+
+def test_rollout_on_the_paper_world_follows_the_sweep():
+    source, _ = make_source(None, WorldConfig())  # the paper's world, online
+    env = HapticEnv(source, batch_size=6, seed=0)
+    model = HapticAttentionModel(HamConfig(glances=5, policy="grid"))
+    objects = env.sample_objects()
+    g = torch.Generator().manual_seed(3)
+    sampled = model(env, objects, g)
+    greedy = model(env, objects, torch.Generator().manual_seed(3), greedy=True)
+    expected = torch.from_numpy(sweep(4)).float()[:, None].expand(4, 6, 2)
+    for episode in (sampled, greedy):
+        assert torch.equal(episode.locations[1:], expected)
+        assert torch.equal(episode.policy.mode(), expected)  # the evaluation's mean poses
+        assert not episode.policy.trainable  # no REINFORCE term
+    # the first glance is random (the paper's), the same draw either way
+    assert torch.equal(sampled.locations[0], greedy.locations[0])
+
+
+def _train(tmp_path, name, *extra):
+    out = tmp_path / name
+    ok(run_ham("train", "--steps", "2", "--batch-size", "4", "--eval-every", "2",
+               "--eval-batches", "1", "--threads", "1", "--seed", "0", "--out", str(out),
+               "--policy", "grid", *extra))  # fmt: skip
+    return json.loads((out / "metrics.json").read_text()), json.loads(
+        (out / "config.json").read_text()
+    )
+
+
+@pytest.mark.parametrize("learner", ["info", "hybrid"])
+def test_train_grid_on_the_paper_world(tmp_path, learner):
+    metrics, config = _train(tmp_path, learner, "--glances", "3", "--learner", learner)
+    assert metrics["steps"] == 2 and config["model"]["policy"] == "grid"
+    assert config["model"]["moves"] is False
+    # evaluated at the sweep's last pose (glances 2..3: a raster of 2 cells)
+    assert metrics["history"][-1]["mu_mean"] == [[0.5, 0.0]] * 4
+
+
+def test_train_grid_refused_by_sac(tmp_path):
+    r = run_ham("train", "--glances", "3", "--policy", "grid", "--learner", "sac", "--steps",
+                "2", "--out", str(tmp_path / "r"))  # fmt: skip
+    assert "policy = 'grid' with learner 'sac'" in one_line_error(r)
+
+
+def test_train_grid_on_circle_square(tmp_path):
+    metrics, config = _train(
+        tmp_path, "cs", "--env", CS, "--glances", "16", "--actions", "relative", "--glimpse",
+        "centered", "--normalization", "none", "--learner", "info", "--optimizer", "adam",
+    )  # fmt: skip
+    assert metrics["steps"] == 2 and config["model"]["moves"] is True
+    r = run_ham("train", "--env", CS, "--glances", "16", "--actions", "relative",
+                "--max-step-length", "1", "--policy", "grid", "--steps", "2",
+                "--out", str(tmp_path / "wide"))  # fmt: skip
+    assert "wider than its image" in one_line_error(r)
+
+
+def test_grid_walks_the_snake_on_circle_square():
+    """On the real environment: each glimpse sits one full step (0.2) from the last along the
+    snake's axis, clipped at the image border; the model's rollout sends the moves."""
+    from ham.learn.ap_adapter import ApGymConfig, ApGymGlanceEnv
+    from ham.learn.train import TrainConfig, fit_to_ap_gym
+
+    config = fit_to_ap_gym(
+        TrainConfig(model=HamConfig(glances=16, policy="grid")),
+        ApGymConfig(CS, actions="relative"),
+    )
+    assert config.model.moves
+    # another policy's config is left as it was
+    other = fit_to_ap_gym(
+        TrainConfig(model=HamConfig(glances=16)), ApGymConfig(CS, actions="relative")
+    )
+    assert not other.model.moves
+
+    class Recording(ApGymGlanceEnv):
+        def glance(self, objects, q):
+            x = super().glance(objects, q)
+            self.seen.append(self.observed_location.clone())
+            return x
+
+    env = Recording(CS, 8, actions="relative", seed=2)
+    env.seen = []
+    try:
+        model = HapticAttentionModel(config.model)
+        model(env, env.sample_objects(), None, greedy=True)
+    finally:
+        env.close()
+    moves = GridPolicy(16, 2, moves=True).poses.double()
+    seen = torch.stack(env.seen).double()  # (16, B, 2)
+    expected = (seen[:-1] + 0.2 * moves[1:, None]).clamp(-1, 1)
+    assert torch.allclose(seen[1:], expected, atol=1e-5)
