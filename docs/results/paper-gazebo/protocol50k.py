@@ -1,0 +1,59 @@
+"""Add cells to protocol50k.json from the run folders of `ham reproduce` (the paper's protocol).
+
+    python docs/results/paper-gazebo/protocol50k.py CELL RUN_DIR [RUN_DIR ...]
+e.g. `protocol50k.py preset-g3 runs/gz-paper/runs/full-concat2-g3-s*`: per seed the best and the
+final accuracy, the steps run (a run stopped at a perfect evaluation ends early), mean ± s.e.m.
+of the best, and the mean over the seeds of the best accuracy so far at a few steps (a stopped
+run keeps its best, 1.000, from its stop on).
+"""
+
+import json
+import math
+import os
+import sys
+from pathlib import Path
+
+HERE = Path(__file__).parent / "protocol50k.json"
+STEPS = (2000, 4000, 10000, 20000, 30000, 40000, 50000)
+
+
+def cell(dirs: list[str]) -> dict:
+    ms = [json.load(open(Path(d) / "metrics.json")) for d in sorted(dirs)]
+    best = [round(m["best_accuracy"], 4) for m in ms]
+    n = len(best)
+    mean = sum(best) / n
+    sem = math.sqrt(sum((b - mean) ** 2 for b in best) / (n - 1)) / math.sqrt(n) if n > 1 else 0.0
+    by_step = {}
+    for s in STEPS:
+        if all(m["steps"] < s and not m.get("stopped_at_perfect") for m in ms):
+            continue
+        so_far = []
+        for m in ms:
+            accs = [e["accuracy"] for e in m["history"] if e["step"] <= s]
+            so_far.append(max(accs))
+        by_step[str(s)] = round(sum(so_far) / n, 4)
+    return {
+        "seeds": [m["config"]["seed"] for m in ms],
+        "steps": [m["steps"] for m in ms],
+        "stopped_at_perfect": [m.get("stopped_at_perfect") for m in ms],
+        "best": best,
+        "best_mean": round(mean, 4),
+        "best_sem": round(sem, 4),
+        "final": [round(m["final_accuracy"], 4) for m in ms],
+        "final_mean": round(sum(m["final_accuracy"] for m in ms) / n, 4),
+        "best_so_far_by_step": by_step,
+    }
+
+
+def main() -> None:
+    name, dirs = sys.argv[1], sys.argv[2:]
+    data = json.load(open(HERE))
+    data["cells"][name] = cell(dirs)
+    tmp = HERE.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(data, indent=1) + "\n")
+    os.replace(tmp, HERE)
+    print(name, json.dumps(data["cells"][name]))
+
+
+if __name__ == "__main__":
+    main()
