@@ -83,7 +83,8 @@ class HamConfig:
         policy: a registered location policy (:mod:`ham.model.policy`): ``learned`` (the
             location network), ``random`` (uniform poses, ``pi_rloc``), ``squashed`` (the
             location network as SAC's squashed Gaussian) or ``grid`` (a fixed sweep, no weights;
-            with ``first_glance`` ``random``, ``learned`` (the sweep's first pose) or ``probe``).
+            with ``first_glance`` ``random``, ``learned`` (the sweep's first pose) or ``probe``); ``grid-corner``: APPLE's
+            grid walk from the glimpse's position, ap_gym ``relative`` actions only).
         moves: the policy's poses are moves of the sensor, not targets (ap_gym's ``relative``
             actions; set by :func:`ham.learn.ap_adapter.sized_model` for the ``grid`` policy,
             the only one that reads it: its sweep is then a walk of moves; and for
