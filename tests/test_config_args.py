@@ -28,7 +28,7 @@ def option_strings(parser: argparse.ArgumentParser) -> set[str]:
     ("cls", "skip"),
     [
         (TrainConfig, {"model", "world", "table", "env"}),
-        (HamConfig, {"n_objects", "pressure_dim", "moves"}),  # moves: set from the env
+        (HamConfig, {"n_objects", "pressure_dim", "moves", "move_length"}),  # set from the env
     ],
 )
 def test_every_field_is_an_option_of_ham_train(cls, skip):

@@ -163,3 +163,110 @@ def test_grid_walks_the_snake_on_circle_square():
     seen = torch.stack(env.seen).double()  # (16, B, 2)
     expected = (seen[:-1] + 0.2 * moves[1:, None]).clamp(-1, 1)
     assert torch.allclose(seen[1:], expected, atol=1e-5)
+
+
+def test_grid_corner_walks_to_the_nearest_corner_then_the_columns():
+    """On the real environment: from a known start the glimpse goes to the nearest corner at
+    full steps (0.2), then down its border column; the moves are read from the position."""
+    from ham.learn.ap_adapter import ApGymConfig, ApGymGlanceEnv
+    from ham.learn.train import TrainConfig, fit_to_ap_gym
+    from ham.model.policy import CornerGridPolicy
+
+    config = fit_to_ap_gym(
+        TrainConfig(model=HamConfig(glances=16, policy="grid-corner")),
+        ApGymConfig(CS, actions="relative"),
+    )
+    assert config.model.moves and config.model.move_length == pytest.approx(0.2)
+
+    class Recording(ApGymGlanceEnv):
+        def glance(self, objects, q):
+            x = super().glance(objects, q)
+            self.seen.append(self.observed_location.clone())
+            return x
+
+    env = Recording(CS, 4, actions="relative", seed=2)
+    env.seen = []
+    try:
+        model = HapticAttentionModel(config.model)
+        episode = model(env, env.sample_objects(), None, greedy=True)
+    finally:
+        env.close()
+    seen = torch.stack(env.seen).double()  # (16, B, 2)
+    start = seen[0]
+    corner = torch.where(start >= 0, 1.0, -1.0).double()
+    # the first glimpse is the environment's, anywhere: the start of the walk
+    assert (start.abs() < 1).all()
+    for b in range(4):
+        # straight to the corner: full steps, then onto it
+        to_corner = int(torch.ceil((corner[b] - start[b]).norm() / 0.2 - 1e-6))
+        path = seen[: to_corner + 1, b]
+        assert torch.allclose(path[-1], corner[b], atol=1e-5)
+        steps = path.diff(dim=0).norm(dim=-1)
+        assert torch.allclose(steps[:-1], torch.full_like(steps[:-1], 0.2), atol=1e-5)
+        assert steps[-1] <= 0.2 + 1e-5
+        # then along the border column x = corner's x, toward the other y border, 0.2 a step
+        column = seen[to_corner:, b]
+        rows = min(len(column), 11)  # 2 units of column: 10 steps
+        expected_y = corner[b, 1] * (1 - 0.2 * torch.arange(rows, dtype=torch.float64))
+        assert torch.allclose(column[:rows, 0], corner[b, 0].expand(rows), atol=1e-5)
+        assert torch.allclose(column[:rows, 1], expected_y, atol=1e-5)
+        if len(column) > 11:  # then one step toward the next column, 0.5 inward
+            assert torch.allclose(
+                column[11], torch.stack([corner[b, 0] * 0.8, -corner[b, 1]]), atol=1e-5
+            )
+    # the moves it asked for: the planned walk, each at most a full step (action norm <= 1)
+    assert (episode.locations[1:].norm(dim=-1) <= 1 + 1e-5).all()
+    assert not episode.policy.trainable
+    # one start by hand: (0.3, -0.1) -> corner (1, -1), the waypoints' columns 0.5 apart
+    ends = CornerGridPolicy.waypoints(torch.tensor([[0.3, -0.1]], dtype=torch.float64))
+    assert ends[:4, 0].tolist() == [[1.0, -1.0], [1.0, 1.0], [0.5, 1.0], [0.5, -1.0]]
+    assert ends[-1, 0].tolist() == [-1.0, 1.0] and ends.shape[0] == 10
+
+
+def test_train_grid_corner_on_circle_square(tmp_path):
+    metrics, config = _train(
+        tmp_path, "cs", "--env", CS, "--glances", "16", "--actions", "relative", "--glimpse",
+        "centered", "--normalization", "none", "--learner", "info", "--optimizer", "adam",
+    )  # fmt: skip
+    out = tmp_path / "corner"
+    ok(run_ham("train", "--env", CS, "--glances", "16", "--actions", "relative", "--glimpse",
+               "centered", "--normalization", "none", "--learner", "info", "--optimizer", "adam",
+               "--steps", "2", "--batch-size", "4", "--eval-every", "2", "--eval-batches", "1",
+               "--threads", "1", "--seed", "0", "--out", str(out), "--policy", "grid-corner"))  # fmt: skip
+    corner = json.loads((out / "metrics.json").read_text())
+    model = json.loads((out / "config.json").read_text())["model"]
+    assert corner["steps"] == 2 and model["policy"] == "grid-corner"
+    assert model["moves"] is True and model["move_length"] == pytest.approx(0.2)
+    # the plain grid's numbers stay as they were: its config has no move length
+    assert config["model"]["move_length"] == 0.0
+    # the evaluation's moves depend on the start: not one sweep for every episode
+    assert corner["history"][-1]["mu_mean"] != metrics["history"][-1]["mu_mean"]
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--glances", "3"], "policy 'grid-corner' on a world of moves = False"),
+        (["--env", CS, "--glances", "16", "--actions", "absolute"],
+         "policy 'grid-corner' on a world of moves = False"),
+        (["--env", CS, "--glances", "16", "--actions", "relative", "--first-glance", "learned"],
+         "first_glance = 'learned' with policy 'grid-corner'"),
+    ],
+)  # fmt: skip
+def test_train_grid_corner_refuses_other_worlds(tmp_path, extra, message):
+    r = run_ham("train", "--policy", "grid-corner", "--steps", "2", "--out",
+                str(tmp_path / "r"), *extra)  # fmt: skip
+    assert message in one_line_error(r)
+    assert not (tmp_path / "r").exists()
+
+
+def test_grid_corner_needs_the_position():
+    from ham.model.policy import CornerGridPolicy
+
+    policy = CornerGridPolicy(4, 0.2)
+    with pytest.raises(HamError, match="asked for glance 1 at position none"):
+        policy.distribution_at(torch.zeros(2, 8), 1)
+    with pytest.raises(HamError, match="before glance 1 of the episode"):
+        policy.distribution_at(torch.zeros(2, 8), 2, torch.zeros(2, 2))
+    with pytest.raises(HamError, match="move_length = -1; accepted: a finite number >= 0"):
+        HamConfig(move_length=-1)

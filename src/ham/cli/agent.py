@@ -35,7 +35,9 @@ def add_commands(subparsers) -> None:
     hyper = p.add_argument_group("training (TrainConfig; paper defaults)")
     add_config_options(hyper, TrainConfig, skip={"model", "world", "table", "env"})
     net = p.add_argument_group("network (HamConfig; paper defaults)")
-    add_config_options(net, HamConfig, skip={"n_objects", "pressure_dim", "pose_dims", "moves"})
+    add_config_options(
+        net, HamConfig, skip={"n_objects", "pressure_dim", "pose_dims", "moves", "move_length"}
+    )
     src = p.add_mutually_exclusive_group()
     src.add_argument("--table", metavar="FILE", help="glance table (HDF5) to look glances up in")
     src.add_argument("--online", action="store_true",

@@ -505,6 +505,15 @@ def sized_model(config: ApGymConfig, model: HamConfig, phi_scale: float = 1.0) -
             # only the grid policy reads it: every other policy's config stays as it was
             changes["moves"] = True
             _check_grid_fits(model.glances, probe.env_max_step, config.env)
+        if model.policy == "grid-corner" and config.actions == "relative":
+            # plans its walk in the environment's full step
+            step = probe.env_max_step
+            if step is None or step[0] != step[1]:
+                raise HamError(
+                    f"policy 'grid-corner' on {config.env!r}, which reports no one step length "
+                    "(max_step_length); accepted: an ap_gym image environment"
+                )
+            changes.update(moves=True, move_length=float(step[0]))
         return dataclasses.replace(
             model,
             n_objects=probe.n_objects,

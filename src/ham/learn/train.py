@@ -961,7 +961,9 @@ def replay_episode(
         baselines.append(agent.baseline(tau))
         if s < glances - 1:
             dists.append(
-                agent.next_distribution(tau, played.locations[s], logits[-1], glance=s + 1)
+                agent.next_distribution(
+                    tau, played.locations[s], logits[-1], glance=s + 1, position=where[s]
+                )
             )
     return Episode(
         objects=played.objects,

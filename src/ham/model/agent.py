@@ -83,10 +83,14 @@ class HamConfig:
         policy: a registered location policy (:mod:`ham.model.policy`): ``learned`` (the
             location network), ``random`` (uniform poses, ``pi_rloc``), ``squashed`` (the
             location network as SAC's squashed Gaussian) or ``grid`` (a fixed sweep, no weights;
-            with ``first_glance`` ``random``, ``learned`` (the sweep's first pose) or ``probe``).
+            with ``first_glance`` ``random``, ``learned`` (the sweep's first pose) or ``probe``); ``grid-corner``: APPLE's
+            grid walk from the glimpse's position, ap_gym ``relative`` actions only).
         moves: the policy's poses are moves of the sensor, not targets (ap_gym's ``relative``
             actions; set by :func:`ham.learn.ap_adapter.sized_model` for the ``grid`` policy,
-            the only one that reads it: its sweep is then a walk of moves).
+            the only one that reads it: its sweep is then a walk of moves; and for
+            ``grid-corner``).
+        move_length: the sensor's full step per move (set with ``moves`` for ``grid-corner``,
+            which plans its walk in it; 0: unused).
         std_activation: ``softplus`` (paper) or ``sigmoid`` (authors' code) for ``sigma``.
         sigma_min: floor added to ``sigma`` for numerical safety (not in the paper).
         phi_scale: the pose fed to the tactile network is ``(q_x, q_phi * phi_scale)`` (pi/2).
@@ -152,6 +156,7 @@ class HamConfig:
     pose_dims: tuple[str, ...] = PAPER_POSE_DIMS
     height_input: bool = False
     moves: bool = False
+    move_length: float = 0.0
 
     def __post_init__(self) -> None:
         # frozen: a JSON list (a saved config) becomes the tuple
@@ -179,6 +184,9 @@ class HamConfig:
             )
         if not isinstance(self.moves, bool):
             raise HamError(f"moves = {self.moves!r}; accepted: true or false")
+        ml = self.move_length
+        if isinstance(ml, bool) or not isinstance(ml, (int, float)) or not 0 <= ml < math.inf:
+            raise HamError(f"move_length = {ml!r}; accepted: a finite number >= 0")
         if self.policy == "grid" and self.first_glance == "own":
             raise HamError(
                 "first_glance = 'own' with policy 'grid'; accepted: random, learned (the "
@@ -385,13 +393,15 @@ class HapticAttentionModel(nn.Module):
         q: torch.Tensor,
         logits: torch.Tensor | None = None,
         glance: int | None = None,
+        position: torch.Tensor | None = None,
     ) -> LocationDistribution:
         """The distribution of the next pose after the glance at ``q`` ``(B, k)`` that left the
         core at ``tau`` and the classifier at ``logits``: the location policy's, its mean gated
         towards ``q`` with ``stay_gate`` (the gate reads the classifier's confidence, detached:
         :meth:`StopHead.confidence`). ``glance``: the index (0-based) of the glance it chooses,
-        for a policy that reads it (``grid``)."""
-        dist = self.location.distribution_at(tau, glance)
+        for a policy that reads it (``grid``); ``position`` ``(B, k)``: where the sensor is now
+        (the last glance's where-input), for ``grid-corner``."""
+        dist = self.location.distribution_at(tau, glance, position)
         if not self.config.stay_gate:
             return dist
         if logits is None:
@@ -476,7 +486,9 @@ class HapticAttentionModel(nn.Module):
                     stops.append(self.stop_head(logits[-1]))
             if s == self.config.glances - 1:
                 break
-            dist = self.next_distribution(tau, q, logits[-1], glance=s + 1)
+            where = getattr(env, "observed_location", None)
+            position = q if where is None else where
+            dist = self.next_distribution(tau, q, logits[-1], glance=s + 1, position=position)
             q = dist.act(generator, greedy)
             dists.append(dist)
         return Episode(
@@ -509,7 +521,11 @@ class HapticAttentionModel(nn.Module):
             logits.append(self.classifier(tau))
             baselines.append(self.baseline(tau))
             if s < pressures.shape[0] - 1:
-                dists.append(self.next_distribution(tau, locations[s], logits[-1], glance=s + 1))
+                dists.append(
+                    self.next_distribution(
+                        tau, locations[s], logits[-1], glance=s + 1, position=locations[s]
+                    )
+                )
         return (
             torch.stack(logits),
             torch.stack(baselines),

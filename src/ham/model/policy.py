@@ -19,11 +19,16 @@ Registered:
 * ``squashed`` (:class:`SquashedGaussianPolicy`, beyond the paper): the location network's
   weights as soft actor-critic's ``tanh``-squashed Gaussian (``--learner sac``);
 * ``grid`` (:class:`GridPolicy`, beyond the paper): a fixed systematic sweep, the same poses
-  (or moves) at the same glance for every episode; no weights, no REINFORCE term.
+  (or moves) at the same glance for every episode; no weights, no REINFORCE term;
+* ``grid-corner`` (:class:`CornerGridPolicy`, beyond the paper; ap_gym's ``relative`` actions):
+  reads where the glimpse is, goes to the nearest image corner, then sweeps columns 0.5 apart
+  (APPLE's grid, in our words); no weights, no REINFORCE term.
 
 A policy may depend on the glance it chooses: the model asks for
 ``distribution_at(tau, glance)`` (glance index ``s``, 0-based, of the glance to be chosen); the
-base class ignores the index and returns ``distribution(tau)``, so only ``grid`` reads it.
+base class ignores the index and returns ``distribution(tau)``, so only ``grid`` reads it. The
+model passes ``position`` too, where the sensor is now (``(B, k)``, the where-input of the last
+glance); only ``grid-corner`` reads it.
 
 The distributions are batched: the model stacks one per glance (:meth:`LocationDistribution.stack`),
 so ``log_prob`` of the episode's poses ``(S-1, B, k)`` is ``(S-1, B)``: summed over the streams.
@@ -200,9 +205,12 @@ class LocationPolicy(nn.Module):
     def distribution(self, tau: torch.Tensor) -> LocationDistribution:
         raise NotImplementedError
 
-    def distribution_at(self, tau: torch.Tensor, glance: int | None) -> LocationDistribution:
-        """The distribution of glance ``glance`` (0-based) from ``tau``; the index is read only
-        by policies that need it (``grid``), the others return ``distribution(tau)``."""
+    def distribution_at(
+        self, tau: torch.Tensor, glance: int | None, position: torch.Tensor | None = None
+    ) -> LocationDistribution:
+        """The distribution of glance ``glance`` (0-based) from ``tau``, the sensor now at
+        ``position`` ``(B, k)``; index and position are read only by policies that need them
+        (``grid``, ``grid-corner``), the others return ``distribution(tau)``."""
         return self.distribution(tau)
 
 
@@ -591,10 +599,105 @@ class GridPolicy(LocationPolicy):
             "(the model's rollout; not --learner sac)"
         )
 
-    def distribution_at(self, tau: torch.Tensor, glance: int | None) -> FixedPose:
+    def distribution_at(
+        self, tau: torch.Tensor, glance: int | None, position: torch.Tensor | None = None
+    ) -> FixedPose:
         if glance is None or not 0 <= glance < self.poses.shape[0]:
             raise HamError(
                 f"grid policy asked for glance {glance!r}; accepted: 0 .. {self.poses.shape[0] - 1}"
             )
         pose = self.poses[glance].to(device=tau.device, dtype=tau.dtype)
         return FixedPose(pose.expand(tau.shape[0], self.dims))
+
+
+@register_policy("grid-corner")
+class CornerGridPolicy(LocationPolicy):
+    """APPLE's grid in our words (beyond the paper; ap_gym's ``relative`` actions only): closed
+    loop on where the glimpse is. At glance 2 (the first move) it plans from the start ``p_0``:
+    the nearest image corner ``c = (s_x, s_y)``, ``s = sign(p_0)`` (``+1`` at 0), then columns
+    ``x = s_x (1 - 0.5 j)``, ``j = 0 .. 4``, alternately to ``-s_y`` and back to ``s_y``; each
+    step goes ``move_length`` (the environment's full step) toward the next waypoint, ending a
+    step at a waypoint it reaches. Each move is ``(plan_s - position) / move_length``, from
+    where the glimpse is now (the where-input), so the walk follows the plan exactly. The plan
+    is the policy's only state, made anew from each episode's start; no weights, no REINFORCE
+    term; its mode is the move (the evaluation's mean poses)."""
+
+    #: spacing of the columns over the ``[-1, 1]`` image, as APPLE's grid (5 columns)
+    COLUMN_SPACING = 0.5
+
+    def __init__(self, glances: int, move_length: float) -> None:
+        super().__init__()
+        self.glances = glances
+        self.move_length = move_length
+        self.plan: torch.Tensor | None = None  # (S, B, 2) positions of glances 1..S
+
+    @classmethod
+    def from_config(cls, config: Any) -> CornerGridPolicy:
+        if not config.moves or len(config.pose_dims) != 2 or config.move_length <= 0:
+            raise HamError(
+                f"policy 'grid-corner' on a world of moves = {config.moves}, "
+                f"{len(config.pose_dims)} pose dims; accepted: an ap_gym image environment "
+                "with --actions relative (moves of a glimpse over a 2-d image)"
+            )
+        if config.first_glance != "random":
+            raise HamError(
+                f"first_glance = {config.first_glance!r} with policy 'grid-corner'; accepted: "
+                "random (the environment's first glimpse, where the walk starts)"
+            )
+        return cls(config.glances, config.move_length)
+
+    @classmethod
+    def waypoints(cls, start: torch.Tensor) -> torch.Tensor:
+        """``(W, B, 2)``: the nearest corner of each start ``(B, 2)``, then the columns' ends."""
+        sign = torch.where(start >= 0, 1.0, -1.0).to(start.dtype)
+        columns = round(2 / cls.COLUMN_SPACING) + 1
+        points = []
+        for j in range(columns):
+            x = sign[:, 0] * (1 - cls.COLUMN_SPACING * j)
+            ends = (sign[:, 1], -sign[:, 1]) if j % 2 == 0 else (-sign[:, 1], sign[:, 1])
+            points += [torch.stack([x, y], -1) for y in ends]
+        return torch.stack(points)
+
+    def make_plan(self, start: torch.Tensor) -> torch.Tensor:
+        """``(S, B, 2)``: the glimpse's positions of glances 1..S from ``start`` ``(B, 2)``."""
+        targets = self.waypoints(start)
+        index = torch.zeros(start.shape[0], dtype=torch.long, device=start.device)
+        last = targets.shape[0] - 1
+        rows, p = [start], start
+        for _ in range(self.glances - 1):
+            target = targets[index, torch.arange(start.shape[0], device=start.device)]
+            gap = target - p
+            dist = gap.norm(dim=-1, keepdim=True)
+            # a full step toward the waypoint, or onto it when it is nearer
+            p = torch.where(dist <= self.move_length, target, p + gap / dist * self.move_length)
+            reached = (dist <= self.move_length).squeeze(-1)
+            index = torch.where(reached, (index + 1).clamp(max=last), index)
+            rows.append(p)
+        return torch.stack(rows)
+
+    def distribution(self, tau: torch.Tensor) -> FixedPose:
+        raise HamError(
+            "the grid-corner policy needs the glance index and the glimpse's position; "
+            "accepted: distribution_at(tau, glance, position) (the model's rollout; not "
+            "--learner sac)"
+        )
+
+    def distribution_at(
+        self, tau: torch.Tensor, glance: int | None, position: torch.Tensor | None = None
+    ) -> FixedPose:
+        if glance is None or not 1 <= glance < self.glances or position is None:
+            raise HamError(
+                f"grid-corner policy asked for glance {glance!r} at position "
+                f"{'none' if position is None else 'given'}; accepted: glances 1 .. "
+                f"{self.glances - 1} with the glimpse's position"
+            )
+        position = position.to(device=tau.device, dtype=torch.float64)
+        if glance == 1:  # a new episode: plan from its start
+            self.plan = self.make_plan(position)
+        elif self.plan is None or self.plan.shape[1] != position.shape[0]:
+            raise HamError(
+                f"grid-corner policy asked for glance {glance} before glance 1 of the episode; "
+                "accepted: the glances of an episode in order"
+            )
+        move = (self.plan[glance] - position) / self.move_length
+        return FixedPose(move.to(tau.dtype))
