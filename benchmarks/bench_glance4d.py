@@ -5,7 +5,9 @@ table of glances/s per second of CPU time (``time.process_time``: a shared machi
 processes do not count), all measured in the same run: the extended glance on
 height-field objects at uniform random 4-D poses, with the default pad (4 read-out points per
 taxel along u x 1 along v: 1024 per glance), with one point per taxel (``supersample = 1``: 256)
-and with the isotropic grid (``rows_per_taxel = 4``: 4096); the paper's line glance (64 points) on
+and with the isotropic grid (``rows_per_taxel = 4``: 4096); the default pad with its back's rim
+sampled only at the housing's 3 points per side (``rim_samples = 3``, the cost of the rim points);
+the paper's line glance (64 points) on
 the paper's objects; and MuJoCo's glances/s on one thread, the reference of the ratio.
 
 Objects: the ``curvature2d`` set when it is registered, else dome, saddle, bowl, cylinders along x
@@ -77,6 +79,7 @@ def main() -> None:
     rows = []
     for label, sim in (
         ("extended, default pad (1024 points)", ExtendedSimulator(objs)),
+        ("extended, default pad, back's rim at the housing's 3 points", ExtendedSimulator(objs, rim_samples=3)),
         ("extended, supersample 1 (256 points)", ExtendedSimulator(objs, SensorConfig(supersample=1))),
         ("extended, rows_per_taxel 4 (4096 points)", ExtendedSimulator(objs, rows_per_taxel=4)),
     ):  # fmt: skip

@@ -219,6 +219,23 @@ def test_the_pads_back_stops_where_a_blocks_edge_meets_it():
     assert ExtendedSimulator([DOME], housing_edge_samples=9).describe()["housing_edge_samples"] == 9
 
 
+def test_the_pads_back_stops_on_its_rim_between_the_housings_samples():
+    """The pad over the cone's plinth edge, tilted 0.5 rad about x (a pose of the cross-check
+    lattice): its back's rim line passes the cone nearest the apex between the housing's 3
+    points per side, a smooth maximum. With the rim sampled every 10 mm the back stops there
+    (within the 10 mm sampling's ~0.1 mm); with only the housing's samples (``rim_samples =
+    3``) it sank over 1 mm into the cone (docs/crosscheck_curvature2d_grid.md)."""
+    cone = [o for o in objects.resolve_set("curvature2d") if o.name == "cone"]
+    q = ([0.5], [0.0], [1.0], [-0.5 / (math.pi / 2)])  # x, phi, y, phi_y
+    r = ExtendedSimulator(cone).glance([0], *q)
+    old = ExtendedSimulator(cone, rim_samples=3).glance([0], *q)
+    assert bool(r.blocked[0]) and -5e-5 < _back_depth(cone[0], r) < 2e-4
+    assert not bool(old.blocked[0]) and _back_depth(cone[0], old) > 1e-3
+    with pytest.raises(HamError, match="rim_samples = 1; accepted: an integer 2 .. 256"):
+        ExtendedSimulator(cone, rim_samples=1)
+    assert ExtendedSimulator(cone, rim_samples=5).describe()["rim_samples"] == 5
+
+
 def test_the_line_glance_refuses_y_and_phi_y():
     fast = FastSimulator(objects.resolve_set("paper"))
     with pytest.raises(HamError, match="q_y = .* is not 0.*pose-dims"):

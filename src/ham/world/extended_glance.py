@@ -86,6 +86,11 @@ GRID_STEP = 5e-4
 #: Points along each edge of the housing's sides (corners included), times ``housing_samples``
 #: along the pad's normal: 8 x 6 = 48 rigid points.
 HOUSING_EDGE_SAMPLES = 3
+#: Points along each rim line of the pad's rigid back (the foam's back; corners included), every
+#: 10 mm of the 8 cm face: the back's highest contact along a rim is often a smooth maximum between
+#: the housing's samples (the cone's slope nearest its apex), which a 10 mm spacing reads within
+#: ~0.1 mm there; with the housing's 3 per side at that depth, 24 more rigid points.
+RIM_SAMPLES = 9
 #: Points of the pad's rigid back where a block's edge meets it (:meth:`_edge_points`): 4 rim
 #: lines x 4 edge lines, and the base's 4 corners.
 EDGE_POINTS = 20
@@ -140,6 +145,7 @@ class ExtendedSimulator:
         resolution: int = 4096,
         rows_per_taxel: int = 1,
         housing_edge_samples: int = HOUSING_EDGE_SAMPLES,
+        rim_samples: int = RIM_SAMPLES,
         chunk: int | None = None,
     ) -> None:
         if not objects:
@@ -154,6 +160,8 @@ class ExtendedSimulator:
             raise HamError(
                 f"housing_edge_samples = {housing_edge_samples!r}; accepted: an integer 2 .. 256"
             )
+        if not (isinstance(rim_samples, int) and 2 <= rim_samples <= 256):
+            raise HamError(f"rim_samples = {rim_samples!r}; accepted: an integer 2 .. 256")
         if chunk is not None and not (isinstance(chunk, int) and chunk >= 1):
             raise HamError(f"chunk = {chunk!r}; accepted: None (automatic) or an integer >= 1")
         self.objects = list(objects)
@@ -186,9 +194,18 @@ class ExtendedSimulator:
         hu = np.concatenate([-half, half, edge[1:-1], edge[1:-1]])
         hv = np.concatenate([edge, edge, -half[1:-1], half[1:-1]])
         w = np.linspace(s.foam_thickness, s.foam_thickness + s.housing_thickness, m)
-        self._hu = torch.tensor(np.repeat(hu, m), **f32)
-        self._hv = torch.tensor(np.repeat(hv, m), **f32)
-        self._hw = torch.tensor(np.tile(w, len(hu)), **f32)
+        # The back's rim lines (w = foam_thickness) more densely: the points not already there.
+        self.rim_samples = rim_samples
+        rim = np.linspace(-0.5 * s.size, 0.5 * s.size, rim_samples)
+        rhalf = np.full(len(rim), 0.5 * s.size)
+        ru = np.concatenate([-rhalf, rhalf, rim[1:-1], rim[1:-1]])
+        rv = np.concatenate([rim, rim, -rhalf[1:-1], rhalf[1:-1]])
+        new = ~np.isin(ru + 1j * rv, hu + 1j * hv)
+        ru, rv = ru[new], rv[new]
+        self._hu = torch.tensor(np.concatenate([np.repeat(hu, m), ru]), **f32)
+        self._hv = torch.tensor(np.concatenate([np.repeat(hv, m), rv]), **f32)
+        back = np.full(len(ru), s.foam_thickness)
+        self._hw = torch.tensor(np.concatenate([np.tile(w, len(hu)), back]), **f32)
         # The edge points (:meth:`_edge_points`) lie on the foam's back: w = foam_thickness.
         self._hw_all = torch.cat([self._hw, torch.full((EDGE_POINTS,), s.foam_thickness, **f32)])
         self._rims = torch.tensor([-0.5 * s.size, 0.5 * s.size], **f32)
@@ -624,6 +641,7 @@ class ExtendedSimulator:
                 if self.housing_edge_samples != HOUSING_EDGE_SAMPLES
                 else {}
             ),
+            **({"rim_samples": self.rim_samples} if self.rim_samples != RIM_SAMPLES else {}),
         }
 
 
