@@ -4,9 +4,10 @@ Run: ``.venv/bin/python benchmarks/bench_glance4d.py`` (``--batch``, ``--mujoco-
 table of glances/s per second of CPU time (``time.process_time``: a shared machine's other
 processes do not count), all measured in the same run: the extended glance on
 height-field objects at uniform random 4-D poses, with the default pad (4 read-out points per
-taxel along u x 1 along v: 1024 per glance), with one point per taxel (``supersample = 1``: 256)
+taxel along u, staggered in v: 1024 per glance), with one point per taxel (``supersample = 1``: 256)
 and with the isotropic grid (``rows_per_taxel = 4``: 4096); the default pad with its back's rim
-sampled only at the housing's 3 points per side (``rim_samples = 3``, the cost of the rim points);
+sampled only at the housing's 3 points per side (``rim_samples = 3``, the cost of the rim points)
+and with its points on the taxels' centre lines (``stagger = False``, the cost of the stagger);
 the paper's line glance (64 points) on
 the paper's objects; and MuJoCo's glances/s on one thread, the reference of the ratio.
 
@@ -80,6 +81,7 @@ def main() -> None:
     for label, sim in (
         ("extended, default pad (1024 points)", ExtendedSimulator(objs)),
         ("extended, default pad, back's rim at the housing's 3 points", ExtendedSimulator(objs, rim_samples=3)),
+        ("extended, default pad, points on the taxels' centre lines", ExtendedSimulator(objs, stagger=False)),
         ("extended, supersample 1 (256 points)", ExtendedSimulator(objs, SensorConfig(supersample=1))),
         ("extended, rows_per_taxel 4 (4096 points)", ExtendedSimulator(objs, rows_per_taxel=4)),
     ):  # fmt: skip

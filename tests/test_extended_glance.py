@@ -82,6 +82,8 @@ def _brute_stop_height(obj, x, y, phi, phi_y, sim):
     root of the piecewise-linear force by sorting."""
     u = sim._u.double().numpy()[None, :]
     v = sim._v.double().numpy()[:, None]
+    if sim._dv_col is not None:  # the staggered read-out: each column's v offset
+        v = v + sim._dv_col.double().numpy()[None, :]
     cp, sp, cy, sy = math.cos(phi), math.sin(phi), math.cos(phi_y), math.sin(phi_y)
     dx = u * cp - v * sy * sp
     dy = v * cy + 0 * u
@@ -224,16 +226,36 @@ def test_the_pads_back_stops_on_its_rim_between_the_housings_samples():
     lattice): its back's rim line passes the cone nearest the apex between the housing's 3
     points per side, a smooth maximum. With the rim sampled every 10 mm the back stops there
     (within the 10 mm sampling's ~0.1 mm); with only the housing's samples (``rim_samples =
-    3``) it sank over 1 mm into the cone (docs/crosscheck_curvature2d_grid.md)."""
+    3``) it sank 0.9 mm into the cone (1.42 mm before the staggered read-out;
+    docs/crosscheck_curvature2d_grid.md)."""
     cone = [o for o in objects.resolve_set("curvature2d") if o.name == "cone"]
     q = ([0.5], [0.0], [1.0], [-0.5 / (math.pi / 2)])  # x, phi, y, phi_y
     r = ExtendedSimulator(cone).glance([0], *q)
     old = ExtendedSimulator(cone, rim_samples=3).glance([0], *q)
     assert bool(r.blocked[0]) and -5e-5 < _back_depth(cone[0], r) < 2e-4
-    assert not bool(old.blocked[0]) and _back_depth(cone[0], old) > 1e-3
+    assert not bool(old.blocked[0]) and _back_depth(cone[0], old) > 8e-4
     with pytest.raises(HamError, match="rim_samples = 1; accepted: an integer 2 .. 256"):
         ExtendedSimulator(cone, rim_samples=1)
     assert ExtendedSimulator(cone, rim_samples=5).describe()["rim_samples"] == 5
+
+
+def test_the_staggered_read_out_feels_an_edge_inside_a_taxel_row():
+    """A level pad over the flat block's edge along x, the edge 1 mm into taxel row 8 (v from 0
+    to 5 mm): the foam there is pressed over a fifth of each cell. The staggered read-out's 4
+    points per taxel lie at 4 different v (0.625, 1.875, 3.125, 4.375 mm into the row), so one
+    of 4 is on the block: a quarter of a full cell's pressure; points on the taxel's centre line
+    (``stagger=False``) read all or nothing: nothing."""
+    flat = [o for o in objects.resolve_set("curvature2d") if o.name == "flat_low"]
+    q = ([0.0], [0.0], [0.044 / 0.045], [0.0])  # x, phi, y (the edge at y = 45 mm), phi_y
+    r = ExtendedSimulator(flat).glance([0], *q)
+    line = ExtendedSimulator(flat, stagger=False).glance([0], *q)
+    assert float(r.force[0]) == pytest.approx(2.0, abs=1e-4)
+    img, old = r.pressure[0], line.pressure[0]
+    full = float(img[7, 4])
+    assert full > 0 and torch.allclose(img[:8], torch.full((8, 16), full), rtol=1e-5)
+    assert torch.allclose(img[8], torch.full((16,), 0.25 * full), rtol=1e-5)
+    assert float(img[9:].abs().max()) == 0.0
+    assert float(old[8].abs().max()) == 0.0 and float(old[7].min()) > 0
 
 
 def test_the_line_glance_refuses_y_and_phi_y():

@@ -243,6 +243,23 @@ def test_train_grid_corner_on_circle_square(tmp_path):
     assert corner["history"][-1]["mu_mean"] != metrics["history"][-1]["mu_mean"]
 
 
+def test_grid_corner_run_resumes_bit_identically(tmp_path):
+    """The walk's plan is made anew at each episode's start, not kept in the checkpoint: a run
+    stopped at step 2 and resumed to 4 has every number of the uninterrupted run."""
+    common = ["--env", CS, "--glances", "16", "--actions", "relative", "--glimpse", "centered",
+              "--normalization", "none", "--learner", "info", "--optimizer", "adam",
+              "--batch-size", "4", "--eval-every", "2", "--eval-batches", "1", "--threads", "1",
+              "--seed", "0", "--policy", "grid-corner"]  # fmt: skip
+    ok(run_ham("train", *common, "--steps", "4", "--out", str(tmp_path / "full")))
+    ok(run_ham("train", *common, "--steps", "2", "--out", str(tmp_path / "half")))
+    ok(run_ham("train", "--resume", str(tmp_path / "half"), "--steps", "4"))
+    full = json.loads((tmp_path / "full" / "metrics.json").read_text())
+    half = json.loads((tmp_path / "half" / "metrics.json").read_text())
+    assert full["steps"] == half["steps"] == 4
+    assert full["history"] == half["history"]
+    assert full["history"][-1]["train_loss"] != full["history"][0]["train_loss"]
+
+
 @pytest.mark.parametrize(
     "extra, message",
     [
