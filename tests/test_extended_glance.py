@@ -9,9 +9,10 @@ import torch
 from ham.errors import HamError
 from ham.world import objects
 from ham.world.config import WorldConfig, make_simulator
-from ham.world.extended_glance import EDGE_POINTS, ExtendedSimulator
+from ham.world.extended_glance import EDGE_POINTS, ExtendedSimulator, stagger_order
 from ham.world.glance import POSE_DIMS, FastSimulator, glance_at
 from ham.world.objects import HapticObject
+from ham.world.sensor import SensorConfig
 
 # The paper's objects and the mhsb ones (trough and double_ridge with the line glance's feature
 # points, which the extended glance carries over as lines along y).
@@ -256,6 +257,18 @@ def test_the_staggered_read_out_feels_an_edge_inside_a_taxel_row():
     assert torch.allclose(img[8], torch.full((16,), 0.25 * full), rtol=1e-5)
     assert float(img[9:].abs().max()) == 0.0
     assert float(old[8].abs().max()) == 0.0 and float(old[7].min()) > 0
+
+
+def test_the_stagger_puts_each_point_of_a_taxel_in_its_own_stratum():
+    """For any ``supersample`` the stagger is a permutation: no quarter of the cell holds two
+    of a taxel's points, none is left empty (a stride sharing a factor with ``su`` would)."""
+    assert stagger_order(4) == [1, 3, 0, 2]
+    for su in range(1, 17):
+        assert sorted(stagger_order(su)) == list(range(su)), su
+    sim = ExtendedSimulator([DOME], SensorConfig(supersample=6))
+    assert sorted(set(sim._dv.tolist())) == pytest.approx(
+        [(k + 0.5) / 6 * sim.sensor.pitch - 0.5 * sim.sensor.pitch for k in range(6)]
+    )
 
 
 def test_the_line_glance_refuses_y_and_phi_y():

@@ -111,6 +111,26 @@ MAX_CELLS = 1 << 24
 SORT_MIN = 256
 
 
+def stagger_order(su: int) -> list[int]:
+    """The quarter (stratum of v) of each of a taxel's ``su`` points along u in the staggered
+    read-out: a permutation of ``0 .. su-1`` (:data:`STAGGER`, else a stride coprime with
+    ``su`` from ``su // 2 + 1`` on, so that neighbours lie far apart and no stratum repeats)."""
+    if su in STAGGER:
+        return list(STAGGER[su])
+    step = next(k for k in range(su // 2 + 1, 2 * su) if math.gcd(k, su) == 1)
+    return [(j * step) % su for j in range(su)]
+
+
+def _square_rim(n: int, size: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(u, v)`` of ``n`` points along each side of the ``size`` square centred on 0, corners
+    once: the sides u = -+size/2 over v, then v = -+size/2 over u."""
+    edge = np.linspace(-0.5 * size, 0.5 * size, n)
+    half = np.full(n, 0.5 * size)
+    u = np.concatenate([-half, half, edge[1:-1], edge[1:-1]])
+    v = np.concatenate([edge, edge, -half[1:-1], half[1:-1]])
+    return u, v
+
+
 def _f32_step(n: int) -> float:
     """The float32 spacing just above ``n``: the padding cell's width (see :meth:`_build_maps`)."""
     return float(np.nextafter(np.float32(n), np.float32(np.inf))) - n
@@ -203,7 +223,7 @@ class ExtendedSimulator:
         self.stagger = bool(stagger) and su > 1 and sv == 1
         self._dv = self._dv_col = None  # (su,) and (C,): the points' v offsets (stagger)
         if self.stagger:
-            perm = np.array(STAGGER.get(su, [(j * (su // 2 + 1)) % su for j in range(su)]))
+            perm = np.array(stagger_order(su))
             self._dv = torch.tensor(((perm + 0.5) / su - 0.5) * (s.pitch / sv), **f32)
             self._dv_col = self._dv.repeat_interleave(nt)  # (C,): per column, phase-major
         # Housing sides: u = +-L/2 over v, v = +-L/2 over u (corners once), w along the normal.
@@ -211,17 +231,11 @@ class ExtendedSimulator:
         # where a side lies nearly flat; fewer points, since each costs a scattered lookup.
         m = self.glance_config.housing_samples
         self.housing_edge_samples = housing_edge_samples
-        edge = np.linspace(-0.5 * s.size, 0.5 * s.size, housing_edge_samples)
-        half = np.full(len(edge), 0.5 * s.size)
-        hu = np.concatenate([-half, half, edge[1:-1], edge[1:-1]])
-        hv = np.concatenate([edge, edge, -half[1:-1], half[1:-1]])
+        hu, hv = _square_rim(housing_edge_samples, s.size)
         w = np.linspace(s.foam_thickness, s.foam_thickness + s.housing_thickness, m)
         # The back's rim lines (w = foam_thickness) more densely: the points not already there.
         self.rim_samples = rim_samples
-        rim = np.linspace(-0.5 * s.size, 0.5 * s.size, rim_samples)
-        rhalf = np.full(len(rim), 0.5 * s.size)
-        ru = np.concatenate([-rhalf, rhalf, rim[1:-1], rim[1:-1]])
-        rv = np.concatenate([rim, rim, -rhalf[1:-1], rhalf[1:-1]])
+        ru, rv = _square_rim(rim_samples, s.size)
         new = ~np.isin(ru + 1j * rv, hu + 1j * hv)
         ru, rv = ru[new], rv[new]
         self._hu = torch.tensor(np.concatenate([np.repeat(hu, m), ru]), **f32)
@@ -342,7 +356,7 @@ class ExtendedSimulator:
     def _lookup_(self, ids, tx, ty, work: _Workspace, out: str) -> torch.Tensor:
         """Bilinear heights at cell coordinates ``tx`` (B, ...) and ``ty``, shaped like ``tx`` or
         broadcastable to it along the inner dims (``(B, R, 1)`` when y does not vary along a row;
-        ``(B, R, 1, S)`` for the staggered read-out) (both overwritten); the result, shaped like
+        ``(B, R, S, 1)`` for the staggered read-out) (both overwritten); the result, shaped like
         ``tx``, in workspace buffer ``out``. Temporaries: ``i``, ``b``, ``c``, ``d``."""
         shape, yshape = tx.shape, ty.shape
         per = (-1,) + (1,) * (tx.dim() - 1)  # a per-glance value against the inner dims
