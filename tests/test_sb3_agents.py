@@ -17,6 +17,7 @@ from ham.learn.sb3_agents import (  # noqa: E402
     SupervisedPrediction,
     evaluate_agent,
     make_env,
+    resume_sb3,
     train_sb3,
 )
 
@@ -106,6 +107,76 @@ def test_a_run_stopped_early_leaves_its_history_so_far(tmp_path, monkeypatch):
     assert progress["env_steps"] == 64 and [h["env_steps"] for h in progress["history"]] == [64]
     assert 0 <= progress["history"][0]["final_accuracy"] <= 1 and progress["seed"] == 0
     assert not (tmp_path / "run" / "metrics.json").exists()
+
+
+@pytest.mark.parametrize(
+    ("algo", "kwargs"),
+    [
+        ("ppo", {"n_steps": 64, "batch_size": 32, "n_epochs": 1}),
+        ("sac", {"learning_starts": 32, "batch_size": 32}),
+        ("crossq", {"learning_starts": 32, "batch_size": 32}),
+    ],
+)
+def test_an_interrupted_run_resumes_bit_identically(tmp_path, monkeypatch, algo, kwargs):
+    """Killed at its third evaluation, resumed from the checkpoint of the second: the same
+    curve, agent and head as the run never stopped (replay buffer, optimizers, environments and
+    the global generators all restored)."""
+    import torch
+    from stable_baselines3.common.save_util import load_from_zip_file
+
+    from ham.learn import sb3_agents
+
+    config = Sb3Config(
+        algo=algo, env="ham/HapticGlanceAP-v0", env_kwargs={"glances": 2}, env_steps=256,
+        eval_every=64, eval_episodes=8, algo_kwargs=kwargs,
+    )  # fmt: skip
+    straight = train_sb3(config, tmp_path / "straight")
+
+    evaluate, calls = sb3_agents.evaluate_agent, []
+
+    def stop_at_the_third(*args, **kw):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return evaluate(*args, **kw)
+
+    monkeypatch.setattr(sb3_agents, "evaluate_agent", stop_at_the_third)
+    with pytest.raises(KeyboardInterrupt):
+        train_sb3(config, tmp_path / "cut")
+    monkeypatch.setattr(sb3_agents, "evaluate_agent", evaluate)
+    torch.manual_seed(12345)  # the resumed run must not depend on the process's generators
+    np.random.seed(12345)
+    resumed = resume_sb3(tmp_path / "cut")
+
+    def curve(m):
+        return [(h["env_steps"], h["accuracy_per_glance"]) for h in m["history"]]
+
+    assert curve(resumed) == curve(straight) and len(curve(straight)) == 4
+    assert resumed["accuracy_per_glance"] == straight["accuracy_per_glance"]
+    a = load_from_zip_file(tmp_path / "straight" / "model.zip")[1]
+    b = load_from_zip_file(tmp_path / "cut" / "model.zip")[1]
+    for name in a:
+        for key, value in a[name].items():
+            if isinstance(value, torch.Tensor):
+                assert torch.equal(value, b[name][key]), (name, key)
+    ha = torch.load(tmp_path / "straight" / "head.pt")
+    hb = torch.load(tmp_path / "cut" / "head.pt")
+    assert all(torch.equal(ha[k], hb[k]) for k in ha)
+
+
+def test_resume_refuses_in_one_line(tmp_path):
+    with pytest.raises(HamError, match="holds no ham sb3 run"):
+        resume_sb3(tmp_path)
+    config = Sb3Config(
+        algo="sac", env="ham/HapticGlanceAP-v0", env_kwargs={"glances": 2}, env_steps=64,
+        eval_every=64, eval_episodes=4, algo_kwargs={"learning_starts": 32, "batch_size": 32},
+    )  # fmt: skip
+    train_sb3(config, tmp_path / "run")
+    with pytest.raises(HamError, match="is finished"):
+        resume_sb3(tmp_path / "run")
+    (tmp_path / "run" / "checkpoint.pkl").write_bytes(b"not a pickle")
+    with pytest.raises(HamError, match="cannot read"):
+        resume_sb3(tmp_path / "run", env_steps=128)
 
 
 def test_bad_configs():

@@ -21,8 +21,10 @@ as the APPLE study counts them. :func:`train_sb3` trains, evaluates and writes
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import random
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -240,12 +242,114 @@ def evaluate_agent(model, env: SupervisedPrediction, episodes: int, seed: int) -
     }
 
 
+CHECKPOINT = "checkpoint.pkl"
+# the replay buffer's arrays with a row per step (SB3's ReplayBuffer)
+_BUFFER_ARRAYS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
+
+
+@contextlib.contextmanager
+def _compact_buffer(model):
+    """The replay buffer's arrays cut to their filled rows while the model is pickled (SB3
+    allocates all ``buffer_size`` rows up front: 1M rows of a CircleSquare observation are
+    3.5 GB, of which 250k steps fill a quarter), and the logger left out (it holds open
+    files; :meth:`learn` makes a new one)."""
+    buf = getattr(model, "replay_buffer", None)
+    big: dict[str, np.ndarray] = {}
+    if buf is not None:
+        n = buf.buffer_size if buf.full else buf.pos
+        big = {k: getattr(buf, k) for k in _BUFFER_ARRAYS
+               if isinstance(getattr(buf, k, None), np.ndarray)}  # fmt: skip
+        for k, v in big.items():
+            setattr(buf, k, v[:n])
+    logger = model.__dict__.pop("_logger", None)
+    try:
+        yield
+    finally:
+        for k, v in big.items():
+            setattr(buf, k, v)
+        if logger is not None:
+            model._logger = logger
+
+
+def _expand_buffer(model) -> None:
+    """Undo :func:`_compact_buffer` on a loaded model: the arrays back to ``buffer_size`` rows."""
+    buf = getattr(model, "replay_buffer", None)
+    if buf is None:
+        return
+    for k in _BUFFER_ARRAYS:
+        v = getattr(buf, k, None)
+        if isinstance(v, np.ndarray):
+            full = np.zeros((buf.buffer_size, *v.shape[1:]), v.dtype)
+            full[: len(v)] = v
+            setattr(buf, k, full)
+
+
+def _rng_states(device: str) -> dict:
+    # SB3 draws replay batches from NumPy's global generator, not from one of its own
+    states = {"torch": torch.get_rng_state(), "numpy": np.random.get_state(),  # noqa: NPY002
+              "random": random.getstate()}  # fmt: skip
+    if device.startswith("cuda") and torch.cuda.is_available():
+        states["cuda"] = torch.cuda.get_rng_state_all()
+    return states
+
+
+def _set_rng_states(states: dict) -> None:
+    torch.set_rng_state(states["torch"])
+    np.random.set_state(states["numpy"])  # noqa: NPY002
+    random.setstate(states["random"])
+    if "cuda" in states and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(states["cuda"])
+
+
+def _save_checkpoint(
+    out: Path, model, eval_env, history: list, seconds: float, device: str
+) -> None:
+    """Everything a resumed run needs to continue bit-identically, in one pickle (so the agent's
+    environments and the evaluation environment keep sharing one prediction head): the agent
+    with its optimizers, replay buffer (filled rows), environments and last observation; the
+    evaluations so far; the global generators SB3 draws from (actions: torch; replay
+    batches: NumPy). Written at the start of a rollout (after the previous step's training),
+    the one point of SB3's loop where nothing is half done."""
+    state = {"model": model, "eval_env": eval_env, "history": history, "seconds": seconds,
+             "rng": _rng_states(device)}  # fmt: skip
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
+            _dump(state, f)
+
+    with _compact_buffer(model):
+        atomic_write(out / CHECKPOINT, write, what="checkpoint")
+
+
+def _new(cls: type) -> Any:
+    return cls.__new__(cls)
+
+
+def _set_dict(obj: Any, state: dict) -> None:
+    obj.__dict__.update(state)
+
+
+def _dump(obj: Any, f) -> None:
+    """cloudpickle, with wrappers that forward unknown attributes (``__getattr__``, as ap_gym's
+    ``ActivePerceptionRestoreWrapper``) rebuilt without asking them for ``__setstate__``: a
+    bare instance forwards that question to its missing ``env``, forever."""
+    import cloudpickle
+
+    class Pickler(cloudpickle.Pickler):
+        def reducer_override(self, obj):
+            if isinstance(obj, gym.Wrapper) and hasattr(type(obj), "__getattr__"):
+                return _new, (type(obj),), obj.__dict__, None, None, _set_dict
+            return super().reducer_override(obj)
+
+    Pickler(f, protocol=5).dump(obj)
+
+
 def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dict:
     """Train ``config.algo`` on ``config.env`` with a supervised prediction head; evaluate every
     ``eval_every`` environment steps; write ``out/metrics.json``, ``config.json``, the model, and
-    after each evaluation ``out/history.json`` (the curve so far, for runs stopped early)."""
+    after each evaluation ``out/history.json`` (the curve so far, for runs stopped early) and
+    ``out/checkpoint.pkl`` (:func:`resume_sb3` continues from it)."""
     from stable_baselines3 import PPO, SAC
-    from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     out = Path(out)
@@ -275,8 +379,48 @@ def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dic
         raise HamError(f"algo_kwargs {config.algo_kwargs!r} for {config.algo}: {msg}") from None
     out.mkdir(parents=True, exist_ok=True)
     _write_json(out / "config.json", asdict(config))
-    history: list[dict] = []
-    started = time.time()
+    return _learn(config, out, model, eval_env, [], 0.0, progress)
+
+
+def resume_sb3(out: str | Path, env_steps: int | None = None, progress: bool = False) -> dict:
+    """Continue the run in ``out`` from its checkpoint (the last evaluation before it stopped)
+    to its ``env_steps`` (or a new total ``env_steps``): the same numbers as a run never
+    stopped."""
+    import pickle
+
+    out = Path(out)
+    if not (out / "config.json").is_file():
+        raise HamError(f"{str(out)!r} holds no ham sb3 run (no config.json)")
+    if (out / "metrics.json").is_file() and env_steps is None:
+        raise HamError(f"the run in {str(out)!r} is finished (metrics.json); give a larger "
+                       "--env-steps to train it further")  # fmt: skip
+    if not (out / CHECKPOINT).is_file():
+        raise HamError(f"the run in {str(out)!r} has no {CHECKPOINT} yet (it stopped before "
+                       "its first evaluation); start it again")  # fmt: skip
+    config = Sb3Config(**json.loads((out / "config.json").read_text()))
+    try:
+        state = pickle.loads((out / CHECKPOINT).read_bytes())
+    except Exception as exc:  # a truncated or foreign file: say so in one line
+        raise HamError(f"cannot read {str(out / CHECKPOINT)!r}: {exc}") from None
+    model = state["model"]
+    if env_steps is not None:
+        if env_steps <= model.num_timesteps:
+            raise HamError(f"--env-steps {env_steps}; accepted: more than the checkpoint's "
+                           f"{model.num_timesteps} steps")  # fmt: skip
+        config = Sb3Config(**{**asdict(config), "env_steps": env_steps})
+        _write_json(out / "config.json", asdict(config))
+    _expand_buffer(model)
+    _set_rng_states(state["rng"])
+    return _learn(config, out, model, state["eval_env"], state["history"], state["seconds"],
+                  progress, resumed=True)  # fmt: skip
+
+
+def _learn(config: Sb3Config, out: Path, model, eval_env, history: list, seconds: float,
+           progress: bool, resumed: bool = False) -> dict:  # fmt: skip
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    started = time.time() - seconds
+    saved = [len(history)]  # evaluations in the last checkpoint
 
     class Evaluate(BaseCallback):
         def _on_step(self) -> bool:
@@ -293,7 +437,18 @@ def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dic
                 })  # fmt: skip
             return True
 
-    model.learn(total_timesteps=config.env_steps, callback=Evaluate(), progress_bar=progress)
+        def _on_rollout_start(self) -> None:
+            if len(history) > saved[0]:  # an evaluation since the last checkpoint
+                _save_checkpoint(out, model, eval_env, history, time.time() - started,
+                                 config.device)  # fmt: skip
+                saved[0] = len(history)
+
+    model.learn(
+        total_timesteps=config.env_steps - model.num_timesteps,
+        callback=Evaluate(),
+        progress_bar=progress,
+        reset_num_timesteps=not resumed,
+    )
     final = evaluate_agent(model, eval_env, config.eval_episodes, 10**6)
     metrics = {
         "algo": config.algo,
@@ -304,6 +459,7 @@ def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dic
         "history": history,
         "seconds": time.time() - started,
     }
+    head = eval_env.head
     model.save(out / "model.zip")
     atomic_write(out / "head.pt", lambda tmp: torch.save(head.state_dict(), tmp), what="checkpoint")
     _write_json(out / "metrics.json", metrics)
