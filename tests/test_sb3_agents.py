@@ -145,7 +145,7 @@ def test_an_interrupted_run_resumes_bit_identically(tmp_path, monkeypatch, algo,
         train_sb3(config, tmp_path / "cut")
     monkeypatch.setattr(sb3_agents, "evaluate_agent", evaluate)
     torch.manual_seed(12345)  # the resumed run must not depend on the process's generators
-    np.random.seed(12345)
+    np.random.seed(12345)  # noqa: NPY002 - SB3 draws from the legacy global generator
     resumed = resume_sb3(tmp_path / "cut")
 
     def curve(m):
@@ -210,6 +210,35 @@ def test_cli_trains_ppo_on_a_table_and_refuses_to_overwrite(tmp_path, ham_cli):
         "accepted: a path that does not exist yet"
     )
     assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_cli_resume_trains_a_finished_run_further_as_if_never_stopped(tmp_path, ham_cli):
+    base = ["--algo", "sac", "--glances", "2", "--eval-every", "64", "--eval-episodes", "4",
+            "--algo-kwargs", '{"learning_starts": 32, "batch_size": 32}', "--json"]  # fmt: skip
+    r = ham_cli("sb3", *base, "--env-steps", "128", "--out", str(tmp_path / "a"))
+    assert r.returncode == 0, r.stderr
+    r = ham_cli("sb3", "--resume", str(tmp_path / "a"), "--env-steps", "256", "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["env_steps"] == 256
+    r = ham_cli("sb3", *base, "--env-steps", "256", "--out", str(tmp_path / "b"))
+    assert r.returncode == 0, r.stderr
+    a, b = (json.loads((tmp_path / d / "metrics.json").read_text()) for d in "ab")
+    assert [h["accuracy_per_glance"] for h in a["history"]] == [
+        h["accuracy_per_glance"] for h in b["history"]
+    ]
+    assert len(a["history"]) == 4 and a["accuracy_per_glance"] == b["accuracy_per_glance"]
+    assert json.loads((tmp_path / "a" / "config.json").read_text())["env_steps"] == 256
+    for args, message in [
+        (["--resume", str(tmp_path / "a")], "is finished (metrics.json); give a larger"),
+        (["--resume", str(tmp_path / "a"), "--seed", "1"], "remove --seed (only --env-steps"),
+        (["--resume", str(tmp_path / "a"), "--out", str(tmp_path / "c")], "not both"),
+        (["--resume", str(tmp_path / "a"), "--env-steps", "200"], "more than the checkpoint's 256"),
+        (["--out", str(tmp_path / "c")], "needs --algo"),
+    ]:
+        r = ham_cli("sb3", *args)
+        assert r.returncode == 2 and message in r.stderr, (args, r.stderr)
+        assert len(r.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "c").exists()
 
 
 @pytest.mark.parametrize(

@@ -96,27 +96,31 @@ def add_sb3_command(subparsers) -> None:
         "Writes OUT/metrics.json (env_steps, final_accuracy, average_accuracy, "
         "accuracy_per_glance, history), config.json, model.zip and head.pt.",
     )
-    p.add_argument("--algo", required=True, choices=ALGOS, help="ppo, sac or crossq (sb3-contrib)")
-    p.add_argument("--env", default="ham/HapticGlanceAP-v0", metavar="ID",
+    # Flags default to None, the config's defaults filled in by cmd_sb3: --resume can then tell
+    # a flag given (refused: the run keeps its config) from one left out.
+    p.add_argument("--algo", choices=ALGOS, help="ppo, sac or crossq (sb3-contrib); required")
+    p.add_argument("--env", metavar="ID",
                    help="ham/HapticGlanceAP-v0 (default) or ap_gym:ENV_ID")  # fmt: skip
     p.add_argument("--glances", type=int, metavar="G",
                    help="glances per episode (ham/ envs only; the env's default otherwise)")  # fmt: skip
     p.add_argument("--table", metavar="FILE",
                    help="glance table (HDF5) for ham/ envs; default: simulate online")  # fmt: skip
-    p.add_argument("--env-steps", type=int, default=d.env_steps, metavar="N",
-                   help=f"environment steps (glances) to train for (default {d.env_steps})")  # fmt: skip
-    p.add_argument("--seed", type=int, default=d.seed, help=f"seed (default {d.seed})")
-    p.add_argument(
-        "--n-envs", type=int, default=d.n_envs, help=f"parallel envs (default {d.n_envs})"
-    )
-    p.add_argument("--eval-every", type=int, default=d.eval_every, metavar="N",
+    p.add_argument("--env-steps", type=int, metavar="N",
+                   help=f"environment steps (glances) to train for (default {d.env_steps}); "
+                   "with --resume: a new, larger total")  # fmt: skip
+    p.add_argument("--seed", type=int, help=f"seed (default {d.seed})")
+    p.add_argument("--n-envs", type=int, help=f"parallel envs (default {d.n_envs})")
+    p.add_argument("--eval-every", type=int, metavar="N",
                    help=f"env steps between evaluations (default {d.eval_every})")  # fmt: skip
-    p.add_argument("--eval-episodes", type=int, default=d.eval_episodes, metavar="N",
+    p.add_argument("--eval-episodes", type=int, metavar="N",
                    help=f"episodes per evaluation (default {d.eval_episodes})")  # fmt: skip
-    p.add_argument("--algo-kwargs", default="{}", metavar="JSON",
+    p.add_argument("--algo-kwargs", metavar="JSON",
                    help='SB3 algorithm keyword arguments, e.g. \'{"n_steps": 256}\'')  # fmt: skip
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
-    p.add_argument("--out", required=True, metavar="DIR", help="output directory (must not exist)")
+    p.add_argument("--out", metavar="DIR", help="output directory (must not exist)")
+    p.add_argument("--resume", metavar="DIR",
+                   help="continue the run in DIR from its last checkpoint (written after each "
+                   "evaluation); bit-identical to a run never stopped")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the metrics as JSON")
     p.set_defaults(func=cmd_sb3)
 
@@ -131,11 +135,45 @@ def _json_object(flag: str, text: str) -> dict:
     return value
 
 
+_SB3_CONFIG_FLAGS = ("algo", "env", "glances", "table", "seed", "n_envs", "eval_every",
+                     "eval_episodes", "algo_kwargs")  # fmt: skip
+
+
 def cmd_sb3(args: argparse.Namespace) -> int:
     import importlib.util
 
-    from ham.learn.sb3_agents import Sb3Config, train_sb3
+    from ham.learn.sb3_agents import Sb3Config, resume_sb3, train_sb3
 
+    if args.threads < 1:
+        raise HamError(f"--threads {args.threads}; accepted: an integer >= 1")
+    if args.env_steps is not None and args.env_steps < 1:
+        raise HamError(f"--env-steps {args.env_steps}; accepted: an integer >= 1")
+    if args.resume:
+        if args.out:
+            raise HamError("give either --resume DIR or --out DIR, not both")
+        given = [
+            f"--{k.replace('_', '-')}" for k in _SB3_CONFIG_FLAGS if getattr(args, k) is not None
+        ]
+        if given:
+            raise HamError(
+                f"--resume continues the run with its own config; remove {', '.join(given)} "
+                "(only --env-steps may change)"
+            )
+        import torch
+
+        torch.set_num_threads(args.threads)
+        metrics = resume_sb3(args.resume, env_steps=args.env_steps)
+        return _print_sb3(args, metrics, args.resume)
+    if args.algo is None:
+        raise HamError("ham sb3 needs --algo (ppo, sac or crossq), or --resume DIR")
+    if not args.out:
+        raise HamError("ham sb3 needs --out DIR (or --resume DIR)")
+    d = Sb3Config()
+    for k in ("env_steps", "seed", "n_envs", "eval_every", "eval_episodes"):
+        if getattr(args, k) is None:
+            setattr(args, k, getattr(d, k))
+    args.env = args.env or "ham/HapticGlanceAP-v0"
+    args.algo_kwargs = args.algo_kwargs or "{}"
     for mod, pkg in (("stable_baselines3", "stable-baselines3"), ("sb3_contrib", "sb3-contrib")):
         if (mod == "stable_baselines3" or args.algo == "crossq") and not importlib.util.find_spec(
             mod
@@ -143,9 +181,6 @@ def cmd_sb3(args: argparse.Namespace) -> int:
             raise HamError(f"--algo {args.algo} needs {pkg}, which is not installed")
     if Path(args.out).exists():
         raise HamError(f"--out {args.out!r} exists; accepted: a path that does not exist yet")
-    for flag, v in (("--env-steps", args.env_steps), ("--threads", args.threads)):
-        if v < 1:
-            raise HamError(f"{flag} {v}; accepted: an integer >= 1")
     ours = not args.env.startswith("ap_gym:")
     env_kwargs: dict = {}
     if args.glances is not None:
@@ -169,14 +204,18 @@ def cmd_sb3(args: argparse.Namespace) -> int:
 
     torch.set_num_threads(args.threads)
     metrics = train_sb3(config, args.out)
+    return _print_sb3(args, metrics, args.out)
+
+
+def _print_sb3(args: argparse.Namespace, metrics: dict, out: str) -> int:
     if args.json:
         json.dump({k: v for k, v in metrics.items() if k != "history"}, sys.stdout)
         sys.stdout.write("\n")
         return 0
     per = " ".join(f"{a:.3f}" for a in metrics["accuracy_per_glance"])
     print(
-        f"{args.algo} on {args.env}: {metrics['env_steps']} env steps, final accuracy "
-        f"{metrics['final_accuracy']:.3f}, averaged {metrics['average_accuracy']:.3f} "
-        f"(per glance: {per}); wrote {args.out}"
+        f"{metrics['algo']} on {metrics['env']}: {metrics['env_steps']} env steps, final "
+        f"accuracy {metrics['final_accuracy']:.3f}, averaged {metrics['average_accuracy']:.3f} "
+        f"(per glance: {per}); wrote {out}"
     )
     return 0

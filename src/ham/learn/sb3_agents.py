@@ -449,6 +449,8 @@ def _learn(config: Sb3Config, out: Path, model, eval_env, history: list, seconds
         progress_bar=progress,
         reset_num_timesteps=not resumed,
     )
+    # the end is a checkpoint too: --resume with a larger --env-steps trains on from here
+    _save_checkpoint(out, model, eval_env, history, time.time() - started, config.device)
     final = evaluate_agent(model, eval_env, config.eval_episodes, 10**6)
     metrics = {
         "algo": config.algo,
