@@ -254,6 +254,7 @@ def test_cli_resume_trains_a_finished_run_further_as_if_never_stopped(tmp_path, 
         (["--algo", "ppo", "--algo-kwargs", "[1]"], "accepted: a JSON object"),
         (["--algo", "ppo", "--algo-kwargs", "{x"], "not JSON"),
         (["--algo", "ppo", "--algo-kwargs", '{"nope": 1}'], "unexpected keyword argument 'nope'"),
+        (["--algo", "ppo", "--device", "tpu"], "device 'tpu'; accepted: cpu, cuda or cuda:N"),
     ],
 )  # fmt: skip
 def test_cli_refuses_bad_inputs_in_one_line_and_writes_nothing(tmp_path, ham_cli, args, message):
@@ -261,3 +262,13 @@ def test_cli_refuses_bad_inputs_in_one_line_and_writes_nothing(tmp_path, ham_cli
     assert r.returncode == 2 and message in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
     assert not (tmp_path / "run").exists()
+
+
+def test_cli_names_a_missing_gpu_before_writing(tmp_path, ham_cli):
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    r = ham_cli("sb3", "--algo", "sac", "--device", "cuda", "--out", str(tmp_path / "run"))
+    assert r.returncode == 2 and "CUDA is not available on this machine" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "run").exists()

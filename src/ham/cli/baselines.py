@@ -117,6 +117,7 @@ def add_sb3_command(subparsers) -> None:
     p.add_argument("--algo-kwargs", metavar="JSON",
                    help='SB3 algorithm keyword arguments, e.g. \'{"n_steps": 256}\'')  # fmt: skip
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
+    p.add_argument("--device", help="cpu (default) or cuda[:N]: where the agent's networks run")
     p.add_argument("--out", metavar="DIR", help="output directory (must not exist)")
     p.add_argument("--resume", metavar="DIR",
                    help="continue the run in DIR from its last checkpoint (written after each "
@@ -136,7 +137,7 @@ def _json_object(flag: str, text: str) -> dict:
 
 
 _SB3_CONFIG_FLAGS = ("algo", "env", "glances", "table", "seed", "n_envs", "eval_every",
-                     "eval_episodes", "algo_kwargs")  # fmt: skip
+                     "eval_episodes", "algo_kwargs", "device")  # fmt: skip
 
 
 def cmd_sb3(args: argparse.Namespace) -> int:
@@ -169,7 +170,7 @@ def cmd_sb3(args: argparse.Namespace) -> int:
     if not args.out:
         raise HamError("ham sb3 needs --out DIR (or --resume DIR)")
     d = Sb3Config()
-    for k in ("env_steps", "seed", "n_envs", "eval_every", "eval_episodes"):
+    for k in ("env_steps", "seed", "n_envs", "eval_every", "eval_episodes", "device"):
         if getattr(args, k) is None:
             setattr(args, k, getattr(d, k))
     args.env = args.env or "ham/HapticGlanceAP-v0"
@@ -199,7 +200,11 @@ def cmd_sb3(args: argparse.Namespace) -> int:
         algo=args.algo, env=args.env, env_kwargs=env_kwargs, env_steps=args.env_steps,
         n_envs=args.n_envs, seed=args.seed, eval_episodes=args.eval_episodes,
         eval_every=args.eval_every, algo_kwargs=_json_object("--algo-kwargs", args.algo_kwargs),
+        device=args.device,
     )  # fmt: skip
+    from ham.world.devices import check_device
+
+    check_device(config.device)  # a missing GPU is named before anything is written
     import torch
 
     torch.set_num_threads(args.threads)

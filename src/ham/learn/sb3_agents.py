@@ -200,6 +200,9 @@ class Sb3Config:
                 raise HamError(f"{name} = {v!r}; accepted: an integer >= 1")
         if not (isinstance(self.seed, int) and self.seed >= 0):
             raise HamError(f"seed = {self.seed!r}; accepted: an integer >= 0")
+        from ham.world.devices import check_device
+
+        check_device(self.device, available=False)  # the spelling; train_sb3 checks presence
 
 
 def make_env(name: str, kwargs: dict | None = None) -> gym.Env:
@@ -352,6 +355,9 @@ def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dic
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.vec_env import DummyVecEnv
 
+    from ham.world.devices import check_device
+
+    check_device(config.device)
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         raise HamError(f"output directory {str(out)!r} exists and is not empty")
