@@ -110,14 +110,16 @@ def test_a_run_stopped_early_leaves_its_history_so_far(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize(
-    ("algo", "kwargs"),
+    ("algo", "kwargs", "env"),
     [
-        ("ppo", {"n_steps": 64, "batch_size": 32, "n_epochs": 1}),
-        ("sac", {"learning_starts": 32, "batch_size": 32}),
-        ("crossq", {"learning_starts": 32, "batch_size": 32}),
+        ("ppo", {"n_steps": 64, "batch_size": 32, "n_epochs": 1}, "ham/HapticGlanceAP-v0"),
+        ("sac", {"learning_starts": 32, "batch_size": 32}, "ham/HapticGlanceAP-v0"),
+        ("crossq", {"learning_starts": 32, "batch_size": 32}, "ham/HapticGlanceAP-v0"),
+        # ap_gym's image environments draw their images on a thread (made to draw in step)
+        ("sac", {"learning_starts": 32, "batch_size": 32}, "ap_gym:CircleSquare-v0"),
     ],
 )
-def test_an_interrupted_run_resumes_bit_identically(tmp_path, monkeypatch, algo, kwargs):
+def test_an_interrupted_run_resumes_bit_identically(tmp_path, monkeypatch, algo, kwargs, env):
     """Killed at its third evaluation, resumed from the checkpoint of the second: the same
     curve, agent and head as the run never stopped (replay buffer, optimizers, environments and
     the global generators all restored)."""
@@ -127,8 +129,8 @@ def test_an_interrupted_run_resumes_bit_identically(tmp_path, monkeypatch, algo,
     from ham.learn import sb3_agents
 
     config = Sb3Config(
-        algo=algo, env="ham/HapticGlanceAP-v0", env_kwargs={"glances": 2}, env_steps=256,
-        eval_every=64, eval_episodes=8, algo_kwargs=kwargs,
+        algo=algo, env=env, env_kwargs={"glances": 2} if env.startswith("ham/") else {},
+        env_steps=256, eval_every=64, eval_episodes=8, algo_kwargs=kwargs,
     )  # fmt: skip
     straight = train_sb3(config, tmp_path / "straight")
 
@@ -162,6 +164,27 @@ def test_an_interrupted_run_resumes_bit_identically(tmp_path, monkeypatch, algo,
     ha = torch.load(tmp_path / "straight" / "head.pt")
     hb = torch.load(tmp_path / "cut" / "head.pt")
     assert all(torch.equal(ha[k], hb[k]) for k in ha)
+
+
+def test_a_run_that_cannot_be_checkpointed_still_finishes(tmp_path, monkeypatch, capsys):
+    from ham.learn import sb3_agents
+
+    def unpicklable(obj, f):
+        raise TypeError("cannot pickle '_thread.lock' object")
+
+    monkeypatch.setattr(sb3_agents, "_dump", unpicklable)
+    config = Sb3Config(
+        algo="sac", env="ham/HapticGlanceAP-v0", env_kwargs={"glances": 2}, env_steps=128,
+        eval_every=64, eval_episodes=4, algo_kwargs={"learning_starts": 32, "batch_size": 32},
+    )  # fmt: skip
+    m = train_sb3(config, tmp_path / "run")
+    assert m["env_steps"] == 128 and len(m["history"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["ham sb3: no checkpoint, this run cannot be resumed (TypeError: cannot pickle "
+                   "'_thread.lock' object); training goes on"]  # fmt: skip
+    assert not list((tmp_path / "run").glob("*checkpoint*"))
+    with pytest.raises(HamError, match="has no checkpoint.pkl"):
+        resume_sb3(tmp_path / "run", env_steps=256)
 
 
 def test_resume_refuses_in_one_line(tmp_path):

@@ -24,9 +24,11 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import pickle
 import random
+import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -205,8 +207,10 @@ class Sb3Config:
         check_device(self.device, available=False)  # the spelling; train_sb3 checks presence
 
 
-def make_env(name: str, kwargs: dict | None = None) -> gym.Env:
-    """``ap_gym:ID`` through ``ap_gym.make``; our ids through ``ap_gym.make`` after registering."""
+def make_env(name: str, kwargs: dict | None = None, prefetch: bool = True) -> gym.Env:
+    """``ap_gym:ID`` through ``ap_gym.make``; our ids through ``ap_gym.make`` after registering.
+    ``prefetch=False``: an ap_gym image environment draws its images when asked, not ahead on
+    a thread (the same images; what lets a run be checkpointed)."""
     kwargs = dict(kwargs or {})
     try:
         import ap_gym
@@ -217,6 +221,12 @@ def make_env(name: str, kwargs: dict | None = None) -> gym.Env:
     env_id = name.split(":", 1)[1] if name.startswith("ap_gym:") else name
     if env_id not in gym.registry:
         raise HamError(f"environment {name!r} is not registered; e.g. ap_gym:CircleSquare-v0")
+    config = gym.registry[env_id].kwargs.get("image_perception_config")
+    if not prefetch and "image_perception_config" not in kwargs and hasattr(config, "prefetch"):
+        # ap_gym's image environments draw their images on a background thread (a queue
+        # ahead of the episodes: neither picklable nor in step with them); without it the
+        # very same images come in the same order, and a checkpoint can hold the stream
+        kwargs["image_perception_config"] = replace(config, prefetch=False)
     try:
         return ap_gym.make(env_id, **kwargs)
     except TypeError as exc:
@@ -333,15 +343,21 @@ def _set_dict(obj: Any, state: dict) -> None:
 
 
 def _dump(obj: Any, f) -> None:
-    """cloudpickle, with wrappers that forward unknown attributes (``__getattr__``, as ap_gym's
-    ``ActivePerceptionRestoreWrapper``) rebuilt without asking them for ``__setstate__``: a
-    bare instance forwards that question to its missing ``env``, forever."""
+    """cloudpickle, with objects that forward unknown attributes (``__getattr__`` without
+    ``__setstate__``, as ap_gym's wrappers) rebuilt without asking them for ``__setstate__``:
+    a bare instance forwards that question to its missing inner environment, forever."""
     import cloudpickle
 
     class Pickler(cloudpickle.Pickler):
         def reducer_override(self, obj):
-            if isinstance(obj, gym.Wrapper) and hasattr(type(obj), "__getattr__"):
-                return _new, (type(obj),), obj.__dict__, None, None, _set_dict
+            cls = type(obj)
+            if (
+                hasattr(cls, "__getattr__")
+                and not hasattr(cls, "__setstate__")
+                and cls.__reduce_ex__ is object.__reduce_ex__
+                and isinstance(getattr(obj, "__dict__", None), dict)
+            ):
+                return _new, (cls,), obj.__dict__, None, None, _set_dict
             return super().reducer_override(obj)
 
     Pickler(f, protocol=5).dump(obj)
@@ -362,15 +378,19 @@ def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dic
     if out.exists() and any(out.iterdir()):
         raise HamError(f"output directory {str(out)!r} exists and is not empty")
     # The environment first: a bad id or keyword fails before anything is written.
-    probe = SupervisedPrediction(make_env(config.env, config.env_kwargs))
+    probe = SupervisedPrediction(make_env(config.env, config.env_kwargs, prefetch=False))
     head = PredictionHead(probe.observation_space.shape[0], probe.n_classes, seed=config.seed)
     probe.close()
     venv = DummyVecEnv(
-        [lambda: SupervisedPrediction(make_env(config.env, config.env_kwargs), head)]
+        [
+            lambda: SupervisedPrediction(
+                make_env(config.env, config.env_kwargs, prefetch=False), head
+            )
+        ]
         * config.n_envs
     )
     venv.seed(config.seed)
-    eval_env = SupervisedPrediction(make_env(config.env, config.env_kwargs), head)
+    eval_env = SupervisedPrediction(make_env(config.env, config.env_kwargs, prefetch=False), head)
     if config.algo == "crossq":
         from sb3_contrib import CrossQ as algo
     else:
@@ -392,8 +412,6 @@ def resume_sb3(out: str | Path, env_steps: int | None = None, progress: bool = F
     """Continue the run in ``out`` from its checkpoint (the last evaluation before it stopped)
     to its ``env_steps`` (or a new total ``env_steps``): the same numbers as a run never
     stopped."""
-    import pickle
-
     out = Path(out)
     if not (out / "config.json").is_file():
         raise HamError(f"{str(out)!r} holds no ham sb3 run (no config.json)")
@@ -401,8 +419,9 @@ def resume_sb3(out: str | Path, env_steps: int | None = None, progress: bool = F
         raise HamError(f"the run in {str(out)!r} is finished (metrics.json); give a larger "
                        "--env-steps to train it further")  # fmt: skip
     if not (out / CHECKPOINT).is_file():
-        raise HamError(f"the run in {str(out)!r} has no {CHECKPOINT} yet (it stopped before "
-                       "its first evaluation); start it again")  # fmt: skip
+        raise HamError(f"the run in {str(out)!r} has no {CHECKPOINT} (it stopped before its "
+                       "first evaluation, or its environment could not be pickled); start it "
+                       "again")  # fmt: skip
     config = Sb3Config(**json.loads((out / "config.json").read_text()))
     try:
         state = pickle.loads((out / CHECKPOINT).read_bytes())
@@ -426,7 +445,18 @@ def _learn(config: Sb3Config, out: Path, model, eval_env, history: list, seconds
     from stable_baselines3.common.callbacks import BaseCallback
 
     started = time.time() - seconds
-    saved = [len(history)]  # evaluations in the last checkpoint
+    saved: list[int | None] = [len(history)]  # evaluations in the last checkpoint; None: off
+
+    def _checkpoint(evaluations: int) -> int | None:
+        """A checkpoint; an environment that cannot be pickled costs the run its resume, not
+        its result: one line on stderr, and no more tries."""
+        try:
+            _save_checkpoint(out, model, eval_env, history, time.time() - started, config.device)
+        except (TypeError, AttributeError, pickle.PicklingError) as exc:
+            print(f"ham sb3: no checkpoint, this run cannot be resumed ({type(exc).__name__}: "
+                  f"{exc}); training goes on", file=sys.stderr, flush=True)  # fmt: skip
+            return None
+        return evaluations
 
     class Evaluate(BaseCallback):
         def _on_step(self) -> bool:
@@ -444,10 +474,8 @@ def _learn(config: Sb3Config, out: Path, model, eval_env, history: list, seconds
             return True
 
         def _on_rollout_start(self) -> None:
-            if len(history) > saved[0]:  # an evaluation since the last checkpoint
-                _save_checkpoint(out, model, eval_env, history, time.time() - started,
-                                 config.device)  # fmt: skip
-                saved[0] = len(history)
+            if saved[0] is not None and len(history) > saved[0]:  # an evaluation since
+                saved[0] = _checkpoint(len(history))  # the last checkpoint
 
     model.learn(
         total_timesteps=config.env_steps - model.num_timesteps,
@@ -455,8 +483,8 @@ def _learn(config: Sb3Config, out: Path, model, eval_env, history: list, seconds
         progress_bar=progress,
         reset_num_timesteps=not resumed,
     )
-    # the end is a checkpoint too: --resume with a larger --env-steps trains on from here
-    _save_checkpoint(out, model, eval_env, history, time.time() - started, config.device)
+    if saved[0] is not None:  # the end is a checkpoint too: --resume --env-steps N goes on
+        _checkpoint(len(history))
     final = evaluate_agent(model, eval_env, config.eval_episodes, 10**6)
     metrics = {
         "algo": config.algo,
