@@ -251,6 +251,12 @@ def test_cli_resume_trains_a_finished_run_further_as_if_never_stopped(tmp_path, 
     ]
     assert len(a["history"]) == 4 and a["accuracy_per_glance"] == b["accuracy_per_glance"]
     assert json.loads((tmp_path / "a" / "config.json").read_text())["env_steps"] == 256
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    events = EventAccumulator(str(tmp_path / "a" / "tb"))
+    events.Reload()
+    logged = [(e.step, round(e.value, 6)) for e in events.Scalars("eval/final_accuracy")]
+    assert logged == [(h["env_steps"], round(h["final_accuracy"], 6)) for h in a["history"]]
     for args, message in [
         (["--resume", str(tmp_path / "a")], "is finished (metrics.json); give a larger"),
         (["--resume", str(tmp_path / "a"), "--seed", "1"], "remove --seed (only --env-steps"),

@@ -122,6 +122,7 @@ def add_sb3_command(subparsers) -> None:
     p.add_argument("--resume", metavar="DIR",
                    help="continue the run in DIR from its last checkpoint (written after each "
                    "evaluation); bit-identical to a run never stopped")  # fmt: skip
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print the metrics as JSON")
     p.set_defaults(func=cmd_sb3)
 
@@ -163,7 +164,7 @@ def cmd_sb3(args: argparse.Namespace) -> int:
         import torch
 
         torch.set_num_threads(args.threads)
-        metrics = resume_sb3(args.resume, env_steps=args.env_steps)
+        metrics = resume_sb3(args.resume, env_steps=args.env_steps, progress=not args.no_progress)
         return _print_sb3(args, metrics, args.resume)
     if args.algo is None:
         raise HamError("ham sb3 needs --algo (ppo, sac or crossq), or --resume DIR")
@@ -208,7 +209,7 @@ def cmd_sb3(args: argparse.Namespace) -> int:
     import torch
 
     torch.set_num_threads(args.threads)
-    metrics = train_sb3(config, args.out)
+    metrics = train_sb3(config, args.out, progress=not args.no_progress)
     return _print_sb3(args, metrics, args.out)
 
 

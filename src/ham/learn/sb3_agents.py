@@ -366,8 +366,9 @@ def _dump(obj: Any, f) -> None:
 def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dict:
     """Train ``config.algo`` on ``config.env`` with a supervised prediction head; evaluate every
     ``eval_every`` environment steps; write ``out/metrics.json``, ``config.json``, the model, and
-    after each evaluation ``out/history.json`` (the curve so far, for runs stopped early) and
-    ``out/checkpoint.pkl`` (:func:`resume_sb3` continues from it)."""
+    after each evaluation ``out/history.json`` (the curve so far, for runs stopped early),
+    ``out/checkpoint.pkl`` (:func:`resume_sb3` continues from it) and TensorBoard events in
+    ``out/tb``. ``progress``: a bar over the environment steps on stderr."""
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.vec_env import DummyVecEnv
 
@@ -440,11 +441,28 @@ def resume_sb3(out: str | Path, env_steps: int | None = None, progress: bool = F
                   progress, resumed=True)  # fmt: skip
 
 
+def _log_eval(writer, row: dict) -> None:
+    """An evaluation in TensorBoard, by environment steps (glances)."""
+    step = row["env_steps"]
+    writer.add_scalar("eval/final_accuracy", row["final_accuracy"], step)
+    writer.add_scalar("eval/average_accuracy", row["average_accuracy"], step)
+    for g, acc in enumerate(row["accuracy_per_glance"], 1):
+        writer.add_scalar(f"eval_per_glance/{g}", acc, step)
+    writer.add_scalar("time/seconds", row["seconds"], step)
+
+
 def _learn(config: Sb3Config, out: Path, model, eval_env, history: list, seconds: float,
            progress: bool, resumed: bool = False) -> dict:  # fmt: skip
     from stable_baselines3.common.callbacks import BaseCallback
+    from torch.utils.tensorboard import SummaryWriter
+    from tqdm.auto import tqdm
 
     started = time.time() - seconds
+    # a resumed run redoes the steps after its checkpoint (its evaluations up to and including
+    # num_timesteps are kept): the events of those steps are purged
+    writer = SummaryWriter(str(out / "tb"), purge_step=model.num_timesteps + 1 if resumed else None)
+    bar = tqdm(total=config.env_steps, initial=model.num_timesteps, disable=not progress,
+               unit="step", desc=f"{config.algo} {config.env}", file=sys.stderr)  # fmt: skip
     saved: list[int | None] = [len(history)]  # evaluations in the last checkpoint; None: off
 
     def _checkpoint(evaluations: int) -> int | None:
@@ -460,11 +478,15 @@ def _learn(config: Sb3Config, out: Path, model, eval_env, history: list, seconds
 
     class Evaluate(BaseCallback):
         def _on_step(self) -> bool:
+            bar.update(config.n_envs)
             if self.num_timesteps % config.eval_every < config.n_envs:
                 row = evaluate_agent(model, eval_env, config.eval_episodes, 10**6)
                 row["env_steps"] = int(self.num_timesteps)
                 row["seconds"] = time.time() - started
                 history.append(row)
+                _log_eval(writer, row)
+                bar.set_postfix(final=f"{row['final_accuracy']:.3f}",
+                                avg=f"{row['average_accuracy']:.3f}")  # fmt: skip
                 # A long run that is stopped early still leaves its curve so far (metrics.json
                 # is written only at the end, so it is never a partial result).
                 _write_json(out / "history.json", {
@@ -477,12 +499,15 @@ def _learn(config: Sb3Config, out: Path, model, eval_env, history: list, seconds
             if saved[0] is not None and len(history) > saved[0]:  # an evaluation since
                 saved[0] = _checkpoint(len(history))  # the last checkpoint
 
-    model.learn(
-        total_timesteps=config.env_steps - model.num_timesteps,
-        callback=Evaluate(),
-        progress_bar=progress,
-        reset_num_timesteps=not resumed,
-    )
+    try:
+        model.learn(
+            total_timesteps=config.env_steps - model.num_timesteps,
+            callback=Evaluate(),
+            reset_num_timesteps=not resumed,
+        )
+    finally:
+        bar.close()
+        writer.close()
     if saved[0] is not None:  # the end is a checkpoint too: --resume --env-steps N goes on
         _checkpoint(len(history))
     final = evaluate_agent(model, eval_env, config.eval_episodes, 10**6)
