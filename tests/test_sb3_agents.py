@@ -109,14 +109,17 @@ def test_a_run_stopped_early_leaves_its_history_so_far(tmp_path, monkeypatch):
     assert not (tmp_path / "run" / "metrics.json").exists()
 
 
+SMALL = {"policy_kwargs": {"net_arch": [64, 64]}}  # the mechanics, not the defaults' width
+
+
 @pytest.mark.parametrize(
     ("algo", "kwargs", "env"),
     [
         ("ppo", {"n_steps": 64, "batch_size": 32, "n_epochs": 1}, "ham/HapticGlanceAP-v0"),
-        ("sac", {"learning_starts": 32, "batch_size": 32}, "ham/HapticGlanceAP-v0"),
-        ("crossq", {"learning_starts": 32, "batch_size": 32}, "ham/HapticGlanceAP-v0"),
+        ("sac", {"learning_starts": 32, "batch_size": 32, **SMALL}, "ham/HapticGlanceAP-v0"),
+        ("crossq", {"learning_starts": 32, "batch_size": 32, **SMALL}, "ham/HapticGlanceAP-v0"),
         # ap_gym's image environments draw their images on a thread (made to draw in step)
-        ("sac", {"learning_starts": 32, "batch_size": 32}, "ap_gym:CircleSquare-v0"),
+        ("sac", {"learning_starts": 32, "batch_size": 32, **SMALL}, "ap_gym:CircleSquare-v0"),
     ],
 )
 def test_an_interrupted_run_resumes_bit_identically(tmp_path, monkeypatch, algo, kwargs, env):
@@ -130,7 +133,7 @@ def test_an_interrupted_run_resumes_bit_identically(tmp_path, monkeypatch, algo,
 
     config = Sb3Config(
         algo=algo, env=env, env_kwargs={"glances": 2} if env.startswith("ham/") else {},
-        env_steps=256, eval_every=64, eval_episodes=8, algo_kwargs=kwargs,
+        env_steps=192, eval_every=64, eval_episodes=8, algo_kwargs=kwargs,
     )  # fmt: skip
     straight = train_sb3(config, tmp_path / "straight")
 
@@ -153,7 +156,7 @@ def test_an_interrupted_run_resumes_bit_identically(tmp_path, monkeypatch, algo,
     def curve(m):
         return [(h["env_steps"], h["accuracy_per_glance"]) for h in m["history"]]
 
-    assert curve(resumed) == curve(straight) and len(curve(straight)) == 4
+    assert curve(resumed) == curve(straight) and len(curve(straight)) == 3
     assert resumed["accuracy_per_glance"] == straight["accuracy_per_glance"]
     a = load_from_zip_file(tmp_path / "straight" / "model.zip")[1]
     b = load_from_zip_file(tmp_path / "cut" / "model.zip")[1]
@@ -187,7 +190,17 @@ def test_a_run_that_cannot_be_checkpointed_still_finishes(tmp_path, monkeypatch,
         resume_sb3(tmp_path / "run", env_steps=256)
 
 
-def test_resume_refuses_in_one_line(tmp_path):
+def test_resume_refuses_in_one_line(tmp_path, capsys):
+    from ham.cli.main import main
+
+    for argv, message in [
+        (["sb3", "--resume", str(tmp_path), "--out", str(tmp_path / "c")], "not both"),
+        (["sb3", "--out", str(tmp_path / "c")], "needs --algo"),
+    ]:
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0], err
+    assert not (tmp_path / "c").exists()
     with pytest.raises(HamError, match="holds no ham sb3 run"):
         resume_sb3(tmp_path)
     config = Sb3Config(
@@ -235,39 +248,42 @@ def test_cli_trains_ppo_on_a_table_and_refuses_to_overwrite(tmp_path, ham_cli):
     assert len(r.stderr.strip().splitlines()) == 1
 
 
-def test_cli_resume_trains_a_finished_run_further_as_if_never_stopped(tmp_path, ham_cli):
+def test_cli_resume_trains_a_finished_run_further_as_if_never_stopped(tmp_path, ham_cli, capsys):
     base = ["--algo", "sac", "--glances", "2", "--eval-every", "64", "--eval-episodes", "4",
-            "--algo-kwargs", '{"learning_starts": 32, "batch_size": 32}', "--json"]  # fmt: skip
+            "--algo-kwargs", json.dumps({"learning_starts": 32, "batch_size": 32, **SMALL}),
+            "--json", "--no-progress"]  # fmt: skip
     r = ham_cli("sb3", *base, "--env-steps", "128", "--out", str(tmp_path / "a"))
     assert r.returncode == 0, r.stderr
-    r = ham_cli("sb3", "--resume", str(tmp_path / "a"), "--env-steps", "256", "--json")
+    r = ham_cli("sb3", "--resume", str(tmp_path / "a"), "--env-steps", "192", "--json")
     assert r.returncode == 0, r.stderr
-    assert json.loads(r.stdout)["env_steps"] == 256
-    r = ham_cli("sb3", *base, "--env-steps", "256", "--out", str(tmp_path / "b"))
+    assert json.loads(r.stdout)["env_steps"] == 192
+    r = ham_cli("sb3", *base, "--env-steps", "192", "--out", str(tmp_path / "b"))
     assert r.returncode == 0, r.stderr
     a, b = (json.loads((tmp_path / d / "metrics.json").read_text()) for d in "ab")
     assert [h["accuracy_per_glance"] for h in a["history"]] == [
         h["accuracy_per_glance"] for h in b["history"]
     ]
-    assert len(a["history"]) == 4 and a["accuracy_per_glance"] == b["accuracy_per_glance"]
-    assert json.loads((tmp_path / "a" / "config.json").read_text())["env_steps"] == 256
+    assert len(a["history"]) == 3 and a["accuracy_per_glance"] == b["accuracy_per_glance"]
+    assert json.loads((tmp_path / "a" / "config.json").read_text())["env_steps"] == 192
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     events = EventAccumulator(str(tmp_path / "a" / "tb"))
     events.Reload()
     logged = [(e.step, round(e.value, 6)) for e in events.Scalars("eval/final_accuracy")]
     assert logged == [(h["env_steps"], round(h["final_accuracy"], 6)) for h in a["history"]]
-    for args, message in [
-        (["--resume", str(tmp_path / "a")], "is finished (metrics.json); give a larger"),
-        (["--resume", str(tmp_path / "a"), "--seed", "1"], "remove --seed (only --env-steps"),
-        (["--resume", str(tmp_path / "a"), "--out", str(tmp_path / "c")], "not both"),
-        (["--resume", str(tmp_path / "a"), "--env-steps", "200"], "more than the checkpoint's 256"),
-        (["--out", str(tmp_path / "c")], "needs --algo"),
-    ]:
-        r = ham_cli("sb3", *args)
-        assert r.returncode == 2 and message in r.stderr, (args, r.stderr)
-        assert len(r.stderr.strip().splitlines()) == 1
-    assert not (tmp_path / "c").exists()
+    r = ham_cli("sb3", "--resume", str(tmp_path / "a"), "--seed", "1")
+    assert r.returncode == 2 and r.stderr.strip().endswith("(only --env-steps may change)")
+    assert len(r.stderr.strip().splitlines()) == 1
+    from ham.cli.main import main
+
+    for argv, message in [
+        (["sb3", "--resume", str(tmp_path / "a")], "is finished (metrics.json); give a larger"),
+        (["sb3", "--resume", str(tmp_path / "a"), "--env-steps", "150"],
+         "more than the checkpoint's 192"),
+    ]:  # fmt: skip
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0], err
 
 
 @pytest.mark.parametrize(
