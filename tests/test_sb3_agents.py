@@ -83,20 +83,25 @@ def test_train_writes_metrics_with_env_steps(tmp_path, algo, kwargs):
     assert progress["history"] == saved["history"] and progress["env_steps"] == 128
 
 
+def _interrupted_at(n: int):
+    """``evaluate_agent`` that raises KeyboardInterrupt at its ``n``-th call: a run killed there."""
+    calls = []
+
+    def evaluate(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == n:
+            raise KeyboardInterrupt
+        return evaluate_agent(*args, **kwargs)
+
+    return evaluate
+
+
 def test_a_run_stopped_early_leaves_its_history_so_far(tmp_path, monkeypatch):
     """A long run killed before its end: the evaluations so far are in history.json, and no
     metrics.json pretends to be the final result."""
     from ham.learn import sb3_agents
 
-    evaluate, calls = sb3_agents.evaluate_agent, []
-
-    def stop_at_the_second(*args, **kwargs):
-        calls.append(1)
-        if len(calls) == 2:
-            raise KeyboardInterrupt
-        return evaluate(*args, **kwargs)
-
-    monkeypatch.setattr(sb3_agents, "evaluate_agent", stop_at_the_second)
+    monkeypatch.setattr(sb3_agents, "evaluate_agent", _interrupted_at(2))
     config = Sb3Config(
         algo="sac", env="ham/HapticGlanceAP-v0", env_kwargs={"glances": 2}, env_steps=128,
         eval_every=64, eval_episodes=8, algo_kwargs={"learning_starts": 32, "batch_size": 32},
@@ -137,18 +142,10 @@ def test_an_interrupted_run_resumes_bit_identically(tmp_path, monkeypatch, algo,
     )  # fmt: skip
     straight = train_sb3(config, tmp_path / "straight")
 
-    evaluate, calls = sb3_agents.evaluate_agent, []
-
-    def stop_at_the_third(*args, **kw):
-        calls.append(1)
-        if len(calls) == 3:
-            raise KeyboardInterrupt
-        return evaluate(*args, **kw)
-
-    monkeypatch.setattr(sb3_agents, "evaluate_agent", stop_at_the_third)
+    monkeypatch.setattr(sb3_agents, "evaluate_agent", _interrupted_at(3))
     with pytest.raises(KeyboardInterrupt):
         train_sb3(config, tmp_path / "cut")
-    monkeypatch.setattr(sb3_agents, "evaluate_agent", evaluate)
+    monkeypatch.setattr(sb3_agents, "evaluate_agent", evaluate_agent)
     torch.manual_seed(12345)  # the resumed run must not depend on the process's generators
     np.random.seed(12345)  # noqa: NPY002 - SB3 draws from the legacy global generator
     resumed = resume_sb3(tmp_path / "cut")

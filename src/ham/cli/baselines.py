@@ -203,9 +203,6 @@ def cmd_sb3(args: argparse.Namespace) -> int:
         eval_every=args.eval_every, algo_kwargs=_json_object("--algo-kwargs", args.algo_kwargs),
         device=args.device,
     )  # fmt: skip
-    from ham.world.devices import check_device
-
-    check_device(config.device)  # a missing GPU is named before anything is written
     import torch
 
     torch.set_num_threads(args.threads)

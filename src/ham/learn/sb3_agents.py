@@ -374,24 +374,21 @@ def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dic
 
     from ham.world.devices import check_device
 
-    check_device(config.device)
+    check_device(config.device)  # a missing GPU is named before anything is written
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         raise HamError(f"output directory {str(out)!r} exists and is not empty")
+
     # The environment first: a bad id or keyword fails before anything is written.
-    probe = SupervisedPrediction(make_env(config.env, config.env_kwargs, prefetch=False))
+    def wrapped(head: PredictionHead | None = None) -> SupervisedPrediction:
+        return SupervisedPrediction(make_env(config.env, config.env_kwargs, prefetch=False), head)
+
+    probe = wrapped()
     head = PredictionHead(probe.observation_space.shape[0], probe.n_classes, seed=config.seed)
     probe.close()
-    venv = DummyVecEnv(
-        [
-            lambda: SupervisedPrediction(
-                make_env(config.env, config.env_kwargs, prefetch=False), head
-            )
-        ]
-        * config.n_envs
-    )
+    venv = DummyVecEnv([lambda: wrapped(head)] * config.n_envs)
     venv.seed(config.seed)
-    eval_env = SupervisedPrediction(make_env(config.env, config.env_kwargs, prefetch=False), head)
+    eval_env = wrapped(head)
     if config.algo == "crossq":
         from sb3_contrib import CrossQ as algo
     else:
@@ -433,7 +430,7 @@ def resume_sb3(out: str | Path, env_steps: int | None = None, progress: bool = F
         if env_steps <= model.num_timesteps:
             raise HamError(f"--env-steps {env_steps}; accepted: more than the checkpoint's "
                            f"{model.num_timesteps} steps")  # fmt: skip
-        config = Sb3Config(**{**asdict(config), "env_steps": env_steps})
+        config = replace(config, env_steps=env_steps)
         _write_json(out / "config.json", asdict(config))
     _expand_buffer(model)
     _set_rng_states(state["rng"])
