@@ -34,7 +34,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ham.learn.batched import BatchedRuns, _open_runs
+import ham.learn.batched as batched
+from ham.learn.batched import BatchedRuns, _open_runs, cpu_vendor
 from ham.learn.environment import HapticEnv
 from ham.learn.evaluation import evaluate
 from ham.learn.train import Run, TrainConfig, stream_seed, train_step
@@ -134,9 +135,15 @@ def main() -> None:
     p.add_argument("--table", default=None, help="a glance table (default: online simulator)")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--device", default="cpu", help="cpu or cuda (wall-clock times on cuda)")
+    p.add_argument("--products", choices=("auto", "onednn", "bmm"), default="auto",
+                   help="the batched CPU products: auto (by the CPU's vendor), one oneDNN "
+                   "product per run, or one MKL bmm for all runs")  # fmt: skip
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
+    if args.products != "auto":
+        batched._PER_RUN_ONEDNN = args.products == "onednn"
+    products = "oneDNN per run" if batched._PER_RUN_ONEDNN else "bmm"
     rows = [measure(g, args.runs, args.repeats, args.table, args.device) for g in args.glances]
     cuda = args.device.startswith("cuda")
     unit = "GPU-hours" if cuda else "CPU-hours"
@@ -144,10 +151,11 @@ def main() -> None:
     after = grid_hours(rows, "batched_ms_per_run_step", "batched_eval_ms")
     if args.json:
         key = "grid_gpu_hours" if cuda else "grid_cpu_hours"
-        print(json.dumps({"device": args.device, "rows": rows, key: [before, after]}, indent=1))
+        print(json.dumps({"device": args.device, "cpu_vendor": cpu_vendor(), "products": products,
+                          "rows": rows, key: [before, after]}, indent=1))  # fmt: skip
         return
     print(f"{args.runs} runs, {args.threads} torch thread(s), batch 64, the paper's model, "
-          f"on {args.device}")  # fmt: skip
+          f"on {args.device} ({cpu_vendor() or 'CPU vendor unknown'}; CPU products: {products})")  # fmt: skip
     clock = "wall-clock time (GPU synchronized)" if cuda else "CPU time per process"
     print(f"{clock}, median of {args.repeats} interleaved repeats; load average "
           f"{os.getloadavg()[0]:.1f} at the end")  # fmt: skip

@@ -177,6 +177,7 @@ def test_the_onednn_path_equals_single_runs(tmp_path, monkeypatch):
 
     onednn = batched._LINEAR_ONEDNN
     monkeypatch.setattr(batched, "_LINEAR_ONEDNN", linear)
+    monkeypatch.setattr(batched, "_PER_RUN_ONEDNN", True)  # the AMD path on any CPU
     configs = [tiny(s, batch_size=16, steps=4) for s in range(2)]
     train_both(tmp_path, configs)
     assert (1024, 256) in calls  # the gates' first glance: the weight's g columns alone

@@ -151,7 +151,8 @@ _FUSED_SGD = getattr(torch, "_fused_sgd_", None)
 def _onednn_ok(a: torch.Tensor, b: torch.Tensor) -> bool:
     """Whether ``a[k] @ b[k]^T`` goes to oneDNN one run at a time (see :func:`_mm_nt`)."""
     return (
-        _LINEAR_ONEDNN is not None
+        _PER_RUN_ONEDNN
+        and _LINEAR_ONEDNN is not None
         and a.device.type == "cpu"
         and a.dtype == torch.float32
         and a.shape[1] >= 16
@@ -159,10 +160,29 @@ def _onednn_ok(a: torch.Tensor, b: torch.Tensor) -> bool:
     )
 
 
+def cpu_vendor() -> str:
+    """The x86 CPU's vendor (``GenuineIntel``, ``AuthenticAMD``) from ``/proc/cpuinfo``; ``""``
+    where it cannot be read (another OS or architecture)."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("vendor_id"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return ""
+
+
 # oneDNN's fp32 linear; None where this torch lacks it (then every product is a bmm)
 _LINEAR_ONEDNN = getattr(getattr(torch.ops, "mkldnn", None), "_linear_pointwise", None)
 if _LINEAR_ONEDNN is not None and not torch.backends.mkldnn.is_available():
     _LINEAR_ONEDNN = None
+# The CPU products' path, by what was measured (docs/agent.md#batched-runs): MKL, torch's BLAS,
+# picks its kernels by the CPU's vendor. On AMD it runs AVX2 kernels, and one oneDNN product
+# per run (AVX-512) is twice as fast as its batched bmm; on Intel it runs AVX-512 kernels, and
+# its bmm makes the batched step 1.2-1.3x faster than oneDNN per run. Fixed per machine, so a
+# run resumed on the same machine takes the same path (bit-identical resume).
+_PER_RUN_ONEDNN = cpu_vendor() == "AuthenticAMD"
 # smaller layers (poses in, heads out, 256 -> 64): one bmm beats N small calls (measured)
 _ONEDNN_MIN = 128 * 256
 
@@ -172,10 +192,12 @@ def _mm_nt(a: torch.Tensor, b: torch.Tensor, bias: torch.Tensor | None = None) -
     either possibly a transposed view (never copied: a transposing copy costs more than the
     product).
 
-    On the CPU in fp32, one oneDNN product per run: on this project's CPU (AMD, where MKL's
-    sgemm runs its AVX2 kernels) oneDNN's AVX-512 kernels are twice as fast, and MKL's batched
-    ``bmm`` is no faster than a loop of single products (docs/agent.md#batched-runs). Elsewhere
-    (CUDA: one launch for all runs) one ``bmm``/``baddbmm``."""
+    On an AMD CPU in fp32 (:data:`_PER_RUN_ONEDNN`), one oneDNN product per run: MKL's sgemm
+    runs its AVX2 kernels there, oneDNN's AVX-512 kernels are twice as fast, and MKL's batched
+    ``bmm`` is no faster than a loop of single products. Elsewhere (Intel: MKL's AVX-512
+    kernels; CUDA: one launch for all runs) one ``bmm``, the bias added in place on the CPU
+    (``baddbmm`` first copies the broadcast bias into the output: 10.2 vs 8.7 ms for the LSTM's
+    gates of 10 runs) and by ``baddbmm`` on a GPU (docs/agent.md#batched-runs)."""
     if _onednn_ok(a, b):
         return torch.stack(
             [
@@ -184,7 +206,11 @@ def _mm_nt(a: torch.Tensor, b: torch.Tensor, bias: torch.Tensor | None = None) -
             ]
         )
     bt = b.transpose(1, 2)
-    return torch.bmm(a, bt) if bias is None else torch.baddbmm(bias.unsqueeze(1), a, bt)
+    if bias is None:
+        return torch.bmm(a, bt)
+    if a.device.type == "cpu":
+        return torch.bmm(a, bt).add_(bias.unsqueeze(1))
+    return torch.baddbmm(bias.unsqueeze(1), a, bt)
 
 
 def _columns(weight: torch.Tensor, width: int) -> torch.Tensor:
