@@ -6,9 +6,10 @@ operation's overhead for a few small matrices. Here N runs whose configs differ 
 axis, one glance of all N runs is one pass through the stacked layers (:class:`_StackedHam`,
 mirroring :mod:`ham.model` line by line), the hybrid loss is :func:`torch.vmap` of
 :func:`ham.learn.hybrid_loss.hybrid_loss`, and one backward yields every run's gradient (the
-runs' graphs are disjoint). On the CPU each large product is one oneDNN call per run, weight
-gradients are deferred to one product per layer over all glances, and one fused SGD call steps
-all runs (docs/agent.md#batched-runs has the measurements); on CUDA each layer is one ``bmm``.
+runs' graphs are disjoint). Each layer is one ``bmm`` for all runs (on an AMD CPU each large
+product is one oneDNN call per run: :func:`_mm_nt`), weight gradients are deferred to one
+product per layer over all glances, and on the CPU one fused SGD call steps all runs
+(docs/agent.md#batched-runs has the measurements).
 
 Everything else stays per run and is the single run's own code (:mod:`ham.learn.train`): each
 run is a :class:`ham.learn.train.Run` with its own environment generator (objects, stream 0),
