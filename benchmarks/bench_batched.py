@@ -35,11 +35,12 @@ import numpy as np
 import torch
 
 import ham.learn.batched as batched
-from ham.learn.batched import BatchedRuns, _open_runs, cpu_vendor
+from ham.learn.batched import BatchedRuns, _open_runs
 from ham.learn.environment import HapticEnv
 from ham.learn.evaluation import evaluate
 from ham.learn.train import Run, TrainConfig, stream_seed, train_step
 from ham.model.agent import HamConfig
+from ham.world.devices import cpu_info
 
 TABLE1_GLANCES = (1, 2, 3, 4, 6, 8, 10)
 STEPS, EVALS, SEEDS = 50_000, 250, 10
@@ -144,6 +145,7 @@ def main() -> None:
     if args.products != "auto":
         batched._PER_RUN_ONEDNN = args.products == "onednn"
     products = "oneDNN per run" if batched._PER_RUN_ONEDNN else "bmm"
+    vendor = cpu_info("vendor_id")
     rows = [measure(g, args.runs, args.repeats, args.table, args.device) for g in args.glances]
     cuda = args.device.startswith("cuda")
     unit = "GPU-hours" if cuda else "CPU-hours"
@@ -151,11 +153,11 @@ def main() -> None:
     after = grid_hours(rows, "batched_ms_per_run_step", "batched_eval_ms")
     if args.json:
         key = "grid_gpu_hours" if cuda else "grid_cpu_hours"
-        print(json.dumps({"device": args.device, "cpu_vendor": cpu_vendor(), "products": products,
+        print(json.dumps({"device": args.device, "cpu_vendor": vendor, "products": products,
                           "rows": rows, key: [before, after]}, indent=1))  # fmt: skip
         return
     print(f"{args.runs} runs, {args.threads} torch thread(s), batch 64, the paper's model, "
-          f"on {args.device} ({cpu_vendor() or 'CPU vendor unknown'}; CPU products: {products})")  # fmt: skip
+          f"on {args.device} ({vendor or 'CPU vendor unknown'}; CPU products: {products})")  # fmt: skip
     clock = "wall-clock time (GPU synchronized)" if cuda else "CPU time per process"
     print(f"{clock}, median of {args.repeats} interleaved repeats; load average "
           f"{os.getloadavg()[0]:.1f} at the end")  # fmt: skip

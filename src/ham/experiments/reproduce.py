@@ -843,15 +843,9 @@ def _environment() -> dict:
     import torch
 
     import ham
+    from ham.world.devices import cpu_info
 
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    cpu = cpu_info("model name") or platform.processor() or platform.machine()
     return {
         "ham": ham.__version__,
         "python": platform.python_version(),

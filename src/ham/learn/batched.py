@@ -64,6 +64,7 @@ from ham.learn.train import (
 from ham.model.agent import Episode, HamConfig
 from ham.model.location_net import truncated_normal, uniform_locations
 from ham.model.policy import TruncatedGaussian, Uniform
+from ham.world.devices import cpu_info
 from ham.world.source import check_model_fits, make_source
 
 STOPPED_KEY = "stopped_at_perfect"
@@ -161,19 +162,6 @@ def _onednn_ok(a: torch.Tensor, b: torch.Tensor) -> bool:
     )
 
 
-def cpu_vendor() -> str:
-    """The x86 CPU's vendor (``GenuineIntel``, ``AuthenticAMD``) from ``/proc/cpuinfo``; ``""``
-    where it cannot be read (another OS or architecture)."""
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("vendor_id"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return ""
-
-
 # oneDNN's fp32 linear; None where this torch lacks it (then every product is a bmm)
 _LINEAR_ONEDNN = getattr(getattr(torch.ops, "mkldnn", None), "_linear_pointwise", None)
 if _LINEAR_ONEDNN is not None and not torch.backends.mkldnn.is_available():
@@ -183,7 +171,7 @@ if _LINEAR_ONEDNN is not None and not torch.backends.mkldnn.is_available():
 # per run (AVX-512) is twice as fast as its batched bmm; on Intel it runs AVX-512 kernels, and
 # its bmm makes the batched step 1.2-1.3x faster than oneDNN per run. Fixed per machine, so a
 # run resumed on the same machine takes the same path (bit-identical resume).
-_PER_RUN_ONEDNN = cpu_vendor() == "AuthenticAMD"
+_PER_RUN_ONEDNN = cpu_info("vendor_id") == "AuthenticAMD"
 # smaller layers (poses in, heads out, 256 -> 64): one bmm beats N small calls (measured)
 _ONEDNN_MIN = 128 * 256
 

@@ -1,4 +1,5 @@
-"""The one check of a device string (``cpu``, ``cuda``, ``cuda:N``) for every layer."""
+"""The one check of a device string (``cpu``, ``cuda``, ``cuda:N``) for every layer, and what
+the CPU says of itself (:func:`cpu_info`)."""
 
 from __future__ import annotations
 
@@ -37,3 +38,18 @@ def check_device(device: str | torch.device, *, available: bool = True) -> torch
                 f"cuda:0..cuda:{n - 1}"
             )
     return d
+
+
+def cpu_info(key: str) -> str:
+    """The first ``key`` line of ``/proc/cpuinfo`` (``vendor_id``: ``GenuineIntel`` or
+    ``AuthenticAMD``; ``model name``), or ``""`` where there is none (another OS or
+    architecture)."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                name, sep, value = line.partition(":")
+                if sep and name.strip() == key:
+                    return value.strip()
+    except OSError:
+        pass
+    return ""
