@@ -208,6 +208,16 @@ def _columns(weight: torch.Tensor, width: int) -> torch.Tensor:
     return weight if width == weight.shape[2] else weight[..., :width].contiguous()
 
 
+def _joined(parts: list[tuple[torch.Tensor, torch.Tensor | None]]):
+    """Stacked layers' weights and biases joined along their outputs (no gradient: the layers'
+    gradients are deferred, :meth:`_Layer.grads`)."""
+    with torch.no_grad():
+        weight = torch.cat([w.detach() for w, _ in parts], 1)
+        biases = [b for _, b in parts]
+        bias = None if biases[0] is None else torch.cat([b.detach() for b in biases], 1)
+    return weight, bias
+
+
 class _Layer:
     """One dense layer of N runs: ``y = x W^T + b``, ``x (N, B, in)``, ``W (N, out, in)``; an
     input narrower than ``in`` stands for itself padded with zeros (the LSTM's first glance:
@@ -220,8 +230,21 @@ class _Layer:
     glance. The buffers live as long as the layer (the group's stacked weights): fresh
     buffers every step cost more in page faults than the copies."""
 
-    def __init__(self, weight: torch.Tensor, bias: torch.Tensor | None, capacity: int) -> None:
+    def __init__(
+        self,
+        weight: torch.Tensor,
+        bias: torch.Tensor | None,
+        capacity: int,
+        parts: list[tuple[torch.Tensor, torch.Tensor | None]] | None = None,
+        grad_rows: int | None = None,
+    ) -> None:
         self.weight, self.bias = weight, bias
+        # several layers reading one input, fused (the heads): their stacked weights, joined
+        # along the outputs anew each step; only the first grad_rows outputs pass a gradient
+        # to the input (the others read it detached)
+        self.parts, self.grad_rows = parts, grad_rows
+        if parts is not None:
+            self.weight, self.bias = _joined(parts)
         self.capacity = capacity  # applications per step (the glances)
         self.xbuf: torch.Tensor | None = None  # (N, capacity * B, in)
         self.gbuf: torch.Tensor | None = None  # (N, capacity * B, out)
@@ -234,6 +257,8 @@ class _Layer:
         self.applied = 0
         self.filled = set()
         self.narrow = {}
+        if self.parts is not None:  # this step's weights (the stacks are stepped in place)
+            self.weight, self.bias = _joined(self.parts)
 
     def columns(self, width: int) -> torch.Tensor:
         """The weight's first ``width`` columns (:func:`_columns`), once per step."""
@@ -285,7 +310,12 @@ class _LayerFn(torch.autograd.Function):
         layer.gbuf[:, slot * r : (slot + 1) * r].copy_(grad)
         layer.filled.add(slot)
         w = layer.columns(ctx.width)
-        gx = _mm_nt(grad, w.transpose(1, 2)) if ctx.needs_input_grad[0] else None
+        gx = None
+        if ctx.needs_input_grad[0]:
+            k = layer.grad_rows
+            if k is not None:  # the outputs that read the input detached pass no gradient
+                grad, w = grad[..., :k], w[:, :k]
+            gx = _mm_nt(grad, w.transpose(1, 2))
         return gx, None, None, None, None
 
 
@@ -359,6 +389,9 @@ class _StackedHam:
         self.c = config
         self.used: set[str] = set()  # the weights read: checked against the model's once
         self.layers: dict[str, _Layer] = {}
+        self._heads_names = ["classifier.dense", "baseline.dense"]
+        if config.policy == "learned" and config.glances > 1:  # a policy that chooses glances
+            self._heads_names += ["location.mu", "location.sigma"]
 
     def begin(self, p: dict) -> None:
         """A new step of the weights ``p``: the layers' records start over (new layers when
@@ -373,11 +406,41 @@ class _StackedHam:
         out = {}
         for name, layer in self.layers.items():
             g = layer.grads()
-            if g is not None:
-                out[name + ".weight"] = g[0]
-                if g[1] is not None:
-                    out[name + ".bias"] = g[1]
+            if g is None:
+                continue
+            if layer.parts is None:
+                parts = [(name, g[0], g[1])]
+            else:  # the fused heads: each layer's rows of the joined gradient
+                sizes = [w.shape[1] for w, _ in layer.parts]
+                gb = [None] * len(sizes) if g[1] is None else g[1].split(sizes, 1)
+                parts = zip(self._heads_names, g[0].split(sizes, 1), gb, strict=True)
+            for n, gw, gb in parts:
+                out[n + ".weight"] = gw.contiguous()
+                if gb is not None:
+                    out[n + ".bias"] = gb.contiguous()
         return out
+
+    def _heads(self, p: dict, tau: torch.Tensor, record: bool) -> list[torch.Tensor]:
+        """The layers reading the core's output ``tau`` as one layer (one product, one record
+        of ``tau``): the classifier (its gradient reaches ``tau``), the baseline and the
+        location network's mu and sigma (they read ``tau`` detached). Their outputs, in that
+        order (the location's only when the policy is learned and there are glances to
+        choose)."""
+        names = self._heads_names
+        if not record:
+            w, b = _joined([(p[n + ".weight"], p.get(n + ".bias")) for n in names])
+            out = _mm_nt(tau, w, b)
+        else:
+            layer = self.layers.get("heads")
+            if layer is None:
+                parts = [(p[n + ".weight"], p.get(n + ".bias")) for n in names]
+                for n in names:
+                    self.used.update({n + ".weight", n + ".bias"} & p.keys())
+                layer = self.layers["heads"] = _Layer(
+                    None, None, self.c.glances, parts=parts, grad_rows=parts[0][0].shape[1]
+                )
+            out = layer(tau)
+        return out.split([p[n + ".weight"].shape[1] for n in names], -1)
 
     def _lin(self, p: dict, name: str, x: torch.Tensor, record: bool = True) -> torch.Tensor:
         if not record:  # evaluation: no gradient to defer
@@ -430,13 +493,13 @@ class _StackedHam:
             state = (tau, cell)
         else:
             tau = torch.relu(lin(p, "core.dense", g))
-        logits = lin(p, "classifier.dense", tau)
-        baseline = lin(p, "baseline.dense", tau.detach()).squeeze(-1)
+        # Classifier, Baseline and LocationNetwork (these two read tau detached): one layer
+        logits, baseline, *location = self._heads(p, tau, record)
+        baseline = baseline.squeeze(-1)
         dist = None
-        if with_policy and c.policy == "learned":  # LocationNetwork: reads tau detached
-            t = tau.detach()
-            mu = torch.tanh(lin(p, "location.mu", t))
-            s = lin(p, "location.sigma", t)
+        if with_policy and c.policy == "learned":
+            mu = torch.tanh(location[0])
+            s = location[1]
             sigma = F.softplus(s) if c.std_activation == "softplus" else torch.sigmoid(s)
             dist = (mu, sigma + c.sigma_min)
         return state, logits, baseline, dist
