@@ -185,6 +185,51 @@ def test_the_onednn_path_equals_single_runs(tmp_path, monkeypatch):
     assert_same_runs(tmp_path, configs)
 
 
+@pytest.mark.parametrize(
+    "sigmoid_tanh,compiled", [(True, False), (False, True)], ids=["amd-tanh", "compiled"]
+)
+def test_the_cell_paths_equal_single_runs(tmp_path, monkeypatch, sigmoid_tanh, compiled):
+    # the LSTM cell's tanh as 2 sigmoid(2x) - 1 (the AMD path), and its backward compiled by
+    # torch.compile (what the paper's size runs on the CPU), on any CPU
+    monkeypatch.setattr(batched, "_SIGMOID_TANH", sigmoid_tanh)
+    if compiled:
+        monkeypatch.setattr(batched, "_COMPILE_MIN", 0)
+        monkeypatch.setattr(batched, "_COMPILED", {})
+    configs = [tiny(s, steps=4) for s in range(2)]
+    train_both(tmp_path, configs)
+    if compiled:  # it compiled: no fallback to eager
+        assert callable(batched._COMPILED["backward"])
+    assert_same_runs(tmp_path, configs)
+
+
+def test_a_failed_compile_leaves_the_cell_eager(monkeypatch):
+    # a machine without a C++ compiler (cannot exist here: torch.compile stands in for it)
+    def no_compiler(fn, **kw):
+        def run(*args):
+            raise RuntimeError("InvalidCxxCompiler: No working C++ compiler found\ndetails")
+
+        return run
+
+    monkeypatch.setattr(batched.torch, "compile", no_compiler)
+    monkeypatch.setattr(batched, "_COMPILE_MIN", 0)
+    monkeypatch.setattr(batched, "_COMPILED", {})
+    g = torch.Generator().manual_seed(0)
+    dh, dc1, tc, cell = (torch.randn(2, 3, 8, generator=g) for _ in range(4))
+    act = torch.rand(2, 3, 4, 8, generator=g)
+    want = batched._cell_backward(dh, dc1, act, tc, cell)
+    with pytest.warns(
+        UserWarning, match=r"runs eager \(torch.compile failed: InvalidCxx.*found\)$"
+    ):
+        got = batched._backward(dh, dc1, act, tc, cell)
+    assert all(torch.equal(a, b) for a, b in zip(got, want, strict=True))
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # once: later calls go eager without a word
+        got = batched._backward(dh, dc1, act, tc, cell)
+    assert all(torch.equal(a, b) for a, b in zip(got, want, strict=True))
+
+
 def test_each_run_has_the_directory_of_a_single_run(tmp_path):
     configs = [tiny(s, steps=4) for s in (0, 5)]
     train(configs[0], tmp_path / "single", progress=False)

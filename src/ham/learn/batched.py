@@ -34,6 +34,7 @@ from __future__ import annotations
 import json
 import os
 import time
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -172,6 +173,9 @@ if _LINEAR_ONEDNN is not None and not torch.backends.mkldnn.is_available():
 # its bmm makes the batched step 1.2-1.3x faster than oneDNN per run. Fixed per machine, so a
 # run resumed on the same machine takes the same path (bit-identical resume).
 _PER_RUN_ONEDNN = cpu_info("vendor_id") == "AuthenticAMD"
+# tanh in the LSTM cell as 2 sigmoid(2x) - 1 (:class:`_TanhLSTMCell`): on AMD, where
+# torch.tanh is slow; fixed per machine as the products' path
+_SIGMOID_TANH = _PER_RUN_ONEDNN
 # smaller layers (poses in, heads out, 256 -> 64): one bmm beats N small calls (measured)
 _ONEDNN_MIN = 128 * 256
 
@@ -319,15 +323,60 @@ class _LayerFn(torch.autograd.Function):
         return gx, None, None, None, None
 
 
-class _TanhLSTMCell(torch.autograd.Function):
-    """:class:`ham.model.core.LSTMCore`'s cell after its gate product, fused, with ``tanh`` as
-    ``2 sigmoid(2x) - 1``: ``c' = sigmoid(f + b_f) c + sigmoid(i) tanh(u)``,
-    ``h = sigmoid(o) tanh(c')``, gates ``(i, f, u, o)`` along the last axis.
+def _cell_backward(dh, dc1, act, tc, cell):
+    """The gradient of the LSTM cell (:class:`_TanhLSTMCell`) with respect to its gates and
+    its input cell state: ``act`` holds the activated gates ``(sigmoid i, sigmoid(f + b_f),
+    tanh u, sigmoid o)`` along its axis -2, ``tc = tanh(c')``. One expression, so that
+    :func:`torch.compile` makes it one loop over the step's tensors."""
+    si, sf, tu, so = act.unbind(-2)
+    dcell = dh * so * (1 - tc * tc) + dc1
+    di = dcell * tu * si * (1 - si)
+    df = dcell * cell * sf * (1 - sf)
+    du = dcell * si * (1 - tu * tu)
+    do = dh * tc * so * (1 - so)
+    return torch.stack([di, df, du, do], -2).flatten(-2), dcell * sf
 
-    Why: on this project's CPU ``torch.tanh`` takes ten times as long as ``torch.sigmoid``
-    (0.36 vs 0.04 ms on 10 x 64 x 256), and autograd's dozen elementwise nodes per cell cost as
-    much as the cell's products; here one sigmoid over all four gates and a hand-written
-    backward. Equal to the module's cell to float rounding (tested against single runs)."""
+
+# The compiled backward: on the CPU, when the step's cell state has at least this many entries
+# (the paper's 10 runs x 64 x 256: 163,840; a test's tiny models stay eager). Eager, the
+# backward is a dozen passes over tensors that outgrow the caches (3.2 ms per glance of 10
+# runs at the paper's size on an Intel Xeon), compiled one (0.7 ms): docs/agent.md#batched-runs.
+_COMPILE_MIN = 1 << 16
+_COMPILED: dict[str, object] = {}  # "backward": the compiled function, or the reason it failed
+
+
+def _backward(dh, dc1, act, tc, cell):
+    """:func:`_cell_backward`, compiled where that pays (:data:`_COMPILE_MIN`, CPU) and works;
+    where compiling fails (no C++ compiler) it warns once and stays eager."""
+    if dc1 is None:
+        dc1 = torch.zeros_like(dh)
+    if dh.device.type != "cpu" or dh.numel() < _COMPILE_MIN:
+        return _cell_backward(dh, dc1, act, tc, cell)
+    fn = _COMPILED.get("backward")
+    if fn is None:
+        fn = _COMPILED["backward"] = torch.compile(_cell_backward, dynamic=False)
+    if isinstance(fn, str):
+        return _cell_backward(dh, dc1, act, tc, cell)
+    try:
+        return fn(dh, dc1, act, tc, cell)
+    except Exception as exc:  # noqa: BLE001 - any compiler failure: the same numbers, eager
+        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        _COMPILED["backward"] = reason
+        warnings.warn(f"the batched LSTM cell runs eager (torch.compile failed: {reason})",
+                      stacklevel=2)  # fmt: skip
+        return _cell_backward(dh, dc1, act, tc, cell)
+
+
+class _TanhLSTMCell(torch.autograd.Function):
+    """:class:`ham.model.core.LSTMCore`'s cell after its gate product, fused:
+    ``c' = sigmoid(f + b_f) c + sigmoid(i) tanh(u)``, ``h = sigmoid(o) tanh(c')``, gates
+    ``(i, f, u, o)`` along the last axis, with a hand-written backward (:func:`_backward`,
+    compiled at the paper's size on the CPU) instead of autograd's dozen elementwise nodes.
+
+    ``tanh`` is ``torch.tanh`` where it is fast, and ``2 sigmoid(2x) - 1`` on an AMD CPU, where
+    ``torch.tanh`` took ten times as long as ``torch.sigmoid`` (0.36 vs 0.04 ms on 10 x 64 x
+    256; on an Intel Xeon 0.05 vs 0.09 ms). Equal to the module's cell to float rounding
+    (tested against single runs)."""
 
     _constants: dict = {}
 
@@ -349,35 +398,24 @@ class _TanhLSTMCell(torch.autograd.Function):
     def forward(ctx, gates, cell, forget_bias):
         shape = gates.shape
         z = gates.view(*shape[:-1], 4, shape[-1] // 4)
-        # one sigmoid of (i, f + b_f, 2u, o): tanh(u) = 2 sigmoid(2u) - 1
         scale, shift = _TanhLSTMCell._scale_shift(z, forget_bias)
-        sig = torch.addcmul(shift, z, scale).sigmoid_()
-        si, sf, su, so = sig.unbind(-2)
-        tu = su * 2 - 1
+        if _SIGMOID_TANH:  # one sigmoid of (i, f + b_f, 2u, o): tanh(u) = 2 sigmoid(2u) - 1
+            act = torch.addcmul(shift, z, scale).sigmoid_()
+            act[..., 2, :].mul_(2).sub_(1)
+        else:
+            act = torch.add(z, shift).sigmoid_()
+            torch.tanh(z[..., 2, :], out=act[..., 2, :])
+        si, sf, tu, so = act.unbind(-2)
         c1 = torch.addcmul(sf * cell, si, tu)
-        tc = torch.sigmoid(c1 * 2).mul_(2).sub_(1)
-        h = so * tc
-        ctx.save_for_backward(sig, tu, tc, cell)
-        return h, c1
+        tc = torch.sigmoid(c1 * 2).mul_(2).sub_(1) if _SIGMOID_TANH else torch.tanh(c1)
+        ctx.save_for_backward(act, tc, cell)
+        return so * tc, c1
 
     @staticmethod
     def backward(ctx, dh, dc1):
-        sig, tu, tc, cell = ctx.saved_tensors
-        si, sf, _, so = sig.unbind(-2)
-        d = torch.empty_like(sig)  # d loss / d (i, f, tanh u, o), then / d gates
-        dcell = dh * so
-        dcell.mul_(1 - tc * tc)
-        if dc1 is not None:
-            dcell.add_(dc1)
-        torch.mul(dcell, tu, out=d[..., 0, :])
-        torch.mul(dcell, cell, out=d[..., 1, :])
-        torch.mul(dcell, si, out=d[..., 2, :])
-        d[..., 2, :].mul_(4)
-        torch.mul(dh, tc, out=d[..., 3, :])
-        # sigmoid' = s (1 - s); tanh'(u) = 1 - tanh(u)^2 = 4 s_u (1 - s_u) with s_u = sigmoid(2u)
-        d.mul_(torch.addcmul(sig, sig, sig, value=-1))
-        dgates = d.view(*sig.shape[:-2], -1)
-        return dgates, (dcell * sf if ctx.needs_input_grad[1] else None), None
+        act, tc, cell = ctx.saved_tensors
+        dgates, dcell = _backward(dh, dc1, act, tc, cell)
+        return dgates, (dcell if ctx.needs_input_grad[1] else None), None
 
 
 class _StackedHam:
