@@ -101,6 +101,13 @@ def measure(glances: int, runs: int, repeats: int, table: str | None, device: st
         "single_seed_steps_per_s": runs / single,
         "batched_seed_steps_per_s": runs / batched,
         "ratio": single / batched,
+        # each repeat's own ratio (its two halves ran back to back): the spread of the machine
+        "repeat_ratios": sorted(
+            s / b
+            for s, b in zip(
+                t_single if cuda else c_single, t_batched if cuda else c_batched, strict=True
+            )
+        ),  # fmt: skip
         "wall_ratio": wall_single / wall_batched,
         "eval_ms": 1000 * c_eval,
         "batched_eval_ms": 1000 * c_group / runs,  # per run
@@ -162,12 +169,13 @@ def main() -> None:
     print(f"{clock}, median of {args.repeats} interleaved repeats; load average "
           f"{os.getloadavg()[0]:.1f} at the end")  # fmt: skip
     print("glances  single ms/run-step  batched ms/run-step  seed-steps/s single  batched  ratio"
-          "  (wall-clock ratio)")  # fmt: skip
+          "  (wall-clock ratio)  each repeat's ratio, lowest to highest")  # fmt: skip
     for r in rows:
+        spread = " ".join(f"{x:.2f}" for x in r["repeat_ratios"])
         print(f"{r['glances']:>7}  {r['single_ms_per_run_step']:>18.1f}  "
               f"{r['batched_ms_per_run_step']:>19.1f}  {r['single_seed_steps_per_s']:>19.1f}  "
               f"{r['batched_seed_steps_per_s']:>7.1f}  {r['ratio']:>5.2f}  "
-              f"({r['wall_ratio']:.2f})")  # fmt: skip
+              f"({r['wall_ratio']:.2f})  {spread}")  # fmt: skip
     evals = ", ".join(f"G={r['glances']}: {r['eval_ms']:.0f} / {r['batched_eval_ms']:.0f} ms "
                       f"({r['eval_ratio']:.2f}x)" for r in rows)  # fmt: skip
     print(f"one evaluation of 100 batches per run, single / batched: {evals}")
