@@ -222,6 +222,12 @@ def _joined(parts: list[tuple[torch.Tensor, torch.Tensor | None]]):
     return weight, bias
 
 
+def _shifted(bias: torch.Tensor | None, shift: torch.Tensor, runs: int) -> torch.Tensor:
+    """``bias (N, out)`` plus the constant ``shift (out,)`` (the shift alone without a bias)."""
+    with torch.no_grad():
+        return shift.expand(runs, -1) if bias is None else bias.detach() + shift
+
+
 class _Layer:
     """One dense layer of N runs: ``y = x W^T + b``, ``x (N, B, in)``, ``W (N, out, in)``; an
     input narrower than ``in`` stands for itself padded with zeros (the LSTM's first glance:
@@ -241,8 +247,12 @@ class _Layer:
         capacity: int,
         parts: list[tuple[torch.Tensor, torch.Tensor | None]] | None = None,
         grad_rows: int | None = None,
+        shift: torch.Tensor | None = None,
     ) -> None:
         self.weight, self.bias = weight, bias
+        # a constant the forward adds to every output row (the LSTM's forget bias): folded
+        # into the bias once per step instead of one pass over the outputs per glance
+        self.shift, self._forward_bias = shift, None
         # several layers reading one input, fused (the heads): their stacked weights, joined
         # along the outputs anew each step; only the first grad_rows outputs pass a gradient
         # to the input (the others read it detached)
@@ -261,8 +271,17 @@ class _Layer:
         self.applied = 0
         self.filled = set()
         self.narrow = {}
+        self._forward_bias = None
         if self.parts is not None:  # this step's weights (the stacks are stepped in place)
             self.weight, self.bias = _joined(self.parts)
+
+    def forward_bias(self) -> torch.Tensor | None:
+        """The bias the forward adds: ``b`` plus the layer's shift, once per step."""
+        if self.shift is None:
+            return self.bias
+        if self._forward_bias is None:
+            self._forward_bias = _shifted(self.bias, self.shift, self.weight.shape[0])
+        return self._forward_bias
 
     def columns(self, width: int) -> torch.Tensor:
         """The weight's first ``width`` columns (:func:`_columns`), once per step."""
@@ -285,7 +304,7 @@ class _Layer:
             record = self.xbuf[:, slot * self.rows : (slot + 1) * self.rows]
             record[..., : x.shape[2]].copy_(x)
             record[..., x.shape[2] :].zero_()
-        return _LayerFn.apply(x, self.weight, self.bias, self, slot)
+        return _LayerFn.apply(x, self.weight, self.forward_bias(), self, slot)
 
     def grads(self) -> tuple[torch.Tensor, torch.Tensor | None] | None:
         """The weight and bias gradients of the step (``None``: the layer took no part)."""
@@ -369,9 +388,11 @@ def _backward(dh, dc1, act, tc, cell):
 
 class _TanhLSTMCell(torch.autograd.Function):
     """:class:`ham.model.core.LSTMCore`'s cell after its gate product, fused:
-    ``c' = sigmoid(f + b_f) c + sigmoid(i) tanh(u)``, ``h = sigmoid(o) tanh(c')``, gates
-    ``(i, f, u, o)`` along the last axis, with a hand-written backward (:func:`_backward`,
-    compiled at the paper's size on the CPU) instead of autograd's dozen elementwise nodes.
+    ``c' = sigmoid(f) c + sigmoid(i) tanh(u)``, ``h = sigmoid(o) tanh(c')``, gates
+    ``(i, f, u, o)`` along the last axis (the forget bias ``b_f`` already in ``f``: the gate
+    layer's bias holds it, :meth:`_StackedHam.glance`), with a hand-written backward
+    (:func:`_backward`, compiled at the paper's size on the CPU) instead of autograd's dozen
+    elementwise nodes.
 
     ``tanh`` is ``torch.tanh`` where it is fast, and ``2 sigmoid(2x) - 1`` on an AMD CPU, where
     ``torch.tanh`` took ten times as long as ``torch.sigmoid`` (0.36 vs 0.04 ms on 10 x 64 x
@@ -381,29 +402,25 @@ class _TanhLSTMCell(torch.autograd.Function):
     _constants: dict = {}
 
     @classmethod
-    def _scale_shift(cls, z: torch.Tensor, forget_bias: float) -> tuple[torch.Tensor, ...]:
-        """``(1, 1, 2, 1)`` and ``(0, b_f, 0, 0)`` per gate, spelled out along the units: an
-        operand broadcast along the last axis takes PyTorch's unvectorized loop (an
-        ``addcmul`` over 10 x 64 x 1024 gates: 0.32 ms, against 0.06 ms with them spelled
-        out)."""
-        key = (z.shape[-1], z.device, z.dtype, forget_bias)
+    def _scale(cls, z: torch.Tensor) -> torch.Tensor:
+        """``(1, 1, 2, 1)`` per gate, spelled out along the units: an operand broadcast along
+        the last axis takes PyTorch's unvectorized loop (an ``addcmul`` over 10 x 64 x 1024
+        gates: 0.32 ms, against 0.06 ms with it spelled out)."""
+        key = (z.shape[-1], z.device, z.dtype)
         if key not in cls._constants:
-            h = z.shape[-1]
-            scale = z.new_tensor([1.0, 1.0, 2.0, 1.0]).unsqueeze(-1).expand(4, h).contiguous()
-            shift = z.new_tensor([0.0, forget_bias, 0.0, 0.0]).unsqueeze(-1).expand(4, h)
-            cls._constants[key] = (scale, shift.contiguous())
+            scale = z.new_tensor([1.0, 1.0, 2.0, 1.0]).unsqueeze(-1)
+            cls._constants[key] = scale.expand(4, z.shape[-1]).contiguous()
         return cls._constants[key]
 
     @staticmethod
-    def forward(ctx, gates, cell, forget_bias):
+    def forward(ctx, gates, cell):
         shape = gates.shape
         z = gates.view(*shape[:-1], 4, shape[-1] // 4)
-        scale, shift = _TanhLSTMCell._scale_shift(z, forget_bias)
-        if _SIGMOID_TANH:  # one sigmoid of (i, f + b_f, 2u, o): tanh(u) = 2 sigmoid(2u) - 1
-            act = torch.addcmul(shift, z, scale).sigmoid_()
+        if _SIGMOID_TANH:  # one sigmoid of (i, f, 2u, o): tanh(u) = 2 sigmoid(2u) - 1
+            act = torch.mul(z, _TanhLSTMCell._scale(z)).sigmoid_()
             act[..., 2, :].mul_(2).sub_(1)
         else:
-            act = torch.add(z, shift).sigmoid_()
+            act = torch.sigmoid(z)
             torch.tanh(z[..., 2, :], out=act[..., 2, :])
         si, sf, tu, so = act.unbind(-2)
         c1 = torch.addcmul(sf * cell, si, tu)
@@ -415,7 +432,7 @@ class _TanhLSTMCell(torch.autograd.Function):
     def backward(ctx, dh, dc1):
         act, tc, cell = ctx.saved_tensors
         dgates, dcell = _backward(dh, dc1, act, tc, cell)
-        return dgates, (dcell if ctx.needs_input_grad[1] else None), None
+        return dgates, (dcell if ctx.needs_input_grad[1] else None)
 
 
 class _StackedHam:
@@ -480,24 +497,42 @@ class _StackedHam:
             out = layer(tau)
         return out.split([p[n + ".weight"].shape[1] for n in names], -1)
 
-    def _lin(self, p: dict, name: str, x: torch.Tensor, record: bool = True) -> torch.Tensor:
+    def _lin(
+        self,
+        p: dict,
+        name: str,
+        x: torch.Tensor,
+        record: bool = True,
+        shift: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        weight, bias = p[name + ".weight"], p.get(name + ".bias")
         if not record:  # evaluation: no gradient to defer
-            return _mm_nt(x, _columns(p[name + ".weight"], x.shape[-1]), p.get(name + ".bias"))
+            if shift is not None:
+                bias = _shifted(bias, shift, weight.shape[0])
+            return _mm_nt(x, _columns(weight, x.shape[-1]), bias)
         layer = self.layers.get(name)
         if layer is None:
-            self.used.add(name + ".weight")
-            if name + ".bias" in p:
-                self.used.add(name + ".bias")
-            layer = self.layers[name] = _Layer(
-                p[name + ".weight"], p.get(name + ".bias"), self.c.glances
-            )
+            self.used.update({name + ".weight", name + ".bias"} & p.keys())
+            layer = self.layers[name] = _Layer(weight, bias, self.c.glances, shift=shift)
         return layer(x)
+
+    def _forget_shift(self, p: dict) -> torch.Tensor:
+        """``(0, b_f, 0, 0)`` along the LSTM's gates: the forget bias, added with the gates'
+        bias (the single model adds it to ``f`` in the cell; equal to float rounding)."""
+        if getattr(self, "_shift", None) is None:
+            w, h = p["core.gates.weight"], self.c.hidden_units
+            self._shift = w.new_zeros(4 * h)
+            self._shift[h : 2 * h] = self.c.forget_bias
+        return self._shift
 
     def glance(self, p: dict, pressure, q, state, with_policy: bool, record: bool = True):
         """One glance: ``record=False`` for an evaluation (no gradient; the layers' records of
         the training step are left alone)."""
         c = self.c
-        lin = self._lin if record else lambda p, name, x: self._lin(p, name, x, False)
+
+        def lin(p, name, x, shift=None):
+            return self._lin(p, name, x, record, shift)
+
         # HapticAttentionModel.step: the pose fed to the tactile network
         location = torch.stack([q[..., 0], q[..., 1] * c.phi_scale], dim=-1)
         # TactileNetwork
@@ -513,20 +548,21 @@ class _StackedHam:
                 g = torch.relu(lin(p, f"tactile.combine.{2 * k}", g))
         # the core: LSTMCore or MLPCore
         if c.core == "lstm":
+            shift = self._forget_shift(p)  # f + b_f from the gates' layer
             if state is None:  # LSTMCore.initial_state: h = c = 0
                 # the gates of [g, 0]: the layer takes g alone (half the product)
                 cell = g.new_zeros(*g.shape[:-1], c.hidden_units)
-                gates = lin(p, "core.gates", g)
+                gates = lin(p, "core.gates", g, shift)
             else:
                 h, cell = state
                 if c.truncate_bptt:
                     h, cell = h.detach(), cell.detach()
-                gates = lin(p, "core.gates", torch.cat([g, h], dim=-1))
+                gates = lin(p, "core.gates", torch.cat([g, h], dim=-1), shift)
             if c.lstm_activation == "tanh":
-                tau, cell = _TanhLSTMCell.apply(gates, cell, c.forget_bias)
+                tau, cell = _TanhLSTMCell.apply(gates, cell)
             else:
                 i, f, u, o = gates.chunk(4, dim=-1)
-                cell = torch.sigmoid(f + c.forget_bias) * cell + torch.sigmoid(i) * torch.relu(u)
+                cell = torch.sigmoid(f) * cell + torch.sigmoid(i) * torch.relu(u)
                 tau = torch.sigmoid(o) * torch.relu(cell)
             state = (tau, cell)
         else:
