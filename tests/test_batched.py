@@ -78,8 +78,9 @@ def assert_same_runs(tmp_path: Path, configs: list[TrainConfig], atol: float = 1
             forget_bias=0.5,
         ),
         HamConfig(glances=1, combiner="add"),
+        HamConfig(glances=3, core="mlp"),
     ],  # fmt: skip
-    ids=["full", "rloc-mlp-mul", "code-options", "one-glance-add"],
+    ids=["full", "rloc-mlp-mul", "code-options", "one-glance-add", "mlp"],
 )
 def test_batched_equals_single_runs(tmp_path, model):
     configs = [tiny(s, model=model) for s in range(3)]

@@ -31,6 +31,7 @@ else is refused with one line (train it with ``ham train`` or ``--executor local
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import time
@@ -220,6 +221,12 @@ def _joined(parts: list[tuple[torch.Tensor, torch.Tensor | None]]):
         biases = [b for _, b in parts]
         bias = None if biases[0] is None else torch.cat([b.detach() for b in biases], 1)
     return weight, bias
+
+
+def _relu_backward(grad: torch.Tensor, out: torch.Tensor, into: torch.Tensor) -> None:
+    """``grad`` where the ReLU's output ``out`` is positive, else 0, written ``into`` (autograd's
+    ReLU backward: ``threshold_backward`` of the output)."""
+    torch.ops.aten.threshold_backward.grad_input(grad, out, 0.0, grad_input=into)
 
 
 def _shifted(bias: torch.Tensor | None, shift: torch.Tensor, runs: int) -> torch.Tensor:
@@ -435,6 +442,24 @@ class _TanhLSTMCell(torch.autograd.Function):
         return dgates, (dcell if ctx.needs_input_grad[1] else None)
 
 
+class _TactileOutput(torch.autograd.Function):
+    """``g``, the tactile network's output, computed without autograd, entering the graph:
+    its gradient is recorded (:meth:`_StackedHam._record_dg`) and the tactile network's
+    backward runs once for all glances after the backward pass
+    (:meth:`_StackedHam._tactile_backward`). ``anchor`` (a stacked weight) only gives the node
+    an input that requires a gradient."""
+
+    @staticmethod
+    def forward(ctx, g, anchor, net, slot):
+        ctx.net, ctx.slot = net, slot
+        return g.view_as(g)
+
+    @staticmethod
+    def backward(ctx, dg):
+        ctx.net._record_dg(ctx.slot, dg)
+        return None, None, None, None
+
+
 class _StackedHam:
     """The HAM's layers (:mod:`ham.model`) over weights stacked along a leading run axis: one
     glance of N runs, ``(N, B, ...)`` in and out. Each line mirrors its module (tactile network,
@@ -445,6 +470,13 @@ class _StackedHam:
         self.used: set[str] = set()  # the weights read: checked against the model's once
         self.layers: dict[str, _Layer] = {}
         self._heads_names = ["classifier.dense", "baseline.dense"]
+        # the tactile network's backward deferred to one pass over all glances (the concat
+        # combiners: its inputs, pressure and pose, take no gradient, and each layer's input
+        # record holds the ReLU output its backward needs)
+        self._defer = config.combiner in ("concat1", "concat2")
+        self._dg: torch.Tensor | None = None  # (N, glances * B, combine units): d loss / d g
+        self._dg_slots = 0
+        self._dg_filled: set[int] = set()
         if config.policy == "learned" and config.glances > 1:  # a policy that chooses glances
             self._heads_names += ["location.mu", "location.sigma"]
 
@@ -452,12 +484,15 @@ class _StackedHam:
         """A new step of the weights ``p``: the layers' records start over (new layers when
         the stack changed: a run left the group)."""
         if p is not getattr(self, "_p", None):
-            self._p, self.layers = p, {}
+            self._p, self.layers, self._dg = p, {}, None
         for layer in self.layers.values():
             layer.begin()
+        self._dg_slots = 0
+        self._dg_filled = set()
 
     def grads(self) -> dict[str, torch.Tensor]:
         """The step's weight gradients by parameter name, after the backward pass."""
+        self._tactile_backward()
         out = {}
         for name, layer in self.layers.items():
             g = layer.grads()
@@ -474,6 +509,45 @@ class _StackedHam:
                 if gb is not None:
                     out[n + ".bias"] = gb.contiguous()
         return out
+
+    def _record_dg(self, slot: int, dg: torch.Tensor) -> None:
+        r = dg.shape[1]
+        if self._dg is None or self._dg.shape[1] < self.c.glances * r:
+            self._dg = dg.new_empty(dg.shape[0], self.c.glances * r, dg.shape[2])
+        self._dg[:, slot * r : (slot + 1) * r].copy_(dg)
+        self._dg_filled.add(slot)
+
+    @torch.no_grad()
+    def _tactile_backward(self) -> None:
+        """The tactile network's backward (ReLU, ``combine`` layers, ``what`` and ``where``)
+        for every glance at once, from the gradients :class:`_TactileOutput` recorded: each
+        layer's output gradient into its record (:meth:`_Layer.grads` makes the weight
+        gradients), the input gradients as one product per run ``G * B`` rows deep."""
+        if not self._dg_filled:
+            return
+        c, n = self.c, self._dg_slots
+        rows = self._dg.shape[1] // c.glances
+        r = n * rows
+        for slot in set(range(n)) - self._dg_filled:  # a glance whose g the loss never read
+            self._dg[:, slot * rows : (slot + 1) * rows].zero_()
+        grad = self._dg[:, :r]
+        core = self.layers["core.gates" if c.core == "lstm" else "core.dense"]
+        post = core.xbuf[:, :r, : grad.shape[2]]  # g, the last ReLU's output
+        combine = ["tactile.combine.2"] if c.combiner == "concat2" else []
+        for name in [*combine, "tactile.combine.0"]:
+            layer = self.layers[name]
+            _relu_backward(grad, post, layer.gbuf[:, :r])
+            layer.filled = set(range(n))
+            grad = _mm_nt(layer.gbuf[:, :r], layer.weight.transpose(1, 2))
+            post = layer.xbuf[:, :r]
+        split = c.what_units  # grad, post: d loss / d [what, where] and [what, where]
+        for name, cols in (
+            ("tactile.what", slice(0, split)),
+            ("tactile.where", slice(split, None)),
+        ):
+            layer = self.layers[name]
+            _relu_backward(grad[..., cols], post[..., cols], layer.gbuf[:, :r])
+            layer.filled = set(range(n))
 
     def _heads(self, p: dict, tau: torch.Tensor, record: bool) -> list[torch.Tensor]:
         """The layers reading the core's output ``tau`` as one layer (one product, one record
@@ -535,17 +609,22 @@ class _StackedHam:
 
         # HapticAttentionModel.step: the pose fed to the tactile network
         location = torch.stack([q[..., 0], q[..., 1] * c.phi_scale], dim=-1)
-        # TactileNetwork
-        what = torch.relu(lin(p, "tactile.what", pressure))
-        where = torch.relu(lin(p, "tactile.where", location))
-        if c.combiner == "add":
-            g = what + where
-        elif c.combiner == "mul":
-            g = what * where
-        else:
-            g = torch.cat([what, where], dim=-1)
-            for k in range(2 if c.combiner == "concat2" else 1):
-                g = torch.relu(lin(p, f"tactile.combine.{2 * k}", g))
+        # TactileNetwork (deferred: no graph here, its backward after the backward pass)
+        defer = record and self._defer
+        with torch.no_grad() if defer else contextlib.nullcontext():
+            what = torch.relu(lin(p, "tactile.what", pressure))
+            where = torch.relu(lin(p, "tactile.where", location))
+            if c.combiner == "add":
+                g = what + where
+            elif c.combiner == "mul":
+                g = what * where
+            else:
+                g = torch.cat([what, where], dim=-1)
+                for k in range(2 if c.combiner == "concat2" else 1):
+                    g = torch.relu(lin(p, f"tactile.combine.{2 * k}", g))
+        if defer:
+            g = _TactileOutput.apply(g, p["tactile.what.weight"], self, self._dg_slots)
+            self._dg_slots += 1
         # the core: LSTMCore or MLPCore
         if c.core == "lstm":
             shift = self._forget_shift(p)  # f + b_f from the gates' layer
