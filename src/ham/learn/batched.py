@@ -7,8 +7,11 @@ axis, one glance of all N runs is one pass through the stacked layers (:class:`_
 mirroring :mod:`ham.model` line by line), the hybrid loss is :func:`torch.vmap` of
 :func:`ham.learn.hybrid_loss.hybrid_loss`, and one backward yields every run's gradient (the
 runs' graphs are disjoint). Each layer is one ``bmm`` for all runs (on an AMD CPU each large
-product is one oneDNN call per run: :func:`_mm_nt`), weight gradients are deferred to one
-product per layer over all glances, and on the CPU one fused SGD call steps all runs
+product is one oneDNN call per run: :func:`_mm_nt`), the layers reading the core's output
+are one layer (:meth:`_StackedHam._heads`), weight gradients are deferred to one product per
+layer over all glances, so is the tactile network's whole backward (concat combiners:
+:meth:`_StackedHam._tactile_backward`), the LSTM cell is fused (:class:`_TanhLSTMCell`, its
+backward compiled on the CPU), and on the CPU one fused SGD call steps all runs
 (docs/agent.md#batched-runs has the measurements).
 
 Everything else stays per run and is the single run's own code (:mod:`ham.learn.train`): each
