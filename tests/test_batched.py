@@ -285,7 +285,10 @@ def test_a_diverged_run_stops_alone(tmp_path):
         assert_same_run(outs[s], tmp_path / f"single{s}")
 
 
-def test_resume_of_a_batched_group_is_bit_identical(tmp_path):
+@pytest.mark.parametrize("compiled", [False, True], ids=["eager", "compiled-cell"])
+def test_resume_of_a_batched_group_is_bit_identical(tmp_path, monkeypatch, compiled):
+    if compiled:  # the paper's size takes the compiled cell backward
+        monkeypatch.setattr(batched, "_COMPILE_MIN", 0)
     full = [tiny(s) for s in (0, 1)]
     train_batched(full, [tmp_path / f"full{c.seed}" for c in full])
     half = [tiny(s, steps=4) for s in (0, 1)]
@@ -298,6 +301,8 @@ def test_resume_of_a_batched_group_is_bit_identical(tmp_path):
         assert metrics(a) == metrics(b)
         for p, q in zip(weights(a), weights(b), strict=True):
             assert torch.equal(p, q)
+    if compiled:
+        assert callable(batched._COMPILED["backward"])
 
 
 def test_stop_at_perfect(tmp_path):
