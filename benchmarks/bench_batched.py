@@ -107,7 +107,7 @@ def measure(glances: int, runs: int, repeats: int, table: str | None, device: st
             for s, b in zip(
                 t_single if cuda else c_single, t_batched if cuda else c_batched, strict=True
             )
-        ),  # fmt: skip
+        ),
         "wall_ratio": wall_single / wall_batched,
         "eval_ms": 1000 * c_eval,
         "batched_eval_ms": 1000 * c_group / runs,  # per run

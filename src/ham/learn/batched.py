@@ -483,6 +483,7 @@ class _StackedHam:
         self._dg: torch.Tensor | None = None  # (N, glances * B, combine units): d loss / d g
         self._dg_slots = 0
         self._dg_filled: set[int] = set()
+        self._shift: torch.Tensor | None = None  # the forget bias along the gates
         if config.policy == "learned" and config.glances > 1:  # a policy that chooses glances
             self._heads_names += ["location.mu", "location.sigma"]
 
@@ -517,9 +518,10 @@ class _StackedHam:
         return out
 
     def _record_dg(self, slot: int, dg: torch.Tensor) -> None:
-        r = dg.shape[1]
-        if self._dg is None or self._dg.shape[1] < self.c.glances * r:
-            self._dg = dg.new_empty(dg.shape[0], self.c.glances * r, dg.shape[2])
+        n, r, width = dg.shape
+        # exactly one slot per glance: _tactile_backward reads the rows off this shape
+        if self._dg is None or self._dg.shape != (n, self.c.glances * r, width):
+            self._dg = dg.new_empty(n, self.c.glances * r, width)
         self._dg[:, slot * r : (slot + 1) * r].copy_(dg)
         self._dg_filled.add(slot)
 
@@ -599,7 +601,7 @@ class _StackedHam:
     def _forget_shift(self, p: dict) -> torch.Tensor:
         """``(0, b_f, 0, 0)`` along the LSTM's gates: the forget bias, added with the gates'
         bias (the single model adds it to ``f`` in the cell; equal to float rounding)."""
-        if getattr(self, "_shift", None) is None:
+        if self._shift is None:
             w, h = p["core.gates.weight"], self.c.hidden_units
             self._shift = w.new_zeros(4 * h)
             self._shift[h : 2 * h] = self.c.forget_bias
