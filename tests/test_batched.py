@@ -376,7 +376,36 @@ def test_reproduce_batched_executor_matches_local(tmp_path, ham_cli):
     assert json.loads(again.stdout)["skipped"] == 4
     bad = ham_cli(*common, "--stop-at-perfect", "--out", str(tmp_path / "x"))
     assert bad.returncode == 2
-    assert "ham: error: --stop-at-perfect needs --executor batched" in bad.stderr
+    assert "ham: error: --stop-at-perfect needs --executor batched or ray-batched" in bad.stderr
+    bad = ham_cli(*common, "--executor", "batched", "--ray-address", "auto", "--out",
+                  str(tmp_path / "x"))  # fmt: skip
+    assert bad.returncode == 2
+    assert "--ray-address 'auto': accepted only with --executor ray or ray-batched" in bad.stderr
+    assert not (tmp_path / "x").exists()
+
+
+def test_ray_batched_executor_matches_batched(tmp_path, ham_cli):
+    """Ray hands each worker a batched model: the same groups, the same numbers, to the bit."""
+    pytest.importorskip("ray")
+    common = ["reproduce", "table1", "--profile", "smoke", "--glances", "2", "--variants",
+              "full", "rloc", "--seeds", "2", "--quiet", "--json"]  # fmt: skip
+    b = ham_cli(*common, "--executor", "batched", "--workers", "1", "--out", str(tmp_path / "b"))
+    assert b.returncode == 0, b.stderr
+    r = ham_cli(*common, "--executor", "ray-batched", "--batch-runs", "2", "--out",
+                str(tmp_path / "r"))  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["ran"] == 4
+    for key in (
+        "full-concat2-g2-s0",
+        "full-concat2-g2-s1",
+        "rloc-concat2-g2-s0",
+        "rloc-concat2-g2-s1",
+    ):
+        ours, theirs = tmp_path / "r/runs" / key, tmp_path / "b/runs" / key
+        assert metrics(ours)["history"] == metrics(theirs)["history"]
+        for p, q in zip(weights(ours), weights(theirs), strict=True):
+            assert torch.equal(p, q), key
+    assert "Executor: ray-batched" in (tmp_path / "r/report.md").read_text()
 
 
 def test_nan_weights_stop_their_run_alone(tmp_path):

@@ -68,9 +68,18 @@ def add_commands(subparsers) -> None:
         help="only these trained variants in Table 1 and the figures (default: all; the averaged "
         "MLP column is scored on the mlp runs)",
     )
-    p.add_argument("--executor", default="local", choices=EXECUTORS)
     p.add_argument(
-        "--ray-address", default=None, help="a running Ray cluster (default: start a local one)"
+        "--executor",
+        default="local",
+        choices=EXECUTORS,
+        help="local: a process pool of single runs; ray: single runs as Ray tasks; batched: "
+        "runs of one shape (seeds) as one batched model each, on a process pool; ray-batched: "
+        "those batched models as Ray tasks (default: local)",
+    )
+    p.add_argument(
+        "--ray-address",
+        default=None,
+        help="ray executors: a running Ray cluster (default: start a local one)",
     )
     p.add_argument("--workers", type=int, default=None, help="local processes (default: all cores)")
     p.add_argument(
@@ -78,13 +87,13 @@ def add_commands(subparsers) -> None:
         type=int,
         default=None,
         metavar="N",
-        help="batched executor: at most N runs of one shape (seeds) per batched model "
+        help="batched executors: at most N runs of one shape (seeds) per batched model "
         "(default: all of a shape)",
     )
     p.add_argument(
         "--stop-at-perfect",
         action="store_true",
-        help="batched executor: stop a run whose best evaluation is 1.000 (its table entry "
+        help="batched executors: stop a run whose best evaluation is 1.000 (its table entry "
         "cannot change); its metrics.json says stopped_at_perfect",
     )
     p.add_argument("--device", default=None, help="cpu or cuda (default cpu; grid: the file's)")

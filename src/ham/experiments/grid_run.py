@@ -27,6 +27,7 @@ from ham.experiments.reproduce import (
     _fmt,
     _write_json,
     check_batched_options,
+    check_ray_address,
     execute,
     mean_sem,
 )
@@ -61,7 +62,8 @@ def run_grid(
     """Run what is not finished of ``grid`` (a :class:`Grid` or a grid file) into ``out``.
 
     ``seeds`` replaces every cell's seeds by ``0..seeds-1``; ``device`` sets every run's device.
-    ``batch_runs`` (runs per batch) and ``stop_at_perfect`` go with ``executor="batched"``.
+    ``batch_runs`` (runs per batch) and ``stop_at_perfect`` go with ``executor="batched"`` and
+    ``"ray-batched"``.
     ``cache_dir``: the table cache of a grid with ``[table] cache = true`` (default
     ``$HAM_CACHE_DIR`` or ``~/.cache/ham``). Returns the summary (``results.json`` plus ``ran``, ``skipped`` and ``failures``).
     """
@@ -74,6 +76,7 @@ def run_grid(
     if executor not in EXECUTORS:
         raise HamError(f"executor {executor!r}; accepted: {', '.join(EXECUTORS)}")
     check_batched_options(executor, batch_runs, stop_at_perfect)
+    check_ray_address(executor, ray_address)
     if seeds is not None:
         if not (isinstance(seeds, int) and not isinstance(seeds, bool) and seeds >= 1):
             raise HamError(f"seeds = {seeds!r}; accepted: an integer >= 1")

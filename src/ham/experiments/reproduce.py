@@ -39,7 +39,11 @@ if TYPE_CHECKING:
     from ham.world.config import WorldConfig
 
 TARGETS = ("table1", "table2", "figures", "all")
-EXECUTORS = ("local", "ray", "batched")
+EXECUTORS = ("local", "ray", "batched", "ray-batched")
+#: the executors that train runs of one shape as one batched model (:mod:`ham.learn.batched`)
+BATCHED_EXECUTORS = ("batched", "ray-batched")
+#: the executors that run on Ray (``--ray-address``)
+RAY_EXECUTORS = ("ray", "ray-batched")
 
 #: Table 1 of the paper: best accuracy within 50k steps, mean +- s.e.m. over 10 runs.
 PAPER_TABLE1 = {
@@ -344,26 +348,19 @@ def execute_local(
             on_result(fut.result())
 
 
-def execute_ray(
-    jobs: list[Job],
-    root: Path,
-    world: dict,
-    grid: int,
-    address: str | None,
-    on_result: Callable[[dict], None],
-) -> None:
-    """The same grid as Ray tasks, one CPU each (``pip install ham[cluster]``)."""
+def _on_ray(address: str | None, submit: Callable, on_result: Callable[[object], None]) -> None:
+    """Start Ray (or join the cluster at ``address``), submit the tasks ``submit(ray)`` returns,
+    hand each result to ``on_result`` as it arrives, and shut down the Ray started here."""
     try:
         import ray
     except ImportError:
-        raise HamError("the ray executor needs Ray: pip install 'ham[cluster]'") from None
+        raise HamError("the ray executors need Ray: pip install 'ham[cluster]'") from None
     started_here = not ray.is_initialized()
     if started_here:
         kwargs = {"address": address} if address else {"num_cpus": os.cpu_count() or 1}
         ray.init(**kwargs, include_dashboard=False, log_to_driver=False, logging_level="ERROR")
     try:
-        remote = ray.remote(num_cpus=1, max_retries=0)(_safe_run)
-        pending = [remote.remote(j.to_dict(), str(root), world, grid) for j in jobs]
+        pending = submit(ray)
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
             for ref in done:
@@ -373,18 +370,65 @@ def execute_ray(
             ray.shutdown()
 
 
+def execute_ray(
+    jobs: list[Job],
+    root: Path,
+    world: dict,
+    grid: int,
+    address: str | None,
+    on_result: Callable[[dict], None],
+) -> None:
+    """The same grid as Ray tasks, one CPU each (``pip install ham[cluster]``)."""
+
+    def submit(ray):
+        remote = ray.remote(num_cpus=1, max_retries=0)(_safe_run)
+        return [remote.remote(j.to_dict(), str(root), world, grid) for j in jobs]
+
+    _on_ray(address, submit, on_result)
+
+
+def execute_ray_batched(
+    jobs: list[Job],
+    root: Path,
+    world: dict,
+    grid: int,
+    address: str | None,
+    on_result: Callable[[dict], None],
+    batch_runs: int | None = None,
+    stop_at_perfect: bool = False,
+) -> None:
+    """The batched executor's groups (:func:`group_jobs`) as Ray tasks, one CPU each: Ray hands
+    each node whole batched models, as many at once as the node has CPUs (on a GPU node, as
+    many groups share its GPU: runs on ``cuda`` train on each node's first GPU)."""
+
+    def submit(ray):
+        remote = ray.remote(num_cpus=1, max_retries=0)(_safe_batch)
+        groups = [[j.to_dict() for j in g] for g in group_jobs(jobs, batch_runs)]
+        return [remote.remote(g, str(root), world, grid, stop_at_perfect) for g in groups]
+
+    _on_ray(address, submit, lambda results: [on_result(r) for r in results])
+
+
 def check_batched_options(executor: str, batch_runs: int | None, stop_at_perfect: bool) -> None:
-    """``batch_runs`` and ``stop_at_perfect`` need the batched executor; ``batch_runs`` >= 1."""
-    if executor != "batched":
+    """``batch_runs`` and ``stop_at_perfect`` need a batched executor; ``batch_runs`` >= 1."""
+    if executor not in BATCHED_EXECUTORS:
         given = [n for n, v in (("--batch-runs", batch_runs), ("--stop-at-perfect", stop_at_perfect))
                  if v]  # fmt: skip
         if given:
             verb = "needs" if len(given) == 1 else "need"
-            raise HamError(f"{', '.join(given)} {verb} --executor batched (got {executor!r})")
+            raise HamError(f"{', '.join(given)} {verb} --executor batched or ray-batched "
+                           f"(got {executor!r})")  # fmt: skip
     if batch_runs is not None and not (
         isinstance(batch_runs, int) and not isinstance(batch_runs, bool) and batch_runs >= 1
     ):
         raise HamError(f"batch_runs = {batch_runs!r}; accepted: an integer >= 1")
+
+
+def check_ray_address(executor: str, ray_address: str | None) -> None:
+    """``ray_address`` goes with the Ray executors only."""
+    if ray_address is not None and executor not in RAY_EXECUTORS:
+        raise HamError(f"--ray-address {ray_address!r}: accepted only with --executor "
+                       f"{' or '.join(RAY_EXECUTORS)}")  # fmt: skip
 
 
 def group_jobs(jobs: list, batch_runs: int | None = None) -> list[list]:
@@ -506,7 +550,7 @@ def execute(
 ) -> tuple[dict[str, dict], list[dict]]:
     """Run ``todo`` (a part of ``jobs``) on ``executor``, re-running failed runs ``retries`` times.
 
-    ``batch_runs`` and ``stop_at_perfect`` go with the ``batched`` executor only.
+    ``batch_runs`` and ``stop_at_perfect`` go with the batched executors only.
 
     Returns every run's last result by key and the results of the runs that failed every try.
     """
@@ -529,6 +573,9 @@ def execute(
             print(f"retrying {len(todo)} failed run(s) (attempt {attempt + 1})", file=sys.stderr)
         if executor == "ray":
             execute_ray(todo, root, world, grid, ray_address, on_result)
+        elif executor == "ray-batched":
+            execute_ray_batched(todo, root, world, grid, ray_address, on_result, batch_runs,
+                                stop_at_perfect)  # fmt: skip
         elif executor == "batched":
             execute_batched(todo, root, world, grid, workers, on_result, batch_runs,
                             stop_at_perfect)  # fmt: skip
@@ -654,7 +701,8 @@ def reproduce(
     the report names the change), e.g. as many steps as a GPU lease holds.
     ``world``: the world of the glance table (default: the paper's); with an objects file, every
     worker registers the file's objects from the record in the table and the world.
-    ``batch_runs`` (runs per batch) and ``stop_at_perfect`` go with ``executor="batched"``.
+    ``batch_runs`` (runs per batch) and ``stop_at_perfect`` go with ``executor="batched"`` and
+    ``"ray-batched"``.
     ``eval_policy``: the evaluation during training (a world preset's; default TrainConfig's).
     ``table_cache``: take the glance table from the table cache (:mod:`ham.world.cache`, in
     ``cache_dir``), built there once, instead of ``OUT/table_<N>.h5`` (a preset's slow world).
@@ -685,8 +733,7 @@ def reproduce(
     if workers is not None and not (isinstance(workers, int) and workers >= 1):
         raise HamError(f"workers = {workers!r}; accepted: an integer >= 1 (default: all cores)")
     workers = workers or os.cpu_count() or 1
-    if ray_address is not None and executor != "ray":
-        raise HamError(f"--ray-address {ray_address!r}: accepted only with --executor ray")
+    check_ray_address(executor, ray_address)
     if not (isinstance(retries, int) and retries >= 0):
         raise HamError(f"retries = {retries!r}; accepted: an integer >= 0")
     check_device(device)
