@@ -358,21 +358,35 @@ def test_refused_configs(tmp_path):
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 
 
-def test_reproduce_batched_executor_matches_local(tmp_path, ham_cli):
-    common = ["reproduce", "table1", "--profile", "smoke", "--glances", "2", "--variants",
-              "full", "rloc", "--seeds", "2", "--workers", "1", "--quiet", "--json"]  # fmt: skip
-    b = ham_cli(*common, "--executor", "batched", "--out", str(tmp_path / "b"))
-    assert b.returncode == 0, b.stderr
-    assert json.loads(b.stdout)["ran"] == 4
+SMALL_GRID = ["reproduce", "table1", "--profile", "smoke", "--glances", "2", "--variants", "full",
+              "rloc", "--seeds", "2", "--quiet", "--json"]  # fmt: skip
+SMALL_GRID_KEYS = ("full-concat2-g2-s0", "full-concat2-g2-s1", "rloc-concat2-g2-s0",
+                   "rloc-concat2-g2-s1")  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def batched_grid(tmp_path_factory):
+    """A small Table 1 grid on the batched executor (4 runs: 2 variants x 2 seeds)."""
+    from tests.conftest import run_ham
+
+    out = tmp_path_factory.mktemp("batched-grid")
+    r = run_ham(*SMALL_GRID, "--executor", "batched", "--workers", "1", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["ran"] == 4
+    return out
+
+
+def test_reproduce_batched_executor_matches_local(batched_grid, tmp_path, ham_cli):
+    common = [*SMALL_GRID, "--workers", "1"]
     loc = ham_cli(*common, "--out", str(tmp_path / "l"))
     assert loc.returncode == 0, loc.stderr
-    for key in ("full-concat2-g2-s0", "full-concat2-g2-s1", "rloc-concat2-g2-s1"):
-        assert_same_run(tmp_path / "b/runs" / key, tmp_path / "l/runs" / key)
-    t_b = json.loads((tmp_path / "b/table1.json").read_text())
+    for key in SMALL_GRID_KEYS:
+        assert_same_run(batched_grid / "runs" / key, tmp_path / "l/runs" / key)
+    t_b = json.loads((batched_grid / "table1.json").read_text())
     t_l = json.loads((tmp_path / "l/table1.json").read_text())
     assert t_b["2"]["full"]["mean"] == pytest.approx(t_l["2"]["full"]["mean"])
     # finished runs are skipped by every executor
-    again = ham_cli(*common, "--executor", "batched", "--out", str(tmp_path / "b"))
+    again = ham_cli(*common, "--executor", "batched", "--out", str(batched_grid))
     assert json.loads(again.stdout)["skipped"] == 4
     bad = ham_cli(*common, "--stop-at-perfect", "--out", str(tmp_path / "x"))
     assert bad.returncode == 2
@@ -384,24 +398,15 @@ def test_reproduce_batched_executor_matches_local(tmp_path, ham_cli):
     assert not (tmp_path / "x").exists()
 
 
-def test_ray_batched_executor_matches_batched(tmp_path, ham_cli):
+def test_ray_batched_executor_matches_batched(batched_grid, tmp_path, ham_cli):
     """Ray hands each worker a batched model: the same groups, the same numbers, to the bit."""
     pytest.importorskip("ray")
-    common = ["reproduce", "table1", "--profile", "smoke", "--glances", "2", "--variants",
-              "full", "rloc", "--seeds", "2", "--quiet", "--json"]  # fmt: skip
-    b = ham_cli(*common, "--executor", "batched", "--workers", "1", "--out", str(tmp_path / "b"))
-    assert b.returncode == 0, b.stderr
-    r = ham_cli(*common, "--executor", "ray-batched", "--batch-runs", "2", "--out",
+    r = ham_cli(*SMALL_GRID, "--executor", "ray-batched", "--batch-runs", "2", "--out",
                 str(tmp_path / "r"))  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["ran"] == 4
-    for key in (
-        "full-concat2-g2-s0",
-        "full-concat2-g2-s1",
-        "rloc-concat2-g2-s0",
-        "rloc-concat2-g2-s1",
-    ):
-        ours, theirs = tmp_path / "r/runs" / key, tmp_path / "b/runs" / key
+    for key in SMALL_GRID_KEYS:
+        ours, theirs = tmp_path / "r/runs" / key, batched_grid / "runs" / key
         assert metrics(ours)["history"] == metrics(theirs)["history"]
         for p, q in zip(weights(ours), weights(theirs), strict=True):
             assert torch.equal(p, q), key
