@@ -397,6 +397,9 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("reproduce-device", ["reproduce", "table1", "--out", "rp", "--device", "cpu:abc"], "'cpu:abc'"),
     ("reproduce-device-tpu", ["reproduce", "table1", "--out", "rp", "--device", "tpu"], "'tpu'"),
     ("reproduce-ray-address-local", ["reproduce", "table1", "--out", "rp", "--ray-address", "auto"], "'auto'"),
+    ("reproduce-ray-address-refused", ["reproduce", "table1", "--out", "rp", "--executor", "ray", "--ray-address", "127.0.0.1:1"], "'127.0.0.1:1'"),
+    ("reproduce-ray-address-form", ["reproduce", "table1", "--out", "rp", "--executor", "ray-batched", "--ray-address", "headnode"], "'headnode'"),
+    ("reproduce-grid-ray-address-port", ["reproduce", "grid", "docs/grids/example.toml", "--out", "rp", "--executor", "ray", "--ray-address", "head:99999"], "'head:99999'"),
     ("reproduce-out-file", ["reproduce", "table1", "--out", "notes.txt"], "'notes.txt'"),
     # envs
     ("envs-check-glances-0", ["envs", "check", "--glances", "0"], "glances = 0"),

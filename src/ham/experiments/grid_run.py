@@ -71,12 +71,12 @@ def run_grid(
     from ham.world.config import WorldConfig
     from ham.world.table import build_table
 
-    if not isinstance(grid, Grid):
-        grid = load_grid(grid)
     if executor not in EXECUTORS:
         raise HamError(f"executor {executor!r}; accepted: {', '.join(EXECUTORS)}")
     check_batched_options(executor, batch_runs, stop_at_perfect)
     check_ray_address(executor, ray_address)
+    if not isinstance(grid, Grid):
+        grid = load_grid(grid)
     if seeds is not None:
         if not (isinstance(seeds, int) and not isinstance(seeds, bool) and seeds >= 1):
             raise HamError(f"seeds = {seeds!r}; accepted: an integer >= 1")

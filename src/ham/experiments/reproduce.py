@@ -358,7 +358,14 @@ def _on_ray(address: str | None, submit: Callable, on_result: Callable[[object],
     started_here = not ray.is_initialized()
     if started_here:
         kwargs = {"address": address} if address else {"num_cpus": os.cpu_count() or 1}
-        ray.init(**kwargs, include_dashboard=False, log_to_driver=False, logging_level="ERROR")
+        try:
+            ray.init(**kwargs, include_dashboard=False, log_to_driver=False,
+                     logging_level="ERROR")  # fmt: skip
+        except ConnectionError as exc:  # --ray-address auto with no cluster running
+            reason = str(exc).split(". ")[0]
+            raise HamError(
+                f"--ray-address {address!r}: {reason}; accepted: {_RAY_ADDRESSES}"
+            ) from None
     try:
         pending = submit(ray)
         while pending:
@@ -424,11 +431,31 @@ def check_batched_options(executor: str, batch_runs: int | None, stop_at_perfect
         raise HamError(f"batch_runs = {batch_runs!r}; accepted: an integer >= 1")
 
 
+_RAY_ADDRESSES = "auto, HOST:PORT or ray://HOST:PORT of a running Ray head (ray start --head)"
+
+
 def check_ray_address(executor: str, ray_address: str | None) -> None:
-    """``ray_address`` goes with the Ray executors only."""
-    if ray_address is not None and executor not in RAY_EXECUTORS:
+    """``ray_address`` goes with the Ray executors only, and a ``HOST:PORT`` must answer: Ray
+    itself would retry an address where nothing listens for minutes, logging each try."""
+    if ray_address is None:
+        return
+    if executor not in RAY_EXECUTORS:
         raise HamError(f"--ray-address {ray_address!r}: accepted only with --executor "
                        f"{' or '.join(RAY_EXECUTORS)}")  # fmt: skip
+    if ray_address == "auto":
+        return
+    host, _, port = ray_address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise HamError(f"--ray-address {ray_address!r}; accepted: {_RAY_ADDRESSES}")
+    import socket
+
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=5).close()
+    except OSError as exc:
+        raise HamError(
+            f"--ray-address {ray_address!r}: nothing answers there ({exc.strerror or exc}); "
+            f"accepted: {_RAY_ADDRESSES}"
+        ) from None
 
 
 def group_jobs(jobs: list, batch_runs: int | None = None) -> list[list]:
