@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The batched trainer on a lent GPU in one device run (a few minutes): the GPU's name, the
 # CUDA tests of tests/test_batched.py (CUDA batched runs equal single runs on the GPU, SGD and
-# Adam) with the CPU ones beside them, and bench_batched.py --device cuda (steps, evaluations,
-# the paper grid's projected GPU-hours). The device machine's python3 holds PyTorch with CUDA,
+# Adam) with the CPU ones beside them, bench_batched.py --device cuda (steps, evaluations,
+# the paper grid's projected GPU-hours, one group after another) and bench_side_by_side.py
+# (1 and 15 groups sharing the GPU, as --executor batched --workers 15 runs them). The device machine's python3 holds PyTorch with CUDA,
 # h5py, TensorBoard, tqdm and pytest, which is all these need; ham runs from src/. From the
 # device tool:
 #   run(command="bash benchmarks/gpu_check.sh", timeout_s=600)
@@ -22,7 +23,9 @@ export PYTHONPATH=src PYTHONUNBUFFERED=1 MPLBACKEND=Agg
   if "$PY" -c "import sys, torch; sys.exit(not torch.cuda.is_available())"; then
     "$PY" benchmarks/bench_batched.py --device cuda --runs 10 --glances 3 10 --repeats 5 \
       --table "$TABLE"
+    "$PY" benchmarks/bench_side_by_side.py --device cuda --groups 1 15 --glances 3 10 \
+      --steps 20 --table "$TABLE"
   else
-    echo "no CUDA: bench_batched.py --device cuda skipped"
+    echo "no CUDA: bench_batched.py and bench_side_by_side.py --device cuda skipped"
   fi
 } 2>&1 | tee "$LOG"
