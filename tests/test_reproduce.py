@@ -1,6 +1,12 @@
 """``ham reproduce`` with the smoke profile: the real CLI, real runs, local pool and local Ray."""
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import pytest
 
@@ -165,3 +171,48 @@ def test_the_plans_are_the_papers_runs():
                              eval_batches=p.eval_batches, seed=j.seed, table="t.h5", device="cuda")  # fmt: skip
         assert j.config == config.to_dict(), j.key
         assert j.key == f"{j.variant}-{j.combiner}-g{j.glances}-s{j.seed}"
+
+
+def _children(pid: int) -> list[int]:
+    """The processes whose parent is ``pid`` (from /proc)."""
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc (Linux)")
+def test_a_killed_worker_fails_its_runs_and_the_retry_finishes_them(tmp_path):
+    """A pool worker killed mid-run (as the kernel kills one out of memory): its runs are
+    recorded as failed with the reason instead of the grid dying with a traceback, and the
+    retry trains them to the end."""
+    out = tmp_path / "g"
+    env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="1", MPLBACKEND="Agg")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ham", "reproduce", "table1", "--profile", "smoke", "--glances",
+         "2", "--variants", "full", "--seeds", "2", "--steps", "500", "--workers", "2",
+         "--quiet", "--json", "--out", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+    )  # fmt: skip
+    deadline = time.monotonic() + 120
+    while not list(out.glob("runs/*/config.json")) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    workers = [
+        p for p in _children(proc.pid)
+        if b"spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes()
+        and b"resource_tracker" not in Path(f"/proc/{p}/cmdline").read_bytes()
+    ]  # fmt: skip
+    assert workers, "no pool worker found"
+    os.kill(workers[0], signal.SIGKILL)
+    stdout, stderr = proc.communicate(timeout=300)
+    assert proc.returncode == 0, stderr
+    assert "retrying" in stderr and "Traceback" not in stderr
+    assert json.loads(stdout)["failures"] == []
+    for key in ("full-concat2-g2-s0", "full-concat2-g2-s1"):
+        m = json.loads((out / "runs" / key / "metrics.json").read_text())
+        assert m["steps"] == 500

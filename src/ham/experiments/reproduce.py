@@ -323,6 +323,20 @@ def _worker_init() -> None:
     torch.set_num_threads(1)
 
 
+def _results(get: Callable[[], dict | list[dict]], keys: list[str]) -> list[dict]:
+    """A worker's results (one run's or a batch's), or, where the worker itself died (killed,
+    out of memory: its pool or Ray says so), each of its runs as failed with that reason, so the
+    other runs go on and the retries re-run these from their checkpoints."""
+    try:
+        r = get()
+    except Exception as exc:  # noqa: BLE001 - any way a worker can be lost
+        lines = str(exc).strip().splitlines()
+        reason = f"{type(exc).__name__}: {lines[0]}" if lines else type(exc).__name__
+        return [{"key": k, "status": "failed", "error": f"the worker died ({reason})"}
+                for k in keys]  # fmt: skip
+    return r if isinstance(r, list) else [r]
+
+
 def execute_local(
     jobs: list[Job],
     root: Path,
@@ -343,14 +357,17 @@ def execute_local(
         return
     ctx = mp.get_context("spawn")
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init) as pool:
-        futures = [pool.submit(_safe_run, j.to_dict(), str(root), world, grid) for j in jobs]
+        futures = {pool.submit(_safe_run, j.to_dict(), str(root), world, grid): [j.key]
+                   for j in jobs}  # fmt: skip
         for fut in as_completed(futures):
-            on_result(fut.result())
+            for r in _results(fut.result, futures[fut]):
+                on_result(r)
 
 
-def _on_ray(address: str | None, submit: Callable, on_result: Callable[[object], None]) -> None:
-    """Start Ray (or join the cluster at ``address``), submit the tasks ``submit(ray)`` returns,
-    hand each result to ``on_result`` as it arrives, and shut down the Ray started here."""
+def _on_ray(address: str | None, submit: Callable, on_result: Callable[[dict], None]) -> None:
+    """Start Ray (or join the cluster at ``address``), submit the tasks ``submit(ray)`` returns
+    (each task's reference -> the keys of its runs), hand each result to ``on_result`` as it
+    arrives, and shut down the Ray started here."""
     try:
         import ray
     except ImportError:
@@ -367,11 +384,13 @@ def _on_ray(address: str | None, submit: Callable, on_result: Callable[[object],
                 f"--ray-address {address!r}: {reason}; accepted: {_RAY_ADDRESSES}"
             ) from None
     try:
-        pending = submit(ray)
+        keys = submit(ray)
+        pending = list(keys)
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
             for ref in done:
-                on_result(ray.get(ref))
+                for r in _results(lambda ref=ref: ray.get(ref), keys[ref]):
+                    on_result(r)
     finally:
         if started_here:
             ray.shutdown()
@@ -389,7 +408,7 @@ def execute_ray(
 
     def submit(ray):
         remote = ray.remote(num_cpus=1, max_retries=0)(_safe_run)
-        return [remote.remote(j.to_dict(), str(root), world, grid) for j in jobs]
+        return {remote.remote(j.to_dict(), str(root), world, grid): [j.key] for j in jobs}
 
     _on_ray(address, submit, on_result)
 
@@ -411,9 +430,10 @@ def execute_ray_batched(
     def submit(ray):
         remote = ray.remote(num_cpus=1, max_retries=0)(_safe_batch)
         groups = [[j.to_dict() for j in g] for g in group_jobs(jobs, batch_runs)]
-        return [remote.remote(g, str(root), world, grid, stop_at_perfect) for g in groups]
+        return {remote.remote(g, str(root), world, grid, stop_at_perfect): [j["key"] for j in g]
+                for g in groups}  # fmt: skip
 
-    _on_ray(address, submit, lambda results: [on_result(r) for r in results])
+    _on_ray(address, submit, on_result)
 
 
 def check_batched_options(executor: str, batch_runs: int | None, stop_at_perfect: bool) -> None:
@@ -551,11 +571,10 @@ def execute_batched(
         return
     ctx = mp.get_context("spawn")
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init) as pool:
-        futures = [
-            pool.submit(_safe_batch, g, str(root), world, grid, stop_at_perfect) for g in groups
-        ]
+        futures = {pool.submit(_safe_batch, g, str(root), world, grid, stop_at_perfect):
+                   [j["key"] for j in g] for g in groups}  # fmt: skip
         for fut in as_completed(futures):
-            for r in fut.result():
+            for r in _results(fut.result, futures[fut]):
                 on_result(r)
 
 
