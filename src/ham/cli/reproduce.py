@@ -81,7 +81,13 @@ def add_commands(subparsers) -> None:
         default=None,
         help="ray executors: a running Ray cluster (default: start a local one)",
     )
-    p.add_argument("--workers", type=int, default=None, help="local processes (default: all cores)")
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="runs (or batched groups) at once: the local and batched executors' processes, "
+        "the CPUs of a Ray started here (default: all cores)",
+    )
     p.add_argument(
         "--batch-runs",
         type=int,

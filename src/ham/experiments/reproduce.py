@@ -364,17 +364,20 @@ def execute_local(
                 on_result(r)
 
 
-def _on_ray(address: str | None, submit: Callable, on_result: Callable[[dict], None]) -> None:
-    """Start Ray (or join the cluster at ``address``), submit the tasks ``submit(ray)`` returns
-    (each task's reference -> the keys of its runs), hand each result to ``on_result`` as it
-    arrives, and shut down the Ray started here."""
+def _on_ray(
+    address: str | None, submit: Callable, on_result: Callable[[dict], None], cpus: int | None
+) -> None:
+    """Start Ray with ``cpus`` CPUs (default: all; tasks take one each), or join the cluster at
+    ``address``; submit the tasks ``submit(ray)`` returns (each task's reference -> the keys of
+    its runs), hand each result to ``on_result`` as it arrives, and shut down the Ray started
+    here."""
     try:
         import ray
     except ImportError:
         raise HamError("the ray executors need Ray: pip install 'ham[cluster]'") from None
     started_here = not ray.is_initialized()
     if started_here:
-        kwargs = {"address": address} if address else {"num_cpus": os.cpu_count() or 1}
+        kwargs = {"address": address} if address else {"num_cpus": cpus or os.cpu_count() or 1}
         try:
             ray.init(**kwargs, include_dashboard=False, log_to_driver=False,
                      logging_level="ERROR")  # fmt: skip
@@ -403,14 +406,16 @@ def execute_ray(
     grid: int,
     address: str | None,
     on_result: Callable[[dict], None],
+    workers: int | None = None,
 ) -> None:
-    """The same grid as Ray tasks, one CPU each (``pip install ham[cluster]``)."""
+    """The same grid as Ray tasks, one CPU each (``pip install ham[cluster]``); a Ray started
+    here gets ``workers`` CPUs (default: all)."""
 
     def submit(ray):
         remote = ray.remote(num_cpus=1, max_retries=0)(_safe_run)
         return {remote.remote(j.to_dict(), str(root), world, grid): [j.key] for j in jobs}
 
-    _on_ray(address, submit, on_result)
+    _on_ray(address, submit, on_result, workers)
 
 
 def execute_ray_batched(
@@ -422,8 +427,10 @@ def execute_ray_batched(
     on_result: Callable[[dict], None],
     batch_runs: int | None = None,
     stop_at_perfect: bool = False,
+    workers: int | None = None,
 ) -> None:
-    """The batched executor's groups (:func:`group_jobs`) as Ray tasks, one CPU each: Ray hands
+    """The batched executor's groups (:func:`group_jobs`) as Ray tasks, one CPU each (a Ray
+    started here gets ``workers`` CPUs, default all): Ray hands
     each node whole batched models, as many at once as the node has CPUs (on a GPU node, as
     many groups share its GPU: runs on ``cuda`` train on each node's first GPU)."""
 
@@ -433,7 +440,7 @@ def execute_ray_batched(
         return {remote.remote(g, str(root), world, grid, stop_at_perfect): [j["key"] for j in g]
                 for g in groups}  # fmt: skip
 
-    _on_ray(address, submit, on_result)
+    _on_ray(address, submit, on_result, workers)
 
 
 def check_batched_options(executor: str, batch_runs: int | None, stop_at_perfect: bool) -> None:
@@ -618,10 +625,10 @@ def execute(
         if attempt:
             print(f"retrying {len(todo)} failed run(s) (attempt {attempt + 1})", file=sys.stderr)
         if executor == "ray":
-            execute_ray(todo, root, world, grid, ray_address, on_result)
+            execute_ray(todo, root, world, grid, ray_address, on_result, workers)
         elif executor == "ray-batched":
             execute_ray_batched(todo, root, world, grid, ray_address, on_result, batch_runs,
-                                stop_at_perfect)  # fmt: skip
+                                stop_at_perfect, workers)  # fmt: skip
         elif executor == "batched":
             execute_batched(todo, root, world, grid, workers, on_result, batch_runs,
                             stop_at_perfect)  # fmt: skip
