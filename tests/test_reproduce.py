@@ -195,7 +195,7 @@ def test_a_killed_worker_fails_its_runs_and_the_retry_finishes_them(tmp_path):
     env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="1", MPLBACKEND="Agg")
     proc = subprocess.Popen(
         [sys.executable, "-m", "ham", "reproduce", "table1", "--profile", "smoke", "--glances",
-         "2", "--variants", "full", "--seeds", "2", "--steps", "300", "--workers", "2",
+         "2", "--variants", "full", "--seeds", "2", "--steps", "150", "--workers", "2",
          "--quiet", "--json", "--out", str(out)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
     )  # fmt: skip
@@ -215,4 +215,4 @@ def test_a_killed_worker_fails_its_runs_and_the_retry_finishes_them(tmp_path):
     assert json.loads(stdout)["failures"] == []
     for key in ("full-concat2-g2-s0", "full-concat2-g2-s1"):
         m = json.loads((out / "runs" / key / "metrics.json").read_text())
-        assert m["steps"] == 300
+        assert m["steps"] == 150
