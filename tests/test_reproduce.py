@@ -216,3 +216,26 @@ def test_a_killed_worker_fails_its_runs_and_the_retry_finishes_them(tmp_path):
     for key in ("full-concat2-g2-s0", "full-concat2-g2-s1"):
         m = json.loads((out / "runs" / key / "metrics.json").read_text())
         assert m["steps"] == 150
+
+
+def test_ray_tasks_on_cuda_take_a_share_of_a_gpu():
+    """Runs on CUDA ask Ray for the cluster's GPUs over its CPUs (as many tasks as CPUs, spread
+    over the GPUs); a cluster without GPUs is refused in one line. A GPU cluster cannot exist
+    here: its resources stand in as Ray's ``cluster_resources()`` reports them."""
+    from ham.experiments.reproduce import _ray_options, gpu_share
+
+    assert gpu_share({"CPU": 16.0, "GPU": 1.0}) == 0.0625  # the H200 machine: 16 groups
+    assert gpu_share({"CPU": 64.0, "GPU": 8.0}) == 0.125  # 8 tasks on each of 8 GPUs
+    assert gpu_share({"CPU": 2.0, "GPU": 4.0}) == 1.0  # never more than one GPU
+    assert gpu_share({"CPU": 116.0, "GPU": 1.0}) == 0.0086  # Ray's 1e-4 resolution, rounded down
+    with pytest.raises(HamError, match="runs on cuda, but the Ray cluster has no GPU"):
+        gpu_share({"CPU": 8.0})
+
+    class Cluster:
+        def cluster_resources(self):
+            return {"CPU": 16.0, "GPU": 1.0}
+
+    jobs = plan("table2", PROFILES["smoke"], 1, "t.h5")
+    assert _ray_options(Cluster(), jobs) == {"num_cpus": 1, "max_retries": 0}
+    cuda = plan("table2", PROFILES["smoke"], 1, "t.h5", device="cuda")
+    assert _ray_options(Cluster(), cuda) == {"num_cpus": 1, "max_retries": 0, "num_gpus": 0.0625}

@@ -364,6 +364,29 @@ def execute_local(
                 on_result(r)
 
 
+def gpu_share(resources: dict) -> float:
+    """The share of a GPU a Ray task of one CPU asks for when its runs are on CUDA: the
+    cluster's GPUs over its CPUs, so that as many tasks run at once as there are CPUs, spread
+    evenly over the GPUs (1 GPU and 16 CPUs: 16 tasks on the GPU; 8 GPUs and 64 CPUs: 8 on
+    each), at most one GPU; rounded down to Ray's 1e-4 resolution."""
+    gpus, cpus = float(resources.get("GPU", 0)), float(resources.get("CPU", 0))
+    if gpus <= 0:
+        raise HamError(
+            "runs on cuda, but the Ray cluster has no GPU; accepted: --device cpu, or a cluster "
+            "whose nodes have GPUs (ray start --num-gpus N)"
+        )
+    return max(min(1.0, math.floor(gpus / max(cpus, 1.0) * 1e4) / 1e4), 1e-4)
+
+
+def _ray_options(ray, jobs: list[Job]) -> dict:
+    """One CPU per task, and its share of a GPU (:func:`gpu_share`) when the runs are on CUDA:
+    Ray then points each task's ``CUDA_VISIBLE_DEVICES`` at the GPU it was given."""
+    options = {"num_cpus": 1, "max_retries": 0}
+    if any(str(j.config.get("device", "cpu")).startswith("cuda") for j in jobs):
+        options["num_gpus"] = gpu_share(ray.cluster_resources())
+    return options
+
+
 def _on_ray(
     address: str | None, submit: Callable, on_result: Callable[[dict], None], cpus: int | None
 ) -> None:
@@ -408,11 +431,12 @@ def execute_ray(
     on_result: Callable[[dict], None],
     workers: int | None = None,
 ) -> None:
-    """The same grid as Ray tasks, one CPU each (``pip install ham[cluster]``); a Ray started
-    here gets ``workers`` CPUs (default: all)."""
+    """The same grid as Ray tasks, one CPU each (and a share of a GPU for runs on CUDA,
+    :func:`gpu_share`; ``pip install ham[cluster]``); a Ray started here gets ``workers`` CPUs
+    (default: all)."""
 
     def submit(ray):
-        remote = ray.remote(num_cpus=1, max_retries=0)(_safe_run)
+        remote = ray.remote(**_ray_options(ray, jobs))(_safe_run)
         return {remote.remote(j.to_dict(), str(root), world, grid): [j.key] for j in jobs}
 
     _on_ray(address, submit, on_result, workers)
@@ -430,12 +454,12 @@ def execute_ray_batched(
     workers: int | None = None,
 ) -> None:
     """The batched executor's groups (:func:`group_jobs`) as Ray tasks, one CPU each (a Ray
-    started here gets ``workers`` CPUs, default all): Ray hands
-    each node whole batched models, as many at once as the node has CPUs (on a GPU node, as
-    many groups share its GPU: runs on ``cuda`` train on each node's first GPU)."""
+    started here gets ``workers`` CPUs, default all): Ray hands each node whole batched models,
+    as many at once as the node has CPUs; groups on CUDA each take a share of a GPU
+    (:func:`gpu_share`), so that they spread evenly over a node's GPUs."""
 
     def submit(ray):
-        remote = ray.remote(num_cpus=1, max_retries=0)(_safe_batch)
+        remote = ray.remote(**_ray_options(ray, jobs))(_safe_batch)
         groups = [[j.to_dict() for j in g] for g in group_jobs(jobs, batch_runs)]
         return {remote.remote(g, str(root), world, grid, stop_at_perfect): [j["key"] for j in g]
                 for g in groups}  # fmt: skip
