@@ -239,3 +239,32 @@ def test_ray_tasks_on_cuda_take_a_share_of_a_gpu():
     assert _ray_options(Cluster(), jobs) == {"num_cpus": 1, "max_retries": 0}
     cuda = plan("table2", PROFILES["smoke"], 1, "t.h5", device="cuda")
     assert _ray_options(Cluster(), cuda) == {"num_cpus": 1, "max_retries": 0, "num_gpus": 0.0625}
+
+
+def test_ray_schedules_cuda_runs_on_the_gpus_it_is_told_of(tmp_path):
+    """A real Ray told of one GPU (it need not exist): the runs on CUDA are scheduled with their
+    share of it, run, and fail here with the device's one-line reason, no hang, no traceback."""
+    ray = pytest.importorskip("ray")
+    import torch
+
+    from ham.experiments.reproduce import execute_ray_batched
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA: the runs would train")
+    jobs = plan("table1", PROFILES["smoke"].subset([2], ["full"]), 2, str(tmp_path / "t.h5"),
+                device="cuda")  # fmt: skip
+    results: list[dict] = []
+    ray.init(num_cpus=2, num_gpus=1, include_dashboard=False, log_to_driver=False,
+             logging_level="ERROR")  # fmt: skip
+    try:
+        assert ray.cluster_resources()["GPU"] == 1.0
+        execute_ray_batched(jobs, tmp_path, {}, 21, None, results.append)
+    finally:
+        ray.shutdown()
+    assert sorted(r["key"] for r in results) == sorted(j.key for j in jobs)
+    for r in results:
+        assert r["status"] == "failed", r
+        assert (
+            r["error"]
+            == "HamError: device 'cuda' requested but CUDA is not available; use --device cpu"
+        )
