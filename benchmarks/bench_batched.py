@@ -118,12 +118,12 @@ def measure(glances: int, runs: int, repeats: int, table: str | None, device: st
     }
 
 
-def grid_hours(rows: list[dict], key: str, eval_key: str) -> float:
-    """CPU-hours of the paper grid with ms/step ``key`` and ms/evaluation ``eval_key``,
-    interpolated linearly in G."""
+def grid_hours(rows: list[dict], key: str, eval_key: str | None = None) -> float:
+    """CPU-hours of the paper grid with ms/step ``key`` and ms/evaluation ``eval_key``
+    (``None``: evaluations not counted), interpolated linearly in G."""
     g = [r["glances"] for r in rows]
     ms = [r[key] for r in rows]
-    ev = [r[eval_key] for r in rows]
+    ev = [0.0 if eval_key is None else r[eval_key] for r in rows]
     if len(rows) == 1:
         fit = lambda x, y: lambda G: y[0] * G / x[0]  # noqa: E731 - proportional to G
     else:

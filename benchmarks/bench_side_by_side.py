@@ -27,10 +27,7 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
-TABLE1_GLANCES = (1, 2, 3, 4, 6, 8, 10)
-STEPS, SEEDS = 50_000, 10
+from bench_batched import grid_hours  # this folder: the paper grid's hours, as it costs them
 
 
 def _worker(args: tuple, barrier, results) -> None:
@@ -94,20 +91,6 @@ def measure(
             "ms_per_run_step": 1000 * wall / (k * runs * steps)}  # fmt: skip
 
 
-def grid_hours(ms_by_glances: dict[int, float]) -> float:
-    """Hours of the paper grid's training steps (Table 1: 7 glance counts x 3 variants x 10
-    seeds, Table 2: 3 more combiners x 10 seeds at 3 glances) at these ms per run-step,
-    interpolated linearly in G (proportional to G from one glance count)."""
-    g, ms = list(ms_by_glances), list(ms_by_glances.values())
-    if len(g) == 1:
-        step = lambda G: ms[0] * G / g[0]  # noqa: E731
-    else:
-        step = np.poly1d(np.polyfit(g, ms, 1))
-    runs = {G: 3 * SEEDS for G in TABLE1_GLANCES}
-    runs[3] += 3 * SEEDS
-    return sum(n * STEPS * step(G) for G, n in runs.items()) / 3.6e6
-
-
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--table", required=True, help="a glance table (ham table build)")
@@ -134,7 +117,7 @@ def main() -> None:
                     and r["groups"] == 1), None) for g in args.glances}  # fmt: skip
     single = {(r["glances"], r["groups"]): r["ms_per_run_step"] for r in rows if r["singles"]}
     unit = "GPU-hours" if args.device.startswith("cuda") else "CPU-hours (wall-clock)"
-    hours = grid_hours(best)
+    hours = grid_hours([{"glances": g, "ms": ms} for g, ms in best.items()], "ms")
     if args.json:
         print(json.dumps({"device": args.device, "rows": rows, "grid_hours_best": hours}, indent=1))
         return
