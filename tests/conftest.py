@@ -1,3 +1,5 @@
+import contextlib
+import io
 import os
 import subprocess
 import sys
@@ -20,6 +22,25 @@ def run_ham(*args: str, cwd=None, timeout: float = 300) -> subprocess.CompletedP
         env=env,
         timeout=timeout,
     )
+
+
+def run_ham_inprocess(*args: str, cwd=None) -> subprocess.CompletedProcess:
+    """The CLI's ``main`` in this process, answered as :func:`run_ham` answers: for the second
+    and later commands of a test whose command is already run once in a subprocess elsewhere
+    (a subprocess costs 3-4 s, most of it importing torch). The thread count and the working
+    directory are restored after the call."""
+    from ham.cli.main import main
+
+    out, err = io.StringIO(), io.StringIO()
+    threads = torch.get_num_threads()
+    with contextlib.chdir(cwd or os.getcwd()):
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                rc = main(list(args))
+            except SystemExit as exc:  # the parser's errors
+                rc = exc.code if isinstance(exc.code, int) else 1
+    torch.set_num_threads(threads)
+    return subprocess.CompletedProcess(["ham", *args], rc, out.getvalue(), err.getvalue())
 
 
 def ok(r: subprocess.CompletedProcess) -> subprocess.CompletedProcess:
@@ -51,3 +72,9 @@ def env():
 @pytest.fixture
 def ham_cli():
     return run_ham
+
+
+@pytest.fixture
+def ham_main():
+    """:func:`run_ham_inprocess`: the CLI in this process."""
+    return run_ham_inprocess

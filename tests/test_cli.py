@@ -67,7 +67,7 @@ def test_unreadable_table_file(ham_cli, tmp_path):
     assert "cannot read glance table" in r.stderr
 
 
-def test_table_build_info_show(ham_cli, tmp_path):
+def test_table_build_info_show(ham_cli, ham_main, tmp_path):
     out = tmp_path / "t.h5"
     r = ham_cli("table", "build", "--objects", "paper", "--grid", "9", "--out", str(out), "--quiet")
     assert r.returncode == 0, r.stderr
@@ -78,7 +78,7 @@ def test_table_build_info_show(ham_cli, tmp_path):
     r = ham_cli("table", "show", str(out), "--object", "ramp_up", "--n", "3", "--out", str(png))
     assert r.returncode == 0, r.stderr
     assert png.exists()
-    r = ham_cli("table", "show", str(out), "--object", "ridge", "--out", str(png))
+    r = ham_main("table", "show", str(out), "--object", "ridge", "--out", str(png))
     assert r.returncode == 2 and "not in table" in r.stderr
 
 

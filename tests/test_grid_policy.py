@@ -17,7 +17,7 @@ from ham.model.agent import HamConfig, HapticAttentionModel
 from ham.model.policy import FixedPose, GridPolicy, make_policy, raster_counts, snake, sweep
 from ham.world.config import WorldConfig
 from ham.world.source import make_source
-from tests.conftest import ok, one_line_error, run_ham
+from tests.conftest import ok, one_line_error, run_ham, run_ham_inprocess
 
 CS = "ap_gym:CircleSquare-v0"
 
@@ -94,7 +94,7 @@ def test_rollout_on_the_paper_world_follows_the_sweep():
 
 def _train(tmp_path, name, *extra):
     out = tmp_path / name
-    ok(run_ham("train", "--steps", "2", "--batch-size", "4", "--eval-every", "2",
+    ok(run_ham_inprocess("train", "--steps", "2", "--batch-size", "4", "--eval-every", "2",
                "--eval-batches", "1", "--threads", "1", "--seed", "0", "--out", str(out),
                "--policy", "grid", *extra))  # fmt: skip
     return json.loads((out / "metrics.json").read_text()), json.loads(
@@ -123,7 +123,7 @@ def test_train_grid_on_circle_square(tmp_path):
         "centered", "--normalization", "none", "--learner", "info", "--optimizer", "adam",
     )  # fmt: skip
     assert metrics["steps"] == 2 and config["model"]["moves"] is True
-    r = run_ham("train", "--env", CS, "--glances", "16", "--actions", "relative",
+    r = run_ham_inprocess("train", "--env", CS, "--glances", "16", "--actions", "relative",
                 "--max-step-length", "1", "--policy", "grid", "--steps", "2",
                 "--out", str(tmp_path / "wide"))  # fmt: skip
     assert "wider than its image" in one_line_error(r)
@@ -229,7 +229,7 @@ def test_train_grid_corner_on_circle_square(tmp_path):
         "centered", "--normalization", "none", "--learner", "info", "--optimizer", "adam",
     )  # fmt: skip
     out = tmp_path / "corner"
-    ok(run_ham("train", "--env", CS, "--glances", "16", "--actions", "relative", "--glimpse",
+    ok(run_ham_inprocess("train", "--env", CS, "--glances", "16", "--actions", "relative", "--glimpse",
                "centered", "--normalization", "none", "--learner", "info", "--optimizer", "adam",
                "--steps", "2", "--batch-size", "4", "--eval-every", "2", "--eval-batches", "1",
                "--threads", "1", "--seed", "0", "--out", str(out), "--policy", "grid-corner"))  # fmt: skip
@@ -250,8 +250,9 @@ def test_grid_corner_run_resumes_bit_identically(tmp_path):
               "--normalization", "none", "--learner", "info", "--optimizer", "adam",
               "--batch-size", "4", "--eval-every", "2", "--eval-batches", "1", "--threads", "1",
               "--seed", "0", "--policy", "grid-corner"]  # fmt: skip
-    ok(run_ham("train", *common, "--steps", "4", "--out", str(tmp_path / "full")))
-    ok(run_ham("train", *common, "--steps", "2", "--out", str(tmp_path / "half")))
+    # the resume in a new process, the other runs in this one
+    ok(run_ham_inprocess("train", *common, "--steps", "4", "--out", str(tmp_path / "full")))
+    ok(run_ham_inprocess("train", *common, "--steps", "2", "--out", str(tmp_path / "half")))
     ok(run_ham("train", "--resume", str(tmp_path / "half"), "--steps", "4"))
     full = json.loads((tmp_path / "full" / "metrics.json").read_text())
     half = json.loads((tmp_path / "half" / "metrics.json").read_text())
@@ -271,7 +272,7 @@ def test_grid_corner_run_resumes_bit_identically(tmp_path):
     ],
 )  # fmt: skip
 def test_train_grid_corner_refuses_other_worlds(tmp_path, extra, message):
-    r = run_ham("train", "--policy", "grid-corner", "--steps", "2", "--out",
+    r = run_ham_inprocess("train", "--policy", "grid-corner", "--steps", "2", "--out",
                 str(tmp_path / "r"), *extra)  # fmt: skip
     assert message in one_line_error(r)
     assert not (tmp_path / "r").exists()

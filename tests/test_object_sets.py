@@ -12,7 +12,7 @@ import trimesh
 from ham.errors import HamError
 from ham.world import objects
 from ham.world.objects import HapticObject
-from tests.conftest import ok, one_line_error, run_ham
+from tests.conftest import ok, one_line_error, run_ham, run_ham_inprocess
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -283,11 +283,11 @@ def test_cli_lists_and_draws_the_sets(tmp_path):
     assert [r["name"] for r in rows] == list(objects.OBJECT_SETS["curvature2d"])
     assert all(r["varies_in_y"] and r["sets"] == ["curvature2d"] for r in rows)
     assert png.read_bytes()[:8] == PNG_SIGNATURE
-    text = ok(run_ham("objects", "--set", "composite:test")).stdout
+    text = ok(run_ham_inprocess("objects", "--set", "composite:test")).stdout
     assert "comp_EFVC_2   16 x 16 cm" in text and "comp_EFVC_1 " not in text.split("split")[0]
     assert "split composite:train: 12 objects: comp_EFVC_1, " in text
     assert "split composite:test: 12 objects: comp_EFVC_2, " in text
-    rows = json.loads(ok(run_ham("objects", "--set", "composite", "--json")).stdout)
+    rows = json.loads(ok(run_ham_inprocess("objects", "--set", "composite", "--json")).stdout)
     assert rows[0]["sets"] == ["composite", "composite:train"]
 
 
@@ -306,6 +306,6 @@ def test_cli_lists_and_draws_the_sets(tmp_path):
     ],
 )
 def test_cli_bad_inputs(tmp_path, args, match):
-    r = run_ham("objects", *args, cwd=tmp_path)
+    r = run_ham_inprocess("objects", *args, cwd=tmp_path)
     assert match in one_line_error(r)
     assert not list(tmp_path.iterdir())  # nothing written

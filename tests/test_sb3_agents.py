@@ -221,9 +221,9 @@ def test_bad_configs():
         make_env("ap_gym:NoSuchEnv-v0")
 
 
-def test_cli_trains_ppo_on_a_table_and_refuses_to_overwrite(tmp_path, ham_cli):
+def test_cli_trains_ppo_on_a_table_and_refuses_to_overwrite(tmp_path, ham_cli, ham_main):
     table = tmp_path / "paper5.h5"
-    r = ham_cli("table", "build", "--grid", "5", "--quiet", "--out", str(table))
+    r = ham_main("table", "build", "--grid", "5", "--quiet", "--out", str(table))
     assert r.returncode == 0, r.stderr
     out = tmp_path / "ppo"
     args = ["sb3", "--algo", "ppo", "--glances", "2", "--table", str(table), "--env-steps", "128",
@@ -238,23 +238,26 @@ def test_cli_trains_ppo_on_a_table_and_refuses_to_overwrite(tmp_path, ham_cli):
     assert len(saved["accuracy_per_glance"]) == 2
     config = json.loads((out / "config.json").read_text())
     assert config["env_kwargs"] == {"glances": 2, "table": str(table)} and config["seed"] == 3
-    r = ham_cli(*args, "--out", str(out))
+    r = ham_main(*args, "--out", str(out))
     assert r.returncode == 2 and r.stderr.strip().endswith(
         "accepted: a path that does not exist yet"
     )
     assert len(r.stderr.strip().splitlines()) == 1
 
 
-def test_cli_resume_trains_a_finished_run_further_as_if_never_stopped(tmp_path, ham_cli, capsys):
+def test_cli_resume_trains_a_finished_run_further_as_if_never_stopped(
+    tmp_path, ham_cli, ham_main, capsys
+):
+    # the resume in a new process (the point), the other commands in this one
     base = ["--algo", "sac", "--glances", "2", "--eval-every", "64", "--eval-episodes", "4",
             "--algo-kwargs", json.dumps({"learning_starts": 32, "batch_size": 32, **SMALL}),
             "--json", "--no-progress"]  # fmt: skip
-    r = ham_cli("sb3", *base, "--env-steps", "128", "--out", str(tmp_path / "a"))
+    r = ham_main("sb3", *base, "--env-steps", "128", "--out", str(tmp_path / "a"))
     assert r.returncode == 0, r.stderr
     r = ham_cli("sb3", "--resume", str(tmp_path / "a"), "--env-steps", "192", "--json")
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["env_steps"] == 192
-    r = ham_cli("sb3", *base, "--env-steps", "192", "--out", str(tmp_path / "b"))
+    r = ham_main("sb3", *base, "--env-steps", "192", "--out", str(tmp_path / "b"))
     assert r.returncode == 0, r.stderr
     a, b = (json.loads((tmp_path / d / "metrics.json").read_text()) for d in "ab")
     assert [h["accuracy_per_glance"] for h in a["history"]] == [
@@ -268,7 +271,7 @@ def test_cli_resume_trains_a_finished_run_further_as_if_never_stopped(tmp_path, 
     events.Reload()
     logged = [(e.step, round(e.value, 6)) for e in events.Scalars("eval/final_accuracy")]
     assert logged == [(h["env_steps"], round(h["final_accuracy"], 6)) for h in a["history"]]
-    r = ham_cli("sb3", "--resume", str(tmp_path / "a"), "--seed", "1")
+    r = ham_main("sb3", "--resume", str(tmp_path / "a"), "--seed", "1")
     assert r.returncode == 2 and r.stderr.strip().endswith("(only --env-steps may change)")
     assert len(r.stderr.strip().splitlines()) == 1
     from ham.cli.main import main
@@ -299,8 +302,8 @@ def test_cli_resume_trains_a_finished_run_further_as_if_never_stopped(tmp_path, 
         (["--algo", "ppo", "--device", "tpu"], "device 'tpu'; accepted: cpu, cuda or cuda:N"),
     ],
 )  # fmt: skip
-def test_cli_refuses_bad_inputs_in_one_line_and_writes_nothing(tmp_path, ham_cli, args, message):
-    r = ham_cli("sb3", *args, "--out", str(tmp_path / "run"), cwd=tmp_path)
+def test_cli_refuses_bad_inputs_in_one_line_and_writes_nothing(tmp_path, ham_main, args, message):
+    r = ham_main("sb3", *args, "--out", str(tmp_path / "run"), cwd=tmp_path)
     assert r.returncode == 2 and message in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
     assert not (tmp_path / "run").exists()

@@ -24,7 +24,7 @@ from ham.world.drawing import draw_table_grid
 from ham.world.sensor import MAX_TAXELS, SensorConfig, normalize
 from ham.world.table import GlanceTable, build_table, table_info
 
-from .conftest import run_ham
+from .conftest import run_ham, run_ham_inprocess
 
 PADS = [(8, 0.01), (32, 0.0025)]
 GRID = 5
@@ -132,7 +132,7 @@ def test_glance_table_train_evaluate_env_follow_the_pad(tmp_path, taxels, pitch)
     n, pad = taxels, ["--taxels", str(taxels), "--pitch", str(pitch)]
     # glance (CLI): an N x N image, summed force 2 N on the flat box, drawn
     png = tmp_path / "glance.png"
-    out = _ok(run_ham("glance", "--object", "box", "--x", "0", "--phi", "0", "--json",
+    out = _ok(run_ham_inprocess("glance", "--object", "box", "--x", "0", "--phi", "0", "--json",
                       "--out", str(png), *pad))  # fmt: skip
     g = json.loads(out.splitlines()[0])
     p = np.asarray(g["pressure"])
@@ -141,7 +141,11 @@ def test_glance_table_train_evaluate_env_follow_the_pad(tmp_path, taxels, pitch)
 
     # table (CLI): records the sensor, images N x N
     table = tmp_path / "t.h5"
-    _ok(run_ham("table", "build", "--grid", str(GRID), "--out", str(table), "--quiet", *pad))
+    _ok(
+        run_ham_inprocess(
+            "table", "build", "--grid", str(GRID), "--out", str(table), "--quiet", *pad
+        )
+    )
     info = table_info(table)
     assert (
         info.sensor["taxels"] == n and info.sensor["pitch"] == pitch and info.pressure_dim == n * n
@@ -155,8 +159,8 @@ def test_glance_table_train_evaluate_env_follow_the_pad(tmp_path, taxels, pitch)
     few = ["--steps", "2", "--eval-every", "1", "--eval-batches", "1", "--batch-size", "8",
            "--glances", "2", "--no-progress"]  # fmt: skip
     run_t, run_o = tmp_path / "from_table", tmp_path / "online"
-    _ok(run_ham("train", "--table", str(table), "--out", str(run_t), *few))
-    _ok(run_ham("train", "--online", "--out", str(run_o), *few, *pad))
+    _ok(run_ham_inprocess("train", "--table", str(table), "--out", str(run_t), *few))
+    _ok(run_ham_inprocess("train", "--online", "--out", str(run_o), *few, *pad))
     for run in (run_t, run_o):
         model = json.loads((run / "config.json").read_text())["model"]
         assert model["pressure_dim"] == n * n and model["n_objects"] == 4
@@ -164,7 +168,7 @@ def test_glance_table_train_evaluate_env_follow_the_pad(tmp_path, taxels, pitch)
     assert world["sensor"]["taxels"] == n and world["sensor"]["pitch"] == pitch
 
     # evaluate (CLI)
-    ev = json.loads(_ok(run_ham("evaluate", str(run_t), "--batches", "1", "--json")))
+    ev = json.loads(_ok(run_ham_inprocess("evaluate", str(run_t), "--batches", "1", "--json")))
     assert len(ev["accuracy_per_glance"]) == 2 and 0 <= ev["accuracy"] <= 1
 
     # environments: from the table and online, observation N x N, rendered 128 px wide
@@ -221,7 +225,7 @@ def test_a_table_refuses_a_model_of_another_sensor(tmp_path):
     )
     t16 = build_table(WorldConfig(), 3, tmp_path / "t16.h5", progress=False)
     run = tmp_path / "run"
-    _ok(run_ham("train", "--table", str(t8), "--out", str(run), "--steps", "1", "--eval-every",
+    _ok(run_ham_inprocess("train", "--table", str(t8), "--out", str(run), "--steps", "1", "--eval-every",
                 "1", "--eval-batches", "1", "--batch-size", "4", "--no-progress"))  # fmt: skip
     # The run's model reads 8 x 8 images; point it at a 16 x 16 table: refused, by name.
     cfg = json.loads((run / "config.json").read_text())
@@ -230,7 +234,7 @@ def test_a_table_refuses_a_model_of_another_sensor(tmp_path):
     _refused(run_ham("evaluate", str(run), "--batches", "1"),
              "the model reads 64 pressure values", "16 x 16 images (256 values)")  # fmt: skip
     # --taxels/--pitch beside a table must agree with the table's sensor.
-    _refused(run_ham("train", "--table", str(t8), "--taxels", "16", "--out", str(tmp_path / "x")),
+    _refused(run_ham_inprocess("train", "--table", str(t8), "--taxels", "16", "--out", str(tmp_path / "x")),
              "--taxels 16", "taxels = 8")  # fmt: skip
     assert not (tmp_path / "x").exists()
 

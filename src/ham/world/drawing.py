@@ -19,11 +19,14 @@ from ham.world.files import atomic_write, check_output  # noqa: E402
 from ham.world.objects import HapticObject  # noqa: E402
 
 
-def _save(fig, out: str | os.PathLike) -> Path:
+def _save(fig, out: str | os.PathLike, tight: bool = True) -> Path:
+    """``fig`` as a PNG, atomically; ``tight``: cropped to its content (one more draw of the
+    figure: seconds for many 3-D panels, whose layout is fixed instead)."""
+    bbox = "tight" if tight else None
     try:
         out = check_output(out, (".png",), what="picture")
         return atomic_write(
-            out, lambda tmp: fig.savefig(tmp, dpi=110, bbox_inches="tight"), what="picture"
+            out, lambda tmp: fig.savefig(tmp, dpi=110, bbox_inches=bbox), what="picture"
         )
     finally:
         plt.close(fig)
@@ -166,6 +169,10 @@ def draw_objects_3d(
         ax.zaxis.set_major_locator(MaxNLocator(3))
         ax.set_xlabel("x (cm)", fontsize=7, labelpad=-4)
         ax.set_ylabel("y (cm)", fontsize=7, labelpad=-4)
-    fig.suptitle(title or "Objects: top h(x, y) (cm)", fontsize=11)
-    fig.tight_layout()
-    return _save(fig, out)
+    # fixed margins (inches over the figure's height): tight_layout and a tight crop measure
+    # every 3-D axis (14 of 21 s for the 41 objects of `ham objects --out`)
+    inch = 1 / fig.get_figheight()
+    fig.suptitle(title or "Objects: top h(x, y) (cm)", fontsize=11, y=1 - 0.12 * inch)
+    fig.subplots_adjust(left=0.02, right=0.98, bottom=0.15 * inch, top=1 - 0.75 * inch,
+                        wspace=0.05, hspace=0.15)  # fmt: skip
+    return _save(fig, out, tight=False)
