@@ -28,18 +28,27 @@ def run_ham_inprocess(*args: str, cwd=None) -> subprocess.CompletedProcess:
     """The CLI's ``main`` in this process, answered as :func:`run_ham` answers: for the second
     and later commands of a test whose command is already run once in a subprocess elsewhere
     (a subprocess costs 3-4 s, most of it importing torch). The thread count and the working
-    directory are restored after the call."""
+    directory are restored after the call, and so is the object registry (an objects file the
+    command loads stays out of the other tests of this process)."""
     from ham.cli.main import main
+    from ham.world import objects
 
+    registry = (objects._REGISTRY, objects._ORDER, objects._ORIGIN, objects._FILES, objects._LAZY)
+    saved = [r.copy() for r in registry]
     out, err = io.StringIO(), io.StringIO()
     threads = torch.get_num_threads()
-    with contextlib.chdir(cwd or os.getcwd()):
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            try:
-                rc = main(list(args))
-            except SystemExit as exc:  # the parser's errors
-                rc = exc.code if isinstance(exc.code, int) else 1
-    torch.set_num_threads(threads)
+    try:
+        with contextlib.chdir(cwd or os.getcwd()):
+            with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+                try:
+                    rc = main(list(args))
+                except SystemExit as exc:  # the parser's errors
+                    rc = exc.code if isinstance(exc.code, int) else 1
+    finally:
+        torch.set_num_threads(threads)
+        for live, before in zip(registry, saved, strict=True):
+            live.clear()
+            live.extend(before) if isinstance(live, list) else live.update(before)
     return subprocess.CompletedProcess(["ham", *args], rc, out.getvalue(), err.getvalue())
 
 

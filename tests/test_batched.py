@@ -376,7 +376,7 @@ def batched_grid(tmp_path_factory):
     return out
 
 
-def test_reproduce_batched_executor_matches_local(batched_grid, tmp_path, ham_cli):
+def test_reproduce_batched_executor_matches_local(batched_grid, tmp_path, ham_cli, ham_main):
     common = [*SMALL_GRID, "--workers", "1"]
     loc = ham_cli(*common, "--out", str(tmp_path / "l"))
     assert loc.returncode == 0, loc.stderr
@@ -386,12 +386,12 @@ def test_reproduce_batched_executor_matches_local(batched_grid, tmp_path, ham_cl
     t_l = json.loads((tmp_path / "l/table1.json").read_text())
     assert t_b["2"]["full"]["mean"] == pytest.approx(t_l["2"]["full"]["mean"])
     # finished runs are skipped by every executor
-    again = ham_cli(*common, "--executor", "batched", "--out", str(batched_grid))
+    again = ham_main(*common, "--executor", "batched", "--out", str(batched_grid))
     assert json.loads(again.stdout)["skipped"] == 4
-    bad = ham_cli(*common, "--stop-at-perfect", "--out", str(tmp_path / "x"))
+    bad = ham_main(*common, "--stop-at-perfect", "--out", str(tmp_path / "x"))
     assert bad.returncode == 2
     assert "ham: error: --stop-at-perfect needs --executor batched or ray-batched" in bad.stderr
-    bad = ham_cli(*common, "--executor", "batched", "--ray-address", "auto", "--out",
+    bad = ham_main(*common, "--executor", "batched", "--ray-address", "auto", "--out",
                   str(tmp_path / "x"))  # fmt: skip
     assert bad.returncode == 2
     assert "--ray-address 'auto': accepted only with --executor ray or ray-batched" in bad.stderr

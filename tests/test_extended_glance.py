@@ -334,7 +334,7 @@ register(HapticObject.from_surface("cli_tilt", lambda x, y: 0.03 + 0.2 * y))
 """
 
 
-def test_cli_glance_extended_json(ham_cli, tmp_path):
+def test_cli_glance_extended_json(ham_cli, ham_main, tmp_path):
     import json
 
     f = tmp_path / "objs.py"
@@ -352,25 +352,25 @@ def test_cli_glance_extended_json(ham_cli, tmp_path):
     ref = sim.glance([0], [0.1], [0.1], [-0.2], [0.2])
     assert d["height"] == pytest.approx(float(ref.height[0]), abs=1e-9)
     # y moves the pad on an object sloping in y: higher at +y.
-    hi = ham_cli("glance", "--objects-file", str(f), "--object", "cli_tilt", "--x", "0",
+    hi = ham_main("glance", "--objects-file", str(f), "--object", "cli_tilt", "--x", "0",
                  "--phi", "0", "--y", "0.5", "--json")  # fmt: skip
-    lo = ham_cli("glance", "--objects-file", str(f), "--object", "cli_tilt", "--x", "0",
+    lo = ham_main("glance", "--objects-file", str(f), "--object", "cli_tilt", "--x", "0",
                  "--phi", "0", "--y", "-0.5", "--json")  # fmt: skip
     assert json.loads(hi.stdout)["height"] > json.loads(lo.stdout)["height"] + 0.005
-    text = ham_cli(*args, "--x", "0", "--phi", "0")
+    text = ham_main(*args, "--x", "0", "--phi", "0")
     assert text.returncode == 0 and "height" in text.stdout and "phi_y" in text.stdout
 
 
-def test_cli_pose_dims_refused_by_name(ham_cli):
+def test_cli_pose_dims_refused_by_name(ham_cli, ham_main):
     r = ham_cli("glance", "--object", "box", "--x", "0", "--phi", "0", "--pose-dims", "x,z")
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "unknown pose dimension 'z'" in r.stderr and "x,y,phi,phi_y" in r.stderr
-    r = ham_cli("glance", "--object", "box", "--x", "0", "--phi", "0", "--pose-dims", "phi,x")
+    r = ham_main("glance", "--object", "box", "--x", "0", "--phi", "0", "--pose-dims", "phi,x")
     assert r.returncode == 2 and "in that order" in r.stderr
-    r = ham_cli("glance", "--object", "box", "--x", "0", "--phi", "0", "--y", "1.5")
+    r = ham_main("glance", "--object", "box", "--x", "0", "--phi", "0", "--y", "1.5")
     assert r.returncode == 2 and "q_y = 1.5" in r.stderr
     # The paper's glance is unchanged: no y, no tilt about x, height is z.
-    r = ham_cli("glance", "--object", "ramp_up", "--x", "0.3", "--phi", "0.2", "--json")
+    r = ham_main("glance", "--object", "ramp_up", "--x", "0.3", "--phi", "0.2", "--json")
     import json
 
     d = json.loads(r.stdout)

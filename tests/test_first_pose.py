@@ -171,7 +171,7 @@ def test_an_own_first_glance_resumes_bit_identically(tmp_path):
     assert a["first_pose.weight"].shape == (4,)
 
 
-def test_own_first_glance_through_the_cli(tmp_path, ham_cli):
+def test_own_first_glance_through_the_cli(tmp_path, ham_cli, ham_main):
     out = tmp_path / "run"
     ok(ham_cli("train", "--learner", "info", "--optimizer", "adam", "--glances", "3",
                "--batch-size", "8", "--steps", "3", "--first-glance", "own",
@@ -183,10 +183,10 @@ def test_own_first_glance_through_the_cli(tmp_path, ham_cli):
     assert m["config"]["model"]["first_pose_grid"] == 2
     assert m["config"]["first_pose_lr_scale"] == 4.0
     assert m["stop_accuracy"] is not None
-    err = one_line_error(ham_cli("train", "--learner", "info", "--first-pose-grid", "2",
+    err = one_line_error(ham_main("train", "--learner", "info", "--first-pose-grid", "2",
                                  "--steps", "1", "--out", str(tmp_path / "bad")))  # fmt: skip
     assert "first_pose_grid" in err and not (tmp_path / "bad").exists()
-    err = one_line_error(ham_cli("train", "--learner", "info", "--first-glance", "learned",
+    err = one_line_error(ham_main("train", "--learner", "info", "--first-glance", "learned",
                                  "--first-pose-lr-scale", "3", "--steps", "1",
                                  "--out", str(tmp_path / "bad")))  # fmt: skip
     assert "first_pose_lr_scale" in err

@@ -165,7 +165,7 @@ def test_bad_probe_grid(kw):
         HamConfig(**{"first_glance": "probe", **kw})
 
 
-def test_probe_first_glance_through_the_cli(tmp_path, ham_cli):
+def test_probe_first_glance_through_the_cli(tmp_path, ham_cli, ham_main):
     out = tmp_path / "run"
     ok(ham_cli("train", "--learner", "info", "--optimizer", "adam", "--glances", "3",
                "--batch-size", "8", "--steps", "6", "--first-glance", "probe",
@@ -176,9 +176,9 @@ def test_probe_first_glance_through_the_cli(tmp_path, ham_cli):
     assert m["config"]["model"]["probe_grid"] == 2 and m["config"]["probe_warmup"] == 1
     assert m["history"][-1]["first_probe"]["committed"]
     assert m["env_steps"] == 6 * 24 + 4 * (4 + 2)  # rounds on 4 and 2 candidates
-    err = one_line_error(ham_cli("train", "--learner", "info", "--probe-grid", "5",
+    err = one_line_error(ham_main("train", "--learner", "info", "--probe-grid", "5",
                                  "--steps", "1", "--out", str(tmp_path / "bad")))  # fmt: skip
     assert "probe_grid" in err and not (tmp_path / "bad").exists()
-    err = one_line_error(ham_cli("train", "--first-glance", "probe", "--steps", "200",
+    err = one_line_error(ham_main("train", "--first-glance", "probe", "--steps", "200",
                                  "--out", str(tmp_path / "bad")))  # fmt: skip
     assert "first_glance 'probe' with learner 'hybrid'" in err and not (tmp_path / "bad").exists()

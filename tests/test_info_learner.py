@@ -192,7 +192,7 @@ def test_policy_lr_scale_gives_the_location_network_its_own_rate(tmp_path):
 
 
 # --------------------------------------------------------------------------- runs
-def test_info_learner_through_the_cli(tmp_path, ham_cli):
+def test_info_learner_through_the_cli(tmp_path, ham_cli, ham_main):
     out = tmp_path / "run"
     p = ham_cli("train", *INFO, "--glances", "3", "--batch-size", "8", "--env-steps", "100",
                 "--first-glance", "learned", "--gamma", "0.5", "--entropy-coef", "0.001",
@@ -215,10 +215,10 @@ def test_info_learner_through_the_cli(tmp_path, ham_cli):
     hits = [h["env_steps"] for h in m["history"] if h["accuracy"] >= 0.95]
     assert reached == (hits[0] if hits else None)
     # help is derived from the dataclass
-    h = ham_cli("train", "--help")
+    h = ham_main("train", "--help")
     assert "--env-steps" in h.stdout and "--policy-lr-scale" in h.stdout
     # one training length
-    p = ham_cli("train", *INFO, "--steps", "3", "--env-steps", "100", "--out", str(tmp_path / "x"))
+    p = ham_main("train", *INFO, "--steps", "3", "--env-steps", "100", "--out", str(tmp_path / "x"))
     assert p.returncode == 2 and "--env-steps" in p.stderr
     assert len(p.stderr.strip().splitlines()) == 1 and not (tmp_path / "x").exists()
 

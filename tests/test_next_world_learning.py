@@ -111,7 +111,7 @@ def test_held_out_instances_evaluate_a_composite_run(tmp_path):
         load_run(tmp_path / "run", objects="curvature2d")
 
 
-def test_ham_train_evaluate_heatmap_on_4d_poses(tmp_path, ham_cli):
+def test_ham_train_evaluate_heatmap_on_4d_poses(tmp_path, ham_cli, ham_main):
     run = tmp_path / "run"
     r = ham_cli("train", "--objects", "curvature2d", "--pose-dims", "x,y,phi,phi_y",
                 "--height-input", "--glances", "2", "--batch-size", "4", "--steps", "2",
@@ -121,7 +121,7 @@ def test_ham_train_evaluate_heatmap_on_4d_poses(tmp_path, ham_cli):
     cfg = json.loads((run / "config.json").read_text())
     assert cfg["model"]["pose_dims"] == list(DIMS4) and cfg["model"]["height_input"]
     png, data = tmp_path / "heat.png", tmp_path / "heat.json"
-    r = ham_cli("heatmap", str(run), "--out", str(png), "--batches", "2", "--bins", "5",
+    r = ham_main("heatmap", str(run), "--out", str(png), "--batches", "2", "--bins", "5",
                 "--json", str(data))  # fmt: skip
     assert r.returncode == 0, r.stderr
     d = json.loads(data.read_text())
@@ -129,7 +129,7 @@ def test_ham_train_evaluate_heatmap_on_4d_poses(tmp_path, ham_cli):
     assert len(d["projections"]) == 6 and png.read_bytes()[:4] == b"\x89PNG"
     counts = np.asarray(d["projections"][0]["counts"])
     assert counts.shape == (9, 5, 5) and counts.sum() == 2 * 4
-    r = ham_cli("evaluate", str(run), "--objects", "composite:test", "--batches", "1")
+    r = ham_main("evaluate", str(run), "--objects", "composite:test", "--batches", "1")
     assert r.returncode == 2 and "has 12 objects but the run classifies 9" in r.stderr
 
 

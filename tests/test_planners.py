@@ -102,7 +102,7 @@ def test_orderings_on_a_real_table(small_table):
         assert pl.oracle(g + 1) >= o - 1e-12
 
 
-def test_cli_json_and_errors(tmp_path, ham_cli):
+def test_cli_json_and_errors(tmp_path, ham_cli, ham_main):
     path = tmp_path / "t.h5"
     build_table(WorldConfig(), 11, path, progress=False)
     p = ham_cli(
@@ -112,9 +112,9 @@ def test_cli_json_and_errors(tmp_path, ham_cli):
     d = json.loads(p.stdout)
     assert set(d["accuracy"]) == {"1", "2"} and 0 < d["accuracy"]["1"] <= 1
     assert d["expected_glances_to_identify"] >= 1
-    bad = ham_cli("baselines", "--policy", "random", "--table", str(path), "--glances", "0")
+    bad = ham_main("baselines", "--policy", "random", "--table", str(path), "--glances", "0")
     assert bad.returncode == 2 and "--glances 0" in bad.stderr and "Traceback" not in bad.stderr
-    bad = ham_cli("baselines", "--policy", "oracle", "--table", str(tmp_path / "no.h5"))
+    bad = ham_main("baselines", "--policy", "oracle", "--table", str(tmp_path / "no.h5"))
     assert bad.returncode == 2 and "no.h5" in bad.stderr
 
 

@@ -51,12 +51,12 @@ def test_fields_laid_over_a_preset_replace_its_fields_and_bad_names_are_refused(
         world_from_table({"pose": "author"})
 
 
-def test_the_cli_refuses_an_unknown_preset_by_name(ham_cli, tmp_path):
+def test_the_cli_refuses_an_unknown_preset_by_name(ham_cli, ham_main, tmp_path):
     r = ham_cli("table", "build", "--world", "paper-gazbo", "--out", str(tmp_path / "t.h5"))
     assert r.returncode == 2
     assert r.stderr.strip() == ("ham: error: world preset 'paper-gazbo'; accepted: paper-gazebo")
     assert not (tmp_path / "t.h5").exists()
-    r = ham_cli("reproduce", "table1", "--world", "nope", "--out", str(tmp_path / "o"))
+    r = ham_main("reproduce", "table1", "--world", "nope", "--out", str(tmp_path / "o"))
     assert r.returncode == 2 and "world preset 'nope'; accepted: paper-gazebo" in r.stderr
 
 
@@ -111,7 +111,7 @@ def test_the_cache_dir_is_an_option_an_environment_variable_or_home(tmp_path, mo
 
 
 @needs_mujoco
-def test_table_build_with_the_preset_builds_into_the_cache_once(ham_cli, tmp_path):
+def test_table_build_with_the_preset_builds_into_the_cache_once(ham_cli, ham_main, tmp_path):
     cache = tmp_path / "cache"
     args = ["table", "build", "--world", "paper-gazebo", "--grid", "3", "--quiet",
             "--cache-dir", str(cache)]  # fmt: skip
@@ -122,14 +122,14 @@ def test_table_build_with_the_preset_builds_into_the_cache_once(ham_cli, tmp_pat
     assert WorldConfig.from_dict(info.world) == world_from_table({"preset": "paper-gazebo"})
     assert info.simulator["name"] == "mujoco" if "name" in info.simulator else True
     stamp = cached.stat().st_mtime_ns
-    r = ham_cli(*args, "--out", str(tmp_path / "b.h5"))
+    r = ham_main(*args, "--out", str(tmp_path / "b.h5"))
     assert r.returncode == 0 and f"from the cache: {cached}" in r.stdout
     assert cached.stat().st_mtime_ns == stamp
     assert (tmp_path / "a.h5").read_bytes() == (tmp_path / "b.h5").read_bytes()
 
 
 @needs_mujoco
-def test_train_with_the_preset_evaluates_sampled_poses_unless_told(ham_cli, tmp_path):
+def test_train_with_the_preset_evaluates_sampled_poses_unless_told(ham_cli, ham_main, tmp_path):
     common = ["train", "--world", "paper-gazebo", "--online", "--steps", "1", "--glances", "2",
               "--eval-every", "1", "--eval-batches", "1", "--batch-size", "4", "--no-progress"]  # fmt: skip
     r = ham_cli(*common, "--out", str(tmp_path / "a"))
@@ -137,14 +137,14 @@ def test_train_with_the_preset_evaluates_sampled_poses_unless_told(ham_cli, tmp_
     config = json.loads((tmp_path / "a" / "config.json").read_text())
     assert config["eval_policy"] == "sample" and config["table"] is None
     assert WorldConfig.from_dict(config["world"]) == world_from_table({"preset": "paper-gazebo"})
-    r = ham_cli(*common, "--eval-policy", "mean", "--out", str(tmp_path / "b"))
+    r = ham_main(*common, "--eval-policy", "mean", "--out", str(tmp_path / "b"))
     assert r.returncode == 0, r.stderr
     assert json.loads((tmp_path / "b" / "config.json").read_text())["eval_policy"] == "mean"
 
 
-def test_train_refuses_a_preset_with_a_table(ham_cli, tmp_path):
+def test_train_refuses_a_preset_with_a_table(ham_main, tmp_path):
     table = cached_table(WorldConfig(), 3, tmp_path, progress=False)
-    r = ham_cli("train", "--world", "paper-gazebo", "--table", str(table), "--steps", "1",
+    r = ham_main("train", "--world", "paper-gazebo", "--table", str(table), "--steps", "1",
                 "--out", str(tmp_path / "run"))  # fmt: skip
     assert r.returncode == 2 and "brings its own world; remove the world options" in r.stderr
 
@@ -255,7 +255,7 @@ def test_the_factor_grid_in_docs_loads():
 
 
 @needs_mujoco
-def test_reproduce_with_the_preset_takes_its_table_from_the_cache(ham_cli, tmp_path):
+def test_reproduce_with_the_preset_takes_its_table_from_the_cache(ham_cli, ham_main, tmp_path):
     cache, out = tmp_path / "cache", tmp_path / "out"
     r = ham_cli("reproduce", "table1", "--profile", "smoke", "--glances", "1", "--variants",
                 "full", "--world", "paper-gazebo", "--cache-dir", str(cache), "--workers", "1",
@@ -266,9 +266,9 @@ def test_reproduce_with_the_preset_takes_its_table_from_the_cache(ham_cli, tmp_p
     config = json.loads((out / "runs" / "full-concat2-g1-s0" / "config.json").read_text())
     assert config["table"] == str(table) and config["eval_policy"] == "sample"
     assert WorldConfig.from_dict(config["world"]) == world_from_table({"preset": "paper-gazebo"})
-    r = ham_cli("reproduce", "table1", "--cache-dir", str(cache), "--out", str(out))
+    r = ham_main("reproduce", "table1", "--cache-dir", str(cache), "--out", str(out))
     assert r.returncode == 2 and "--cache-dir keeps a --world preset's glance table" in r.stderr
-    r = ham_cli("reproduce", "grid", str(DOCS / "grids" / "factors.toml"), "--world",
+    r = ham_main("reproduce", "grid", str(DOCS / "grids" / "factors.toml"), "--world",
                 "paper-gazebo", "--out", str(out))  # fmt: skip
     assert r.returncode == 2 and "a grid file names its world in its [world] table" in r.stderr
 

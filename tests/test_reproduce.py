@@ -50,9 +50,9 @@ def test_all_writes_tables_figures_and_report(smoke_all):
     assert "| full-concat2 (1 seed(s)) | 3 |" in section
 
 
-def test_finished_runs_are_skipped(smoke_all, ham_cli):
+def test_finished_runs_are_skipped(smoke_all, ham_main):
     out, _ = smoke_all
-    r = ham_cli("reproduce", "table2", "--profile", "smoke", "--quiet", "--out", str(out))
+    r = ham_main("reproduce", "table2", "--profile", "smoke", "--quiet", "--out", str(out))
     assert r.returncode == 0, r.stderr
     assert "ran 0 run(s), skipped 4 finished" in r.stdout
 
@@ -93,12 +93,12 @@ def test_ray_executor_matches_the_local_pool(smoke_all, tmp_path, ham_cli):
     assert ours == local  # same seeds, same numbers, whichever executor ran them
 
 
-def test_bad_arguments(tmp_path, ham_cli):
+def test_bad_arguments(tmp_path, ham_main):
     with pytest.raises(HamError, match="seeds = 0; accepted: an integer >= 1"):
         reproduce("table1", "smoke", tmp_path, seeds=0)
     with pytest.raises(HamError, match="profile 'huge'; accepted: smoke, quick, paper"):
         reproduce("table1", "huge", tmp_path)
-    r = ham_cli("reproduce", "table3", "--out", str(tmp_path))
+    r = ham_main("reproduce", "table3", "--out", str(tmp_path))
     assert r.returncode == 2 and "invalid choice: 'table3'" in r.stderr
 
 

@@ -120,7 +120,7 @@ def test_a_gated_run_is_not_batched():
         check_batchable(c)
 
 
-def test_stay_gate_through_the_cli(tmp_path, ham_cli):
+def test_stay_gate_through_the_cli(tmp_path, ham_cli, ham_main):
     out = tmp_path / "run"
     ok(ham_cli("train", "--learner", "info", "--optimizer", "adam", "--glances", "3",
                "--batch-size", "8", "--steps", "2", "--stay-gate", "--move-cost", "0.3",
@@ -128,6 +128,6 @@ def test_stay_gate_through_the_cli(tmp_path, ham_cli):
                "--out", str(out)))  # fmt: skip
     m = json.loads((out / "metrics.json").read_text())
     assert m["config"]["model"]["stay_gate"] is True
-    err = one_line_error(ham_cli("train", "--stay-gate", "--policy", "random", "--steps", "1",
+    err = one_line_error(ham_main("train", "--stay-gate", "--policy", "random", "--steps", "1",
                                  "--out", str(tmp_path / "bad")))  # fmt: skip
     assert "stay_gate" in err and not (tmp_path / "bad").exists()
