@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import ok, one_line_error, run_ham
+from tests.conftest import ok, one_line_error, run_ham, run_ham_inprocess
 
 HEADER = "import numpy as np\nfrom ham.world.objects import HapticObject, register\n"
 #: The example of docs/world.md, "Your own objects": the tests keep the docs' file working.
@@ -42,13 +42,13 @@ def test_objects_and_glance_take_the_file(own):
     assert [(r["id"], r["name"]) for r in mine] == list(enumerate(NAMES, start=first))
     assert all(r["origin"].startswith("objects file 'my_objects.py' (sha256 ") for r in mine)
     assert rows[0]["origin"] == "built-in"
-    r = ok(run_ham("glance", "--objects-file", str(f), "--objects", ",".join(NAMES),
+    r = ok(run_ham_inprocess("glance", "--objects-file", str(f), "--objects", ",".join(NAMES),
                    "--object", "cylinder", "--x", "0", "--phi", "0", "--json"))  # fmt: skip
     g = json.loads(r.stdout)
     assert g["object"] == "cylinder" and g["object_id"] == first
     assert g["force"] == pytest.approx(2.0, abs=1e-3)
     assert g["z"] == pytest.approx(0.02 + 0.5 * 0.045, abs=2e-3)  # the pad rests on the top
-    r = run_ham("glance", "--objects-file", str(f), "--objects", "wedge,bump",
+    r = run_ham_inprocess("glance", "--objects-file", str(f), "--objects", "wedge,bump",
                 "--object", "box", "--x", "0", "--phi", "0")  # fmt: skip
     assert "--object 'box' is not in --objects 'wedge,bump'" in one_line_error(r)
 
@@ -66,27 +66,28 @@ def test_a_table_records_the_file_and_its_command(own):
     assert info["command"] == (
         f"ham table build --objects-file {f} --grid 11 --quiet --out {table}"
     )
-    text = ok(run_ham("table", "info", str(table))).stdout
+    text = ok(run_ham_inprocess("table", "info", str(table))).stdout
     assert f"objects file: my_objects.py (sha256 {record['sha256']})" in text
 
 
 def test_train_evaluate_resume_from_the_table_without_the_flag(own, tmp_path):
     _, table = own
     run = tmp_path / "run"
-    ok(run_ham("train", "--table", str(table), "--steps", "20", "--eval-every", "10",
+    ok(run_ham_inprocess("train", "--table", str(table), "--steps", "20", "--eval-every", "10",
                "--eval-batches", "2", "--no-progress", "--out", str(run)))  # fmt: skip
     ev = json.loads(ok(run_ham("evaluate", str(run), "--batches", "2", "--json")).stdout)
     assert ev["steps"] == 20 and len(ev["accuracy_per_glance"]) == 3
-    ok(run_ham("train", "--resume", str(run), "--steps", "30", "--no-progress"))
+    ok(run_ham_inprocess("train", "--resume", str(run), "--steps", "30", "--no-progress"))
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["steps"] == 30 and metrics["objects"] == NAMES
 
 
 def test_an_online_run_reregisters_its_objects(own, tmp_path):
-    """Evaluate, heatmap and resume build the simulator of the file's objects in a new process."""
+    """Evaluate (in a new process), heatmap and resume build the simulator of the file's objects
+    from the run's record (the registry of this process is restored after each command)."""
     f, _ = own
     run = tmp_path / "run"
-    ok(run_ham("train", "--online", "--objects-file", str(f), "--objects", "bump,notch",
+    ok(run_ham_inprocess("train", "--online", "--objects-file", str(f), "--objects", "bump,notch",
                "--steps", "6", "--eval-every", "6", "--eval-batches", "1", "--batch-size", "8",
                "--no-progress", "--out", str(run)))  # fmt: skip
     world = json.loads((run / "config.json").read_text())["world"]
@@ -96,10 +97,10 @@ def test_an_online_run_reregisters_its_objects(own, tmp_path):
     f2.write_text(f.read_text())
     ev = json.loads(ok(run_ham("evaluate", str(run), "--batches", "2", "--json")).stdout)
     assert ev["steps"] == 6
-    ok(run_ham("heatmap", str(run), "--batches", "2", "--out", str(tmp_path / "h.png")))
-    ok(run_ham("train", "--resume", str(run), "--steps", "8", "--no-progress"))
+    ok(run_ham_inprocess("heatmap", str(run), "--batches", "2", "--out", str(tmp_path / "h.png")))
+    ok(run_ham_inprocess("train", "--resume", str(run), "--steps", "8", "--no-progress"))
     assert json.loads((run / "metrics.json").read_text())["objects"] == ["bump", "notch"]
-    r = run_ham("train", "--resume", str(run), "--objects-file", str(f), "--steps", "9")
+    r = run_ham_inprocess("train", "--resume", str(run), "--objects-file", str(f), "--steps", "9")
     assert "remove --objects-file" in one_line_error(r)
 
 
@@ -111,7 +112,9 @@ def test_reproduce_workers_use_the_recorded_objects(own, tmp_path):
     r = ok(run_ham("reproduce", "table1", *part, "--workers", "2", "--objects-file", str(f),
                    "--out", str(out)))  # fmt: skip
     assert "ran 2 run(s)" in r.stdout
-    info = json.loads(ok(run_ham("table", "info", str(out / "table_21.h5"), "--json")).stdout)
+    info = json.loads(
+        ok(run_ham_inprocess("table", "info", str(out / "table_21.h5"), "--json")).stdout
+    )
     assert info["objects"] == NAMES and info["world"]["objects_file"]["name"] == "my_objects.py"
     assert info["command"].startswith("ham reproduce table1 --profile smoke")
     metrics = list(out.glob("runs/*/metrics.json"))
@@ -119,7 +122,7 @@ def test_reproduce_workers_use_the_recorded_objects(own, tmp_path):
     for m in metrics:
         assert json.loads(m.read_text())["objects"] == NAMES
     # Another object set in the same OUT would mix glances: refused.
-    r = run_ham("reproduce", "table1", *part, "--out", str(out))
+    r = run_ham_inprocess("reproduce", "table1", *part, "--out", str(out))
     assert (
         "holds glances of objects 'cylinder,wedge,bump,notch' from my_objects.py, not 'paper'"
         in one_line_error(r)
@@ -270,14 +273,14 @@ def test_a_changed_record_or_a_conflicting_file_is_refused(own, tmp_path):
     cfg = json.loads((run / "config.json").read_text())
     cfg["world"]["objects_file"]["source"] += "# edited\n"
     (run / "config.json").write_text(json.dumps(cfg))
-    line = one_line_error(run_ham("evaluate", str(run), "--batches", "1"))
+    line = one_line_error(run_ham_inprocess("evaluate", str(run), "--batches", "1"))
     assert "objects file 'my_objects.py': recorded sha256" in line and "does not match" in line
     # Same names, other shapes: the table's objects and the file's cannot both be 'cylinder'.
     other = tmp_path / "my_objects.py"
     assert "0.02 + 0.5" in OWN
     other.write_text(OWN.replace("0.02 + 0.5", "0.01 + 0.5"))
     out = tmp_path / "run2"
-    r = run_ham("train", "--table", str(table), "--objects-file", str(other), "--steps", "2",
+    r = run_ham_inprocess("train", "--table", str(table), "--objects-file", str(other), "--steps", "2",
                 "--out", str(out))  # fmt: skip
     line = one_line_error(r)
     assert "object name 'cylinder' is already registered (objects file 'my_objects.py'" in line
@@ -305,10 +308,10 @@ def test_object_options_that_would_be_ignored_are_refused(own, tmp_path):
     f, table = own
     r = run_ham("train", "--table", str(table), "--objects", "paper", "--out", str(tmp_path / "a"))
     assert "--objects 'paper' chooses the online world's objects; the table" in one_line_error(r)
-    r = run_ham("train", "--env", "ap_gym:CIFAR10-v0", "--objects-file", str(f),
+    r = run_ham_inprocess("train", "--env", "ap_gym:CIFAR10-v0", "--objects-file", str(f),
                 "--out", str(tmp_path / "b"))  # fmt: skip
     assert "--env ap_gym:CIFAR10-v0 brings its own world" in one_line_error(r)
-    r = run_ham("envs", "check", "--table", str(table), "--objects", "wedge")
+    r = run_ham_inprocess("envs", "check", "--table", str(table), "--objects", "wedge")
     assert "--objects 'wedge' chooses the online world's objects" in one_line_error(r)
     assert list(tmp_path.iterdir()) == []
 
