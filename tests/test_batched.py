@@ -223,11 +223,16 @@ g = torch.Generator().manual_seed(0)
 dh, dc1, tc, cell = (torch.randn(2, 3, 8, generator=g) for _ in range(4))
 act = torch.rand(2, 3, 4, 8, generator=g)
 want = batched._cell_backward(dh, dc1, act, tc, cell)
+weight = torch.randn(3, 16, 5, generator=g)
 with warnings.catch_warnings(record=True) as seen:
     warnings.simplefilter("always")
     got = [batched._backward(dh, dc1, act, tc, cell) for _ in range(2)]
+    halves = [batched._compiled("halves", batched._halves, batched._halves_eager,
+                                "the batched gates' transpose", weight) for _ in range(2)]
 for g in got:
     assert all(torch.equal(a, b) for a, b in zip(g, want, strict=True))
+for h in halves:
+    assert torch.equal(h, batched._halves(weight))
 for w in seen:
     if "batched" in str(w.message):
         print("WARNING", w.message)
@@ -242,10 +247,37 @@ def test_a_machine_without_a_compiler_runs_the_cell_eager(tmp_path):
                        env=env, timeout=300)  # fmt: skip
     assert r.returncode == 0, r.stderr
     lines = r.stdout.splitlines()
-    # one warning, one line, for two calls; the numbers are the eager expression's
-    assert len(lines) == 1, r.stdout
+    # one warning each, one line, for two calls; the numbers are the eager expressions'
+    assert len(lines) == 2, r.stdout
     assert lines[0].startswith("WARNING the batched LSTM cell runs eager (torch.compile failed: ")
-    assert "C++ compiler" in lines[0]
+    assert lines[1].startswith(
+        "WARNING the batched gates' transpose runs eager (torch.compile failed: "
+    )
+    assert all("C++ compiler" in line for line in lines)
+
+
+def test_the_gates_forward_in_halves_gives_the_whole_products_numbers(tmp_path, monkeypatch):
+    """The gates' forward as two products of half the outputs on the weights transposed once
+    per step (what 6 glances and more take on the CPU): the group's numbers are those of one
+    product (to float rounding: MKL may sum a product of 8 rows in another order), and each
+    run is its single run to float tolerance."""
+    configs = [tiny(s, steps=4) for s in range(2)]
+    train_batched(configs, [tmp_path / f"whole{c.seed}" for c in configs])  # 3 glances: whole
+    calls = []
+    halves = batched._Layer.halves
+
+    def counted(layer):
+        calls.append(tuple(layer.weight.shape))
+        return halves(layer)
+
+    monkeypatch.setattr(batched._Layer, "halves", counted)
+    monkeypatch.setattr(batched, "_SPLIT_GLANCES", 3)
+    train_both(tmp_path, configs)
+    # the gates (2 runs, 1024 outputs), at both glances after the first of each training step
+    assert calls == [(2, 1024, 512)] * (4 * 2)
+    for c in configs:
+        assert_same_run(tmp_path / f"b{c.seed}", tmp_path / f"whole{c.seed}", atol=1e-7)
+    assert_same_runs(tmp_path, configs)
 
 
 def test_each_run_has_the_directory_of_a_single_run(tmp_path):

@@ -11,7 +11,8 @@ product is one oneDNN call per run: :func:`_mm_nt`), the layers reading the core
 are one layer (:meth:`_StackedHam._heads`), weight gradients are deferred to one product per
 layer over all glances, so is the tactile network's whole backward (concat combiners:
 :meth:`_StackedHam._tactile_backward`), the LSTM cell is fused (:class:`_TanhLSTMCell`, its
-backward compiled on the CPU), and on the CPU one fused SGD call steps all runs
+backward compiled on the CPU), from 6 glances on the CPU the gates' forward is two products of
+half the outputs (:meth:`_Layer.split_forward`), and on the CPU one fused SGD call steps all runs
 (docs/agent.md#batched-runs has the measurements).
 
 Everything else stays per run and is the single run's own code (:mod:`ham.learn.train`): each
@@ -182,6 +183,16 @@ _PER_RUN_ONEDNN = cpu_info("vendor_id") == "AuthenticAMD"
 _SIGMOID_TANH = _PER_RUN_ONEDNN
 # smaller layers (poses in, heads out, 256 -> 64): one bmm beats N small calls (measured)
 _ONEDNN_MIN = 128 * 256
+# The forward of a layer with this many outputs (the LSTM's gates: 1024), in a step of at least
+# _SPLIT_GLANCES glances, as two products of half the outputs on a transposed copy of the
+# weights made once per step (:meth:`_Layer.split_forward`). On an Intel Xeon (1.25 MiB of L2
+# per core) MKL's product of 1024 outputs (a 2 MB panel of weights) takes 7.2 ms for 10 runs,
+# two of 512 on contiguous halves 5.5 ms (at the paper's batch of 64 their outputs were the
+# same to the bit; in general the same to float rounding); the transpose costs 7.8 ms a step,
+# so it pays from 6 glances (docs/agent.md#batched-runs, the step's time against one product:
+# 0.97x at 10 and 8 glances, 0.98x at 6, 1.00x at 4, 1.05x at 3).
+_SPLIT_OUTPUTS = 1024
+_SPLIT_GLANCES = 6
 
 
 def _mm_nt(a: torch.Tensor, b: torch.Tensor, bias: torch.Tensor | None = None) -> torch.Tensor:
@@ -276,11 +287,13 @@ class _Layer:
         self.applied = 0
         self.filled: set[int] = set()
         self.narrow: dict[int, torch.Tensor] = {}  # width -> the weight's columns, this step
+        self._halves: torch.Tensor | None = None  # this step's W^T halves (:meth:`halves`)
 
     def begin(self) -> None:
         self.applied = 0
         self.filled = set()
         self.narrow = {}
+        self._halves = None
         self._forward_bias = None
         if self.parts is not None:  # this step's weights (the stacks are stepped in place)
             self.weight, self.bias = _joined(self.parts)
@@ -292,6 +305,30 @@ class _Layer:
         if self._forward_bias is None:
             self._forward_bias = _shifted(self.bias, self.shift, self.weight.shape[0])
         return self._forward_bias
+
+    def halves(self) -> torch.Tensor:
+        """``W^T`` in two contiguous halves of the outputs (:func:`_halves`), once per step."""
+        if self._halves is None:
+            with torch.no_grad():
+                w = self.weight.detach()
+                self._halves = _compiled("halves", _halves, _halves_eager,
+                                         "the batched gates' transpose", w)  # fmt: skip
+        return self._halves
+
+    def split_forward(self, x: torch.Tensor) -> bool:
+        """Whether the forward runs as two products of half the outputs on :meth:`halves`
+        (:data:`_SPLIT_OUTPUTS`): an fp32 CPU ``bmm`` of a layer this wide (the LSTM's gates)
+        over its whole input, applied often enough in a step to pay for the transpose."""
+        w = self.weight
+        return (
+            x.device.type == "cpu"
+            and x.dtype == torch.float32
+            and w.shape[1] >= _SPLIT_OUTPUTS
+            and w.shape[1] % 2 == 0
+            and self.capacity >= _SPLIT_GLANCES
+            and x.shape[2] == w.shape[2]
+            and not _onednn_ok(x, w)
+        )
 
     def columns(self, width: int) -> torch.Tensor:
         """The weight's first ``width`` columns (:func:`_columns`), once per step."""
@@ -335,6 +372,13 @@ class _LayerFn(torch.autograd.Function):
     @staticmethod
     def forward(ctx, x, weight, bias, layer, slot):
         ctx.layer, ctx.slot, ctx.width = layer, slot, x.shape[2]
+        if layer.split_forward(x):
+            t = layer.halves()
+            h = t.shape[3]
+            y = x.new_empty(x.shape[0], x.shape[1], 2 * h)
+            torch.bmm(x, t[0], out=y[..., :h])
+            torch.bmm(x, t[1], out=y[..., h:])
+            return y if bias is None else y.add_(bias.unsqueeze(1))
         return _mm_nt(x, layer.columns(ctx.width), bias)
 
     @staticmethod
@@ -374,7 +418,26 @@ def _cell_backward(dh, dc1, act, tc, cell):
 # per shape would reach dynamo's limit of 8 and fall back to eager mid-run); elementwise, its
 # numbers equal the eager expression's (measured: equal to the bit at 10 x 64 x 256).
 _COMPILE_MIN = 1 << 16
-_COMPILED: dict[str, object] = {}  # "backward": the compiled function, or the reason it failed
+# "backward" (the cell's), "halves" (:func:`_halves`): the compiled function, or why it failed
+_COMPILED: dict[str, object] = {}
+
+
+def _compiled(key: str, fn, eager, what: str, *args):
+    """``fn(*args)`` compiled once for any shape (``_COMPILED[key]``); where compiling fails
+    (no C++ compiler) it warns once, naming ``what``, and runs ``eager`` (the same numbers)
+    from then on."""
+    compiled = _COMPILED.get(key)
+    if compiled is None:
+        compiled = _COMPILED[key] = torch.compile(fn, dynamic=True)
+    if isinstance(compiled, str):
+        return eager(*args)
+    try:
+        return compiled(*args)
+    except Exception as exc:  # noqa: BLE001 - any compiler failure: the same numbers, eager
+        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        _COMPILED[key] = reason
+        warnings.warn(f"{what} runs eager (torch.compile failed: {reason})", stacklevel=3)
+        return eager(*args)
 
 
 def _backward(dh, dc1, act, tc, cell):
@@ -384,19 +447,28 @@ def _backward(dh, dc1, act, tc, cell):
         dc1 = torch.zeros_like(dh)
     if dh.device.type != "cpu" or dh.numel() < _COMPILE_MIN:
         return _cell_backward(dh, dc1, act, tc, cell)
-    fn = _COMPILED.get("backward")
-    if fn is None:
-        fn = _COMPILED["backward"] = torch.compile(_cell_backward, dynamic=True)
-    if isinstance(fn, str):
-        return _cell_backward(dh, dc1, act, tc, cell)
-    try:
-        return fn(dh, dc1, act, tc, cell)
-    except Exception as exc:  # noqa: BLE001 - any compiler failure: the same numbers, eager
-        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        _COMPILED["backward"] = reason
-        warnings.warn(f"the batched LSTM cell runs eager (torch.compile failed: {reason})",
-                      stacklevel=2)  # fmt: skip
-        return _cell_backward(dh, dc1, act, tc, cell)
+    return _compiled("backward", _cell_backward, _cell_backward, "the batched LSTM cell",
+                     dh, dc1, act, tc, cell)  # fmt: skip
+
+
+def _halves(w: torch.Tensor) -> torch.Tensor:
+    """``W^T`` of ``w (N, out, in)`` in two contiguous halves of the outputs: ``(2, N, in,
+    out / 2)``. Compiled, a tiled transpose (7.8 ms for the paper's gates of 10 runs on an Intel
+    Xeon, against 13.7 for torch's own 2-D transposing copies: :func:`_halves_eager`)."""
+    n, out, width = w.shape
+    return w.view(n, 2, out // 2, width).permute(1, 0, 3, 2).contiguous()
+
+
+def _halves_eager(w: torch.Tensor) -> torch.Tensor:
+    """:func:`_halves` as one 2-D transposing copy per run and half (torch's blocked transpose:
+    twice as fast as the 3-D permuted copy); the same numbers."""
+    n, out, width = w.shape
+    h = out // 2
+    t = w.new_empty(2, n, width, h)
+    for r in range(n):
+        t[0, r].copy_(w[r, :h].t())
+        t[1, r].copy_(w[r, h:].t())
+    return t
 
 
 class _TanhLSTMCell(torch.autograd.Function):
