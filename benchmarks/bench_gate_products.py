@@ -72,6 +72,12 @@ def main() -> None:
         "forward: halves, NN on W^T halves": lambda: [torch.bmm(x, h) for h in halves],
         "input gradient: bmm g W": lambda: torch.bmm(g, w),
         "weight gradient / glance": lambda: torch.bmm(gs.transpose(1, 2), xs),
+        "weight gradient / glance, halves of rows": lambda: [
+            torch.bmm(gs[..., s].transpose(1, 2), xs) for s in (slice(0, o // 2), slice(o // 2, o))
+        ],
+        "weight gradient / glance, halves of columns": lambda: [
+            torch.bmm(gs.transpose(1, 2), xs[..., s]) for s in (slice(0, k // 2), slice(k // 2, k))
+        ],
         "per step: W^T, 3-D .contiguous()": lambda: w.transpose(1, 2).contiguous(),
         "per step: W^T, per-run 2-D copies": transpose_per_run,
         "W^T as master: forward halves, strided": lambda: [
@@ -87,7 +93,7 @@ def main() -> None:
     cases["forward: halves + bias (batched.py, 6+ glances)"] = lambda: batched._LayerFn.apply(
         x, w, bias, layer, 0
     )
-    per_glance = {"weight gradient / glance", "transposed: weight gradient / glance"}
+    per_glance = {name for name in cases if "/ glance" in name}
     mkl = getattr(torch.ops, "mkl", None)
     if mkl is not None and hasattr(mkl, "_mkl_linear") and torch.backends.mkl.is_available():
         packed = [mkl._mkl_reorder_linear_weight(w[r], b) for r in range(n)]
