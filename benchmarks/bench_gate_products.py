@@ -50,8 +50,7 @@ def main() -> None:
     xs, gs = torch.randn(n, glances * b, k), torch.randn(n, glances * b, o)  # the step's records
     wt = w.transpose(1, 2).contiguous()
     layer = batched._Layer(w, bias, glances)  # the batched step's gates layer, split forward
-    assert layer.split_forward(x), "this machine's batched step does not split the forward"
-    layer.halves()
+    split = layer.split_forward(x)  # not on an AMD CPU (its products are oneDNN's, per run)
     halves = (wt[..., : o // 2].contiguous(), wt[..., o // 2 :].contiguous())
     xt, gt = x.transpose(1, 2).contiguous(), g.transpose(1, 2).contiguous()
     xst, gst = xs.transpose(1, 2).contiguous(), gs.transpose(1, 2).contiguous()
@@ -90,9 +89,13 @@ def main() -> None:
     }
     compiled = torch.compile(batched._halves, dynamic=True)
     cases["per step: W^T halves, compiled (batched.py)"] = lambda: compiled(w)
-    cases["forward: halves + bias (batched.py, 6+ glances)"] = lambda: batched._LayerFn.apply(
-        x, w, bias, layer, 0
-    )
+    if split:
+        layer.halves()
+        cases["forward: halves + bias (batched.py, 6+ glances)"] = lambda: batched._LayerFn.apply(
+            x, w, bias, layer, 0
+        )
+    else:
+        print("(this machine's batched step keeps one forward product: not timed as batched.py)")
     per_glance = {name for name in cases if "/ glance" in name}
     mkl = getattr(torch.ops, "mkl", None)
     if mkl is not None and hasattr(mkl, "_mkl_linear") and torch.backends.mkl.is_available():
