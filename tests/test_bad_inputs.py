@@ -22,6 +22,7 @@ import pytest
 import torch
 
 from ham.errors import HamError
+from tests.conftest import run_ham_inprocess
 
 CUDA = torch.cuda.is_available()
 AP_ENV = "ap_gym:CircleSquare-s15-nograd-v0"
@@ -438,22 +439,16 @@ else:
     ]  # fmt: skip
 
 
-def run_inprocess(argv: list[str], capsys) -> tuple[int, str, str]:
-    from ham.cli.main import main
-
-    capsys.readouterr()
-    try:
-        rc = main(argv)
-    except SystemExit as exc:
-        rc = exc.code
-    out, err = capsys.readouterr()
-    return rc, out, err
+def run_inprocess(argv: list[str]) -> tuple[int, str, str]:
+    """The CLI's ``main`` in this process (:func:`tests.conftest.run_ham_inprocess`)."""
+    r = run_ham_inprocess(*argv)
+    return r.returncode, r.stdout, r.stderr
 
 
 @pytest.mark.parametrize("case", CLI_CASES, ids=[c[0] for c in CLI_CASES])
-def test_cli_bad_input(case, fx, work, capsys):
+def test_cli_bad_input(case, fx, work):
     _, args, needle = case
-    rc, out, err = run_inprocess(expand(args, fx), capsys)
+    rc, out, err = run_inprocess(expand(args, fx))
     assert rc == 2, f"exit {rc}; stdout: {out[-500:]}; stderr: {err[-500:]}"
     check_message(err, needle)
 
@@ -791,11 +786,11 @@ def test_case_count():
 
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
 @pytest.mark.parametrize("out", ["locked/g.png", "locked/sub/g.png"])
-def test_unwritable_folder(out, work, capsys):
+def test_unwritable_folder(out, work):
     (work / "locked").mkdir(mode=0o500)
     try:
         rc, _, err = run_inprocess(["glance", "--object", "box", "--x", "0", "--phi", "0",
-                                    "--out", out], capsys)  # fmt: skip
+                                    "--out", out])  # fmt: skip
     finally:
         (work / "locked").rmdir()
     assert rc == 2
@@ -803,19 +798,19 @@ def test_unwritable_folder(out, work, capsys):
 
 
 # --------------------------------------------------------------------------- what still works
-def test_good_inputs_next_to_the_bad_ones(fx, work, capsys):
+def test_good_inputs_next_to_the_bad_ones(fx, work):
     """The checks refuse only bad input: a negative pose, a fresh .png, a verified table."""
     rc, out, err = run_inprocess(["glance", "--object", "box", "--x", "-0.5", "--phi", "-1e-1",
-                                  "--out", "g.png"], capsys)  # fmt: skip
+                                  "--out", "g.png"])  # fmt: skip
     assert rc == 0, err
     assert "q = (-0.500, -0.100)" in out
     assert (work / "g.png").read_bytes().startswith(b"\x89PNG")
     rc, out, err = run_inprocess(["glance", "--object", "box", "--x", "0", "--phi", "0",
-                                  "--out", "g.png", "--spread-sigma", "0.005"], capsys)  # fmt: skip
+                                  "--out", "g.png", "--spread-sigma", "0.005"])  # fmt: skip
     assert rc == 0, err  # an existing PNG is replaced
-    rc, out, err = run_inprocess(["table", "verify", str(fx["good"])], capsys)
+    rc, out, err = run_inprocess(["table", "verify", str(fx["good"])])
     assert rc == 0 and out.startswith("ok "), (out, err)
-    rc, out, err = run_inprocess(["table", "info", str(fx["good"])], capsys)
+    rc, out, err = run_inprocess(["table", "info", str(fx["good"])])
     assert rc == 0 and "(verified)" in out, (out, err)
     (work / "g.png").unlink()
     assert math.isfinite(float(np.float32(1.0)))
