@@ -273,8 +273,9 @@ def test_the_gates_forward_in_halves_gives_the_whole_products_numbers(tmp_path, 
     monkeypatch.setattr(batched._Layer, "halves", counted)
     monkeypatch.setattr(batched, "_SPLIT_GLANCES", 3)
     train_both(tmp_path, configs)
-    # the gates (2 runs, 1024 outputs), at both glances after the first of each training step
-    assert calls == [(2, 1024, 512)] * (4 * 2)
+    # the gates (2 runs, 1024 outputs), at every glance of each training step (the first
+    # glance's g reads the halves' first rows)
+    assert calls == [(2, 1024, 512)] * (4 * 3)
     for c in configs:
         assert_same_run(tmp_path / f"b{c.seed}", tmp_path / f"whole{c.seed}", atol=1e-7)
     assert_same_runs(tmp_path, configs)

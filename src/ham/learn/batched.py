@@ -317,8 +317,10 @@ class _Layer:
 
     def split_forward(self, x: torch.Tensor) -> bool:
         """Whether the forward runs as two products of half the outputs on :meth:`halves`
-        (:data:`_SPLIT_OUTPUTS`): an fp32 CPU ``bmm`` of a layer this wide (the LSTM's gates)
-        over its whole input, applied often enough in a step to pay for the transpose."""
+        (:data:`_SPLIT_OUTPUTS`): an fp32 CPU ``bmm`` of a layer this wide (the LSTM's gates),
+        applied often enough in a step to pay for the transpose. A narrower input (the first
+        glance's ``g``) reads the halves' first rows, and its input gradient the weight's
+        columns in place (a strided ``bmm``): no copy of the columns."""
         w = self.weight
         return (
             x.device.type == "cpu"
@@ -326,7 +328,6 @@ class _Layer:
             and w.shape[1] >= _SPLIT_OUTPUTS
             and w.shape[1] % 2 == 0
             and self.capacity >= _SPLIT_GLANCES
-            and x.shape[2] == w.shape[2]
             and not _onednn_ok(x, w)
         )
 
@@ -372,8 +373,9 @@ class _LayerFn(torch.autograd.Function):
     @staticmethod
     def forward(ctx, x, weight, bias, layer, slot):
         ctx.layer, ctx.slot, ctx.width = layer, slot, x.shape[2]
-        if layer.split_forward(x):
-            t = layer.halves()
+        ctx.split = layer.split_forward(x)
+        if ctx.split:
+            t = layer.halves()[:, :, : ctx.width]
             h = t.shape[3]
             y = x.new_empty(x.shape[0], x.shape[1], 2 * h)
             torch.bmm(x, t[0], out=y[..., :h])
@@ -386,7 +388,7 @@ class _LayerFn(torch.autograd.Function):
         layer, slot, r = ctx.layer, ctx.slot, ctx.layer.rows
         layer.gbuf[:, slot * r : (slot + 1) * r].copy_(grad)
         layer.filled.add(slot)
-        w = layer.columns(ctx.width)
+        w = layer.weight.detach()[..., : ctx.width] if ctx.split else layer.columns(ctx.width)
         gx = None
         if ctx.needs_input_grad[0]:
             k = layer.grad_rows
