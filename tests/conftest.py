@@ -11,17 +11,17 @@ import torch
 torch.set_num_threads(1)
 
 
+def ham_command(*args: str) -> tuple[list[str], dict[str, str]]:
+    """The real CLI's command line and environment (one thread, no display), for
+    :func:`run_ham` and for tests that need the process itself (``subprocess.Popen``)."""
+    env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="1", MPLBACKEND="Agg")
+    return [sys.executable, "-m", "ham", *args], env
+
+
 def run_ham(*args: str, cwd=None, timeout: float = 300) -> subprocess.CompletedProcess:
     """The real CLI in a subprocess."""
-    env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="1", MPLBACKEND="Agg")
-    return subprocess.run(
-        [sys.executable, "-m", "ham", *args],
-        capture_output=True,
-        text=True,
-        cwd=cwd,
-        env=env,
-        timeout=timeout,
-    )
+    argv, env = ham_command(*args)
+    return subprocess.run(argv, capture_output=True, text=True, cwd=cwd, env=env, timeout=timeout)
 
 
 def run_ham_inprocess(*args: str, cwd=None) -> subprocess.CompletedProcess:

@@ -4,7 +4,6 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -12,6 +11,7 @@ import pytest
 
 from ham.errors import HamError
 from ham.experiments.reproduce import PROFILES, plan, reproduce
+from tests.conftest import ham_command
 
 
 @pytest.fixture(scope="module")
@@ -192,13 +192,12 @@ def test_a_killed_worker_fails_its_runs_and_the_retry_finishes_them(tmp_path):
     recorded as failed with the reason instead of the grid dying with a traceback, and the
     retry trains them to the end."""
     out = tmp_path / "g"
-    env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="1", MPLBACKEND="Agg")
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "ham", "reproduce", "table1", "--profile", "smoke", "--glances",
-         "2", "--variants", "full", "--seeds", "2", "--steps", "150", "--workers", "2",
-         "--quiet", "--json", "--out", str(out)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+    argv, env = ham_command(
+        "reproduce", "table1", "--profile", "smoke", "--glances", "2", "--variants", "full",
+        "--seeds", "2", "--steps", "150", "--workers", "2", "--quiet", "--json", "--out", str(out),
     )  # fmt: skip
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=env)  # fmt: skip
     deadline = time.monotonic() + 120
     while not list(out.glob("runs/*/config.json")) and time.monotonic() < deadline:
         time.sleep(0.1)
