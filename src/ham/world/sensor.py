@@ -233,4 +233,6 @@ def normalize(pressure: torch.Tensor | np.ndarray, kind: str = "l2") -> torch.Te
     if kind == "none":
         return flat
     norm = flat.norm(p=2 if kind == "l2" else 1, dim=-1, keepdim=True)
-    return torch.where(norm > 0, flat / norm.clamp_min(torch.finfo(flat.dtype).tiny), 0.0)
+    # a norm of 0 (no contact, or pressures so small their squares underflow) divides by inf:
+    # 0. The select runs on the norms, not the images (one pass over the images, not two)
+    return flat / torch.where(norm > 0, norm, torch.inf)
