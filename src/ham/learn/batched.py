@@ -10,10 +10,11 @@ runs' graphs are disjoint). Each layer is one ``bmm`` for all runs (on an AMD CP
 product is one oneDNN call per run: :func:`_mm_nt`), the layers reading the core's output
 are one layer (:meth:`_StackedHam._heads`), weight gradients are deferred to one product per
 layer over all glances, so is the tactile network's whole backward (concat combiners:
-:meth:`_StackedHam._tactile_backward`), the LSTM cell is fused (:class:`_TanhLSTMCell`, its
-backward compiled on the CPU), from 6 glances on the CPU the gates' forward is two products of
-half the outputs (:meth:`_Layer.split_forward`), and on the CPU one fused SGD call steps all runs
-(docs/agent.md#batched-runs has the measurements).
+:meth:`_StackedHam._tactile_backward`; on the CPU each of its ReLUs writes straight into the
+record the next layer reads, and ``[g, h]`` is never joined: :meth:`_Layer.slot`), the LSTM
+cell is fused (:class:`_TanhLSTMCell`, its backward compiled on the CPU), from 6 glances on the
+CPU the gates' forward is two products of half the outputs (:meth:`_Layer.split_forward`), and
+on the CPU one fused SGD call steps all runs (docs/agent.md#batched-runs has the measurements).
 
 Everything else stays per run and is the single run's own code (:mod:`ham.learn.train`): each
 run is a :class:`ham.learn.train.Run` with its own environment generator (objects, stream 0),
@@ -254,8 +255,9 @@ class _Layer:
     input narrower than ``in`` stands for itself padded with zeros (the LSTM's first glance:
     ``[g, h = 0]``), and only its columns of ``W`` take part (copied once per step).
 
-    Its weight gradient is deferred: each application (one per glance) copies its input, and
-    its output gradient in the backward pass, into the layer's record buffers, and
+    Its weight gradient is deferred: each application (one per glance) copies its input (or
+    finds it written there: :meth:`slot`), and its output gradient in the backward pass, into
+    the layer's record buffers, and
     :meth:`grads` turns one step's records into one product per run (``W``'s gradient over
     every glance at once, ``G * B`` rows deep) instead of one product and one accumulation per
     glance. The buffers live as long as the layer (the group's stacked weights): fresh
@@ -338,21 +340,44 @@ class _Layer:
                 self.narrow[width] = _columns(self.weight.detach(), width)
         return self.narrow[width]
 
-    def __call__(self, x: torch.Tensor) -> torch.Tensor:
-        slot = self.applied
-        self.applied += 1
-        if self.xbuf is None or slot >= self.capacity or x.shape[1] != self.rows:
+    def slot(self, like: torch.Tensor) -> torch.Tensor:
+        """The record of the next application, ``(N, B, in)`` (``like``: its input's rows,
+        device and dtype): an input written straight into it (:meth:`_StackedHam.glance`'s
+        ReLUs) is not copied again by :meth:`__call__`."""
+        slot, rows = self.applied, like.shape[1]
+        if self.xbuf is None or slot >= self.capacity or rows != self.rows:
             if self.xbuf is not None:  # more applications than glances: a layout this
                 raise HamError(f"batched layer applied {slot + 1} times in a step")  # misses
-            self.rows = x.shape[1]
+            self.rows = rows
             n, out, width = self.weight.shape
-            self.xbuf = x.new_empty(n, self.capacity * self.rows, width)
-            self.gbuf = x.new_empty(n, self.capacity * self.rows, out)
-        with torch.no_grad():
-            record = self.xbuf[:, slot * self.rows : (slot + 1) * self.rows]
-            record[..., : x.shape[2]].copy_(x)
-            record[..., x.shape[2] :].zero_()
-        return _LayerFn.apply(x, self.weight, self.forward_bias(), self, slot)
+            self.xbuf = like.new_empty(n, self.capacity * rows, width)
+            self.gbuf = like.new_empty(n, self.capacity * rows, out)
+        return self.xbuf[:, slot * rows : (slot + 1) * rows]
+
+    def __call__(self, *blocks: torch.Tensor) -> torch.Tensor:
+        """The layer applied to its input, given as column blocks (``[g, h]``: the LSTM's
+        gates), each copied into the record unless it was written there (:meth:`slot`);
+        without a block for the last columns they count as zeros."""
+        self.slot(blocks[0])
+        self.applied += 1
+        return _LayerFn.apply(self, self.applied - 1, self.weight, self.forward_bias(), *blocks)
+
+    def fill(self, slot: int, blocks: tuple[torch.Tensor, ...]) -> torch.Tensor:
+        """The blocks copied into record ``slot`` (those not written there already); the
+        input to multiply: one contiguous block as it is, else the record's columns."""
+        r = self.rows
+        record = self.xbuf[:, slot * r : (slot + 1) * r]
+        width = 0
+        for b in blocks:
+            into = record[..., width : width + b.shape[2]]
+            if not _is_view(b, into):
+                into.copy_(b)
+            width += b.shape[2]
+        if width < record.shape[2]:
+            record[..., width:].zero_()
+        if len(blocks) == 1 and blocks[0].is_contiguous():
+            return blocks[0]
+        return record[..., :width]
 
     def grads(self) -> tuple[torch.Tensor, torch.Tensor | None] | None:
         """The weight and bias gradients of the step (``None``: the layer took no part)."""
@@ -367,12 +392,17 @@ class _Layer:
 
 
 class _LayerFn(torch.autograd.Function):
-    """The autograd node of one :class:`_Layer` application: the input gradient now, the
-    weight gradient recorded for :meth:`_Layer.grads` (so ``W`` and ``b`` get none here)."""
+    """The autograd node of one :class:`_Layer` application: the input gradient now (split
+    along the input's column blocks), the weight gradient recorded for :meth:`_Layer.grads`
+    (so ``W`` and ``b`` get none here)."""
 
     @staticmethod
-    def forward(ctx, x, weight, bias, layer, slot):
+    def forward(ctx, layer, slot, weight, bias, *blocks):
+        # the record filled here, not before: a block may be a view of the record made by
+        # another custom Function (g), which autograd forbids using after its base changed
+        x = layer.fill(slot, blocks)
         ctx.layer, ctx.slot, ctx.width = layer, slot, x.shape[2]
+        ctx.widths = [b.shape[2] for b in blocks]
         ctx.split = layer.split_forward(x)
         if ctx.split:
             t = layer.halves()[:, :, : ctx.width]
@@ -390,12 +420,24 @@ class _LayerFn(torch.autograd.Function):
         layer.filled.add(slot)
         w = layer.weight.detach()[..., : ctx.width] if ctx.split else layer.columns(ctx.width)
         gx = None
-        if ctx.needs_input_grad[0]:
+        if any(ctx.needs_input_grad[4:]):
             k = layer.grad_rows
             if k is not None:  # the outputs that read the input detached pass no gradient
                 grad, w = grad[..., :k], w[:, :k]
             gx = _mm_nt(grad, w.transpose(1, 2))
-        return gx, None, None, None, None
+        blocks = [None] * len(ctx.widths) if gx is None else gx.split(ctx.widths, -1)
+        return None, None, None, None, *blocks
+
+
+def _is_view(a: torch.Tensor, b: torch.Tensor) -> bool:
+    """Whether ``a`` is the very same elements as ``b`` (a view of it, as written; the stride
+    of an axis of size 1 does not matter)."""
+    return (
+        a.data_ptr() == b.data_ptr()
+        and a.shape == b.shape
+        and all(n == 1 or x == y for n, x, y in zip(a.shape, a.stride(), b.stride(), strict=True))
+        and a.device == b.device
+    )
 
 
 def _cell_backward(dh, dc1, act, tc, cell):
@@ -666,11 +708,28 @@ class _StackedHam:
             if shift is not None:
                 bias = _shifted(bias, shift, weight.shape[0])
             return _mm_nt(x, _columns(weight, x.shape[-1]), bias)
+        return self._layer(p, name)(x)
+
+    def _layer(self, p: dict, name: str) -> _Layer:
+        """The recording layer ``name`` (made on its first use in a stack; the LSTM's gates
+        add the forget bias, :meth:`_forget_shift`)."""
         layer = self.layers.get(name)
         if layer is None:
             self.used.update({name + ".weight", name + ".bias"} & p.keys())
+            weight, bias = p[name + ".weight"], p.get(name + ".bias")
+            shift = self._forget_shift(p) if name == "core.gates" else None
             layer = self.layers[name] = _Layer(weight, bias, self.c.glances, shift=shift)
-        return layer(x)
+        return layer
+
+    def _relu_into(self, p: dict, y: torch.Tensor, name: str, at: int = 0) -> torch.Tensor:
+        """``relu(y)``, written straight into the record of layer ``name``'s next application
+        at column ``at``, where that layer reads it (:meth:`_Layer.slot`: no copy there). Only
+        on the CPU's ``bmm`` path: oneDNN and CUDA get a plain ReLU, which the layer copies
+        (oneDNN is slow on a strided input, CUDA untested so)."""
+        if y.device.type != "cpu" or _PER_RUN_ONEDNN:
+            return torch.relu(y)
+        slot = self._layer(p, name).slot(y)
+        return torch.clamp_min(y, 0.0, out=slot[..., at : at + y.shape[2]])
 
     def _forget_shift(self, p: dict) -> torch.Tensor:
         """``(0, b_f, 0, 0)`` along the LSTM's gates: the forget bias, added with the gates'
@@ -691,19 +750,32 @@ class _StackedHam:
 
         # HapticAttentionModel.step: the pose fed to the tactile network
         location = torch.stack([q[..., 0], q[..., 1] * c.phi_scale], dim=-1)
-        # TactileNetwork (deferred: no graph here, its backward after the backward pass)
+        # TactileNetwork (deferred: no graph here, its backward after the backward pass;
+        # each ReLU's output written where the next layer records its input)
         defer = record and self._defer
         with torch.no_grad() if defer else contextlib.nullcontext():
-            what = torch.relu(lin(p, "tactile.what", pressure))
-            where = torch.relu(lin(p, "tactile.where", location))
-            if c.combiner == "add":
-                g = what + where
-            elif c.combiner == "mul":
-                g = what * where
+            if defer:  # the concat combiners: each layer's input written into its record
+                chain = ["tactile.combine.0", "tactile.combine.2"][: int(c.combiner[-1])]
+                chain.append("core.gates" if c.core == "lstm" else "core.dense")
+                what = self._relu_into(p, lin(p, "tactile.what", pressure), chain[0])
+                where = self._relu_into(p, lin(p, "tactile.where", location), chain[0],
+                                        what.shape[2])  # fmt: skip
+                g = self._layer(p, chain[0])(what, where)
+                for k in range(1, len(chain)):
+                    g = self._relu_into(p, g, chain[k])
+                    if k + 1 < len(chain):
+                        g = self._layer(p, chain[k])(g)
             else:
-                g = torch.cat([what, where], dim=-1)
-                for k in range(2 if c.combiner == "concat2" else 1):
-                    g = torch.relu(lin(p, f"tactile.combine.{2 * k}", g))
+                what = torch.relu(lin(p, "tactile.what", pressure))
+                where = torch.relu(lin(p, "tactile.where", location))
+                if c.combiner == "add":
+                    g = what + where
+                elif c.combiner == "mul":
+                    g = what * where
+                else:
+                    g = torch.cat([what, where], dim=-1)
+                    for k in range(2 if c.combiner == "concat2" else 1):
+                        g = torch.relu(lin(p, f"tactile.combine.{2 * k}", g))
         if defer:
             g = _TactileOutput.apply(g, p["tactile.what.weight"], self, self._dg_slots)
             self._dg_slots += 1
@@ -718,7 +790,10 @@ class _StackedHam:
                 h, cell = state
                 if c.truncate_bptt:
                     h, cell = h.detach(), cell.detach()
-                gates = lin(p, "core.gates", torch.cat([g, h], dim=-1), shift)
+                if record:  # [g, h] as blocks: written into the layer's record, not joined
+                    gates = self._layer(p, "core.gates")(g, h)
+                else:
+                    gates = lin(p, "core.gates", torch.cat([g, h], dim=-1), shift)
             if c.lstm_activation == "tanh":
                 tau, cell = _TanhLSTMCell.apply(gates, cell)
             else:
