@@ -4,6 +4,12 @@ Builds one group of N runs of the paper's model (seeds 0..N-1, one torch thread)
 steps to warm up (and compile), then profiles ``--steps`` steps and prints the operators by
 their own CPU time; with ``--shapes`` grouped by input shapes (which product is which layer).
 
+Then the step's floor: the matrix products' share of the step and their rate (GFLOP/s, the
+profiler's count of their FLOPs), beside this CPU's rate on one large product (2048 x 2048,
+one thread) and the step of the same group with every layer 8 units wide (the cost that does not
+grow with the model: Python, dispatch, glance lookups, sampling). A batched step cannot be
+faster than its products; how much of the rest can go is what is left to gain.
+
     PYTHONPATH=src python benchmarks/profile_batched.py [--table TABLE] [--glances 10]
         [--runs 10] [--steps 4] [--shapes]
 """
@@ -11,7 +17,9 @@ their own CPU time; with ``--shapes`` grouped by input shapes (which product is 
 from __future__ import annotations
 
 import argparse
+import statistics
 import tempfile
+import time
 from pathlib import Path
 
 import torch
@@ -20,6 +28,44 @@ from torch.profiler import ProfilerActivity, profile
 from ham.learn.batched import BatchedRuns, _open_runs
 from ham.learn.train import TrainConfig
 from ham.model.agent import HamConfig
+
+PRODUCTS = ("aten::bmm", "aten::mm", "aten::baddbmm", "aten::addmm")
+
+
+def group(tmp: str, args, units: int | None = None) -> BatchedRuns:
+    """N runs of the paper's model (``units``: every layer that wide instead), warmed up."""
+    widths = {} if units is None else dict.fromkeys(
+        ("what_units", "where_units", "combine_units", "hidden_units"), units
+    )  # fmt: skip
+    configs = [TrainConfig(model=HamConfig(glances=args.glances, **widths), seed=s,
+                           table=args.table) for s in range(args.runs)]  # fmt: skip
+    outs = [Path(tmp) / f"{units}-{s}" for s in range(args.runs)]
+    g = BatchedRuns(_open_runs(configs, outs), outs)
+    for _ in range(3):  # warm up: buffers, compiled kernels
+        g.step()
+    return g
+
+
+def step_ms(g: BatchedRuns, steps: int) -> float:
+    """Median CPU time of a step, ms."""
+    times = []
+    for _ in range(steps):
+        t = time.process_time()
+        g.step()
+        times.append(time.process_time() - t)
+    return 1e3 * statistics.median(times)
+
+
+def sgemm_rate(n: int = 2048, calls: int = 3) -> float:
+    """This CPU's GFLOP/s on one ``n x n`` product (one thread), the best of ``calls``."""
+    a, b = torch.randn(n, n), torch.randn(n, n)
+    c = a @ b
+    best = float("inf")
+    for _ in range(calls):
+        t = time.perf_counter()
+        torch.mm(a, b, out=c)
+        best = min(best, time.perf_counter() - t)
+    return 2 * n**3 / best / 1e9
 
 
 def main() -> None:
@@ -32,23 +78,35 @@ def main() -> None:
     p.add_argument("--shapes", action="store_true", help="group by input shapes")
     args = p.parse_args()
     torch.set_num_threads(1)
-    configs = [TrainConfig(model=HamConfig(glances=args.glances), seed=s, table=args.table)
-               for s in range(args.runs)]  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
-        outs = [Path(tmp) / str(s) for s in range(args.runs)]
-        group = BatchedRuns(_open_runs(configs, outs), outs)
-        for _ in range(3):  # warm up: buffers, compiled kernels
-            group.step()
-        with profile(activities=[ProfilerActivity.CPU], record_shapes=args.shapes) as prof:
+        paper = group(tmp, args)
+        with profile(activities=[ProfilerActivity.CPU], record_shapes=args.shapes,
+                     with_flops=True) as prof:  # fmt: skip
             for _ in range(args.steps):
-                group.step()
+                paper.step()
+        ms = step_ms(paper, 2 * args.steps)
+        del paper
+        tiny = step_ms(group(tmp, args, units=8), 2 * args.steps)
     print(f"{args.runs} runs, {args.glances} glances, {args.steps} steps profiled (divide the "
           f"times by {args.steps} for one step)")  # fmt: skip
-    table = prof.key_averages(group_by_input_shape=args.shapes).table(
+    events = prof.key_averages(group_by_input_shape=args.shapes)
+    table = events.table(
         sort_by="self_cpu_time_total", row_limit=args.rows, max_name_column_width=40,
         max_shapes_column_width=70,
     )  # fmt: skip
     print(table)
+    products = [e for e in events if e.key in PRODUCTS]
+    total = sum(e.self_cpu_time_total for e in events) / 1e3 / args.steps
+    prod_ms = sum(e.self_cpu_time_total for e in products) / 1e3 / args.steps
+    gflop = sum(e.flops for e in products) / 1e9 / args.steps
+    peak = sgemm_rate()
+    print(f"the step, profiled: {total:.0f} ms; the products {prod_ms:.0f} ms ({prod_ms / total:.0%}"
+          f"), {gflop:.1f} GFLOP at {gflop / prod_ms * 1e3:.0f} GFLOP/s; one 2048 x 2048 product "
+          f"on this CPU (one thread): {peak:.0f} GFLOP/s")  # fmt: skip
+    print(f"the step, not profiled: {ms:.0f} ms ({ms / args.runs:.1f} per run-step); with every "
+          f"layer 8 units wide: {tiny:.0f} ms ({tiny / args.runs:.1f}); the products alone "
+          f"{prod_ms / args.runs:.1f} ms per run-step, at that CPU rate "
+          f"{gflop / peak * 1e3 / args.runs:.1f}")  # fmt: skip
 
 
 if __name__ == "__main__":
