@@ -6,7 +6,8 @@ weight gradient over G glances, against the alternatives measured in docs/agent.
 products looked at once more"): MKL's packed weights (and what packing them every step costs),
 the forward in two halves of outputs (NT views, or NN on contiguous halves of ``W^T``, and what
 transposing ``W`` every step costs; or ``W^T`` kept as the stacked master, its halves strided),
-and activations stored transposed. All timed side by side in
+the input and weight gradients in two halves of their depth K (accumulated), and activations
+stored transposed. All timed side by side in
 this process, one torch thread, medians of ``--calls`` calls per round, ``--rounds`` rounds.
 
     PYTHONPATH=src python benchmarks/bench_gate_products.py [--runs 10] [--rounds 3]
@@ -70,10 +71,16 @@ def main() -> None:
         ],
         "forward: halves, NN on W^T halves": lambda: [torch.bmm(x, h) for h in halves],
         "input gradient: bmm g W": lambda: torch.bmm(g, w),
+        "input gradient: two halves of K, accumulated": lambda: torch.bmm(
+            g[..., : o // 2], w[:, : o // 2]
+        ).baddbmm_(g[..., o // 2 :], w[:, o // 2 :]),
         "weight gradient / glance": lambda: torch.bmm(gs.transpose(1, 2), xs),
         "weight gradient / glance, halves of rows": lambda: [
             torch.bmm(gs[..., s].transpose(1, 2), xs) for s in (slice(0, o // 2), slice(o // 2, o))
         ],
+        "weight gradient / glance, halves of its glances (K)": lambda: torch.bmm(
+            gs[:, : glances * b // 2].transpose(1, 2), xs[:, : glances * b // 2]
+        ).baddbmm_(gs[:, glances * b // 2 :].transpose(1, 2), xs[:, glances * b // 2 :]),
         "weight gradient / glance, halves of columns": lambda: [
             torch.bmm(gs.transpose(1, 2), xs[..., s]) for s in (slice(0, k // 2), slice(k // 2, k))
         ],
@@ -91,8 +98,9 @@ def main() -> None:
     cases["per step: W^T halves, compiled (batched.py)"] = lambda: compiled(w)
     if split:
         layer.halves()
-        cases["forward: halves + bias (batched.py, 6+ glances)"] = lambda: batched._LayerFn.apply(
-            x, w, bias, layer, 0
+        layer.slot(x)  # the record buffers; each call copies x into the first glance's record
+        cases["forward: halves + bias + record (batched.py, 6+ glances)"] = lambda: (
+            batched._LayerFn.apply(layer, 0, w, bias, x)
         )
     else:
         print("(this machine's batched step keeps one forward product: not timed as batched.py)")

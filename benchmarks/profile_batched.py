@@ -99,10 +99,12 @@ def main() -> None:
     total = sum(e.self_cpu_time_total for e in events) / 1e3 / args.steps
     prod_ms = sum(e.self_cpu_time_total for e in products) / 1e3 / args.steps
     gflop = sum(e.flops for e in products) / 1e9 / args.steps
+    ops = sum(e.count for e in events if e.key.startswith("aten::")) / args.steps
     peak = sgemm_rate()
     print(f"the step, profiled: {total:.0f} ms; the products {prod_ms:.0f} ms ({prod_ms / total:.0%}"
           f"), {gflop:.1f} GFLOP at {gflop / prod_ms * 1e3:.0f} GFLOP/s; one 2048 x 2048 product "
-          f"on this CPU (one thread): {peak:.0f} GFLOP/s")  # fmt: skip
+          f"on this CPU (one thread): {peak:.0f} GFLOP/s; {ops:,.0f} ATen operators a step "
+          f"(views included)")  # fmt: skip
     print(f"the step, not profiled: {ms:.0f} ms ({ms / args.runs:.1f} per run-step); with every "
           f"layer 8 units wide: {tiny:.0f} ms ({tiny / args.runs:.1f}); the products alone "
           f"{prod_ms / args.runs:.1f} ms per run-step, at that CPU rate "
