@@ -96,6 +96,20 @@ def test_batched_equals_single_runs(tmp_path, model):
     )
 
 
+def test_runs_of_other_rates_betas_and_evaluations_share_a_batch(tmp_path):
+    # a sweep: each run its own learning-rate schedule, beta and evaluation settings, one model
+    configs = [
+        tiny(0, steps=6),
+        tiny(1, steps=6, lr=3e-3, lr_step=2, lr_decay=0.5, beta=1.5, eval_policy="sample"),
+        tiny(2, steps=6, lr_min=2e-3, eval_every=3, eval_batches=3, log_every=1),
+    ]
+    assert len({batched.shape_key(c) for c in configs}) == 1
+    train_both(tmp_path, configs)
+    assert_same_runs(tmp_path, configs)
+    steps = [[h["step"] for h in metrics(tmp_path / f"b{c.seed}")["history"]] for c in configs]
+    assert steps[1] == [0, 2, 4, 6] and steps[2] == [0, 3, 6]
+
+
 @pytest.mark.parametrize(
     "kw",
     [
@@ -381,13 +395,17 @@ def test_stop_at_perfect(tmp_path):
 def test_refused_configs(tmp_path):
     with pytest.raises(HamError, match="learner 'info' cannot be batched; accepted: hybrid"):
         train_batched([tiny(0, learner="info")], [tmp_path / "a"])
-    with pytest.raises(HamError, match="differ in more than seed and steps"):
-        train_batched([tiny(0), tiny(1, lr=1e-3)], [tmp_path / "a", tmp_path / "b"])
+    for kw in ({"momentum": 0.5}, {"batch_size": 4}, {"beta": 0.0}):  # one per group
+        with pytest.raises(HamError, match="differ in more than seed, steps, lr, lr_decay"):
+            train_batched([tiny(0), tiny(1, **kw)], [tmp_path / "a", tmp_path / "b"])
     with pytest.raises(HamError, match="share a directory"):
         train_batched([tiny(0), tiny(1)], [tmp_path / "a", tmp_path / "a"])
     train_batched([tiny(0, steps=2)], [tmp_path / "c"])
     with pytest.raises(HamError, match="holds another run"):
         train_batched([tiny(1, steps=2)], [tmp_path / "c"])
+    # a run of the same seed at another rate is another run: not resumed as this one
+    with pytest.raises(HamError, match="holds another run"):
+        train_batched([tiny(0, steps=4, lr=1e-3)], [tmp_path / "c"])
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 
 
@@ -429,6 +447,40 @@ def test_reproduce_batched_executor_matches_local(batched_grid, tmp_path, ham_cl
     assert bad.returncode == 2
     assert "--ray-address 'auto': accepted only with --executor ray or ray-batched" in bad.stderr
     assert not (tmp_path / "x").exists()
+
+
+SWEEP = """\
+name = "sweep"
+seeds = 2
+
+[table]
+grid = 11
+
+[base]
+steps = 4
+batch_size = 8
+eval_every = 2
+eval_batches = 2
+model.glances = 2
+
+[axes]
+lr = [1e-3, 3e-3]
+beta = [0.4, 1.0]
+"""
+
+
+def test_a_grid_sweep_of_rates_and_betas_is_one_batched_model(tmp_path, ham_cli):
+    (tmp_path / "sweep.toml").write_text(SWEEP)
+    r = ham_cli("reproduce", "grid", str(tmp_path / "sweep.toml"), "--executor", "batched",
+                "--workers", "1", "--quiet", "--json", "--out", str(tmp_path / "o"))  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["ran"] == 8
+    runs = sorted((tmp_path / "o/runs").iterdir())
+    assert len(runs) == 8
+    for run in runs:  # 4 cells x 2 seeds, one model
+        assert json.loads((run / "timing.json").read_text())["batched_runs"] == 8
+    configs = {json.loads((run / "config.json").read_text())["lr"] for run in runs}
+    assert configs == {1e-3, 3e-3}
 
 
 def test_ray_batched_executor_matches_batched(batched_grid, tmp_path, ham_cli):

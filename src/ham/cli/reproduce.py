@@ -73,7 +73,8 @@ def add_commands(subparsers) -> None:
         default="local",
         choices=EXECUTORS,
         help="local: a process pool of single runs; ray: single runs as Ray tasks; batched: "
-        "runs of one shape (seeds) as one batched model each, on a process pool; ray-batched: "
+        "runs of one shape (seeds, and runs that differ only in the learning-rate schedule, beta "
+        "or evaluation settings) as one batched model each, on a process pool; ray-batched: "
         "those batched models as Ray tasks (default: local)",
     )
     p.add_argument(
@@ -93,7 +94,7 @@ def add_commands(subparsers) -> None:
         type=int,
         default=None,
         metavar="N",
-        help="batched executors: at most N runs of one shape (seeds) per batched model "
+        help="batched executors: at most N runs of one shape per batched model "
         "(default: all of a shape)",
     )
     p.add_argument(

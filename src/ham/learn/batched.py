@@ -1,8 +1,10 @@
 """Batched training: N runs of one shape trained as one stacked model (beyond the paper).
 
 The paper's grid is hundreds of small runs (LSTM 256, batch 64); one run at a time pays every
-operation's overhead for a few small matrices. Here N runs whose configs differ only in ``seed``
-(and ``steps``) go through each step together: their weights are stacked along a leading run
+operation's overhead for a few small matrices. Here N runs whose configs differ only in
+:data:`PER_RUN` fields (``seed``, ``steps``, the learning-rate schedule, ``beta``, the evaluation
+and logging settings: the seeds of a grid cell, or a sweep of rates) go through each step
+together: their weights are stacked along a leading run
 axis, one glance of all N runs is one pass through the stacked layers (:class:`_StackedHam`,
 mirroring :mod:`ham.model` line by line), the hybrid loss is :func:`torch.vmap` of
 :func:`ham.learn.hybrid_loss.hybrid_loss`, and one backward yields every run's gradient (the
@@ -78,12 +80,31 @@ STOPPED_KEY = "stopped_at_perfect"
 _PARTS = ("classification", "reinforce", "baseline_loss")  # TensorBoard, as train_loop
 
 
+# What may differ between the runs of one batched model: each run steps at its own learning
+# rate (its schedule), weighs its own REINFORCE term (beta), and is evaluated and logged on its own
+# cadence, batches and policy. Everything else (the model, the world, the optimizer, the loss's
+# reductions, the batch) is one for the group.
+PER_RUN = ("seed", "steps", "lr", "lr_decay", "lr_step", "lr_min", "beta", "eval_every",
+           "eval_batches", "eval_policy", "log_every")  # fmt: skip
+
+
 def shape_key(config: TrainConfig) -> str:
-    """Runs with equal keys can share one batched model: the config without seed and steps."""
+    """Runs with equal keys can share one batched model: the config without the fields that
+    may differ per run (:data:`PER_RUN`; a beta of 0 skips the REINFORCE term, so it is its
+    own shape)."""
     d = config.to_dict()
-    d.pop("seed")
-    d.pop("steps")
+    for name in PER_RUN:
+        d.pop(name)
+    d["beta_zero"] = config.beta == 0
     return json.dumps(d, sort_keys=True)
+
+
+def _same_run(a: TrainConfig, b: TrainConfig) -> bool:
+    """Whether ``a`` and ``b`` are one run's config (equal but for ``steps``)."""
+    da, db = a.to_dict(), b.to_dict()
+    da.pop("steps")
+    db.pop("steps")
+    return da == db
 
 
 def check_batchable(config: TrainConfig) -> None:
@@ -894,11 +915,11 @@ class BatchedRuns:
         buffer) instead of N optimizers looping over their parameters. Runs at one learning
         rate (the usual case: one schedule, one step) are updated as whole stacked tensors;
         others, and a group some of whose runs diverged, run by run."""
-        c = runs[0].config
+        c = runs[0].config  # momentum and Nesterov are one for the group (shape_key)
         m = c.momentum
         by_lr: dict[float, list[int]] = {}
-        for k in stepping:
-            by_lr.setdefault(c.learning_rate(runs[k].step), []).append(k)
+        for k in stepping:  # each run at its own schedule's rate
+            by_lr.setdefault(runs[k].config.learning_rate(runs[k].step), []).append(k)
         if len(by_lr) == 1 and len(stepping) == len(runs):
             parts = [(slice(None), next(iter(by_lr)))]
         else:
@@ -979,10 +1000,15 @@ class BatchedRuns:
         )
 
     def _losses(self, objects, locations, logits, baselines, mu, sigma):
-        c = self.runs[self.active[0]].config
+        runs = [self.runs[i] for i in self.active]
+        c = runs[0].config
         glances = c.model.glances
+        # one beta for the group: the number itself; else each run's, mapped with its episode
+        betas = [r.config.beta for r in runs]
+        beta = torch.tensor(betas, dtype=logits.dtype, device=logits.device)
+        one = len(set(betas)) == 1
 
-        def loss(objects, locations, logits, baselines, mu, sigma):
+        def loss(objects, locations, logits, baselines, mu, sigma, beta):
             if glances == 1:
                 policy = None
             elif mu is None:
@@ -990,14 +1016,15 @@ class BatchedRuns:
             else:
                 policy = TruncatedGaussian(mu, sigma)
             episode = Episode(objects, locations, logits, baselines, policy)
-            h = hybrid_loss(episode, c.beta, c.classification_reduction, c.reinforce_reduction)
+            h = hybrid_loss(episode, betas[0] if one else beta, c.classification_reduction,
+                            c.reinforce_reduction)  # fmt: skip
             return h.total, h.reward, h.classification, h.reinforce, h.baseline
 
         if mu is None:
-            return torch.vmap(lambda o, lo, lg, b: loss(o, lo, lg, b, None, None))(
-                objects, locations, logits, baselines
+            return torch.vmap(lambda o, lo, lg, b, be: loss(o, lo, lg, b, None, None, be))(
+                objects, locations, logits, baselines, beta
             )
-        return torch.vmap(loss)(objects, locations, logits, baselines, mu, sigma)
+        return torch.vmap(loss)(objects, locations, logits, baselines, mu, sigma, beta)
 
     def step(self) -> list[tuple]:
         """One training step of every active run (:func:`ham.learn.train.train_step` for N).
@@ -1078,6 +1105,14 @@ class BatchedRuns:
         evaluation batches: each batch is independent of the others) go through each stacked
         layer at once. The counts are the single evaluation's; sums of floats (path length,
         modes) to float tolerance."""
+        kinds: dict[tuple, list[int]] = {}  # runs evaluated alike go through the layers at once
+        for i in idx:
+            kinds.setdefault((self.runs[i].config.eval_batches,
+                              self.runs[i].config.eval_policy), []).append(i)  # fmt: skip
+        if len(kinds) > 1:
+            done = {i: res for sub in kinds.values()
+                    for i, res in zip(sub, self.evaluate(sub), strict=True)}  # fmt: skip
+            return [done[i] for i in idx]
         runs = [self.runs[i] for i in idx]
         c, env = runs[0].config, runs[0].env
         n, batch, batches, glances = len(runs), env.batch_size, c.eval_batches, c.model.glances
@@ -1293,7 +1328,8 @@ def _open_runs(configs: list[TrainConfig], outs: list[Path]) -> list[Run]:
     keys = {shape_key(c) for c in configs}
     if len(keys) > 1:
         raise HamError(
-            "the batched runs differ in more than seed and steps; accepted: configs of one shape"
+            "the batched runs differ in more than " + ", ".join(PER_RUN) + "; accepted: "
+            "configs of one shape (a beta of 0 is a shape of its own)"
         )
     c0 = configs[0]
     device = torch.device(c0.device)
@@ -1326,7 +1362,7 @@ def train_batched(
             saved = TrainConfig.from_dict(read_json(out / CONFIG_FILE))
             # where it runs (device, table path) may change between invocations, as on resume
             saved = replace(saved, steps=c.steps, device=c.device, table=c.table)
-            if shape_key(saved) != shape_key(c) or saved.seed != c.seed:
+            if not _same_run(saved, c):
                 raise HamError(
                     f"{str(out)!r} holds another run (seed {saved.seed}); accepted: the same "
                     "config, or an empty directory"

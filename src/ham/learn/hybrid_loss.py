@@ -72,7 +72,7 @@ def reinforce_term(
 
 def hybrid_loss(
     episode: Episode,
-    beta: float = 0.4,
+    beta: float | torch.Tensor = 0.4,
     classification_reduction: str = "sum",
     reinforce_reduction: str = "mean",
 ) -> HybridLoss:
@@ -106,7 +106,8 @@ def hybrid_loss(
     if episode.first_baseline is not None:  # a learned first glance: b(tau_0) too
         baseline = baseline + ((r - episode.first_baseline) ** 2).mean()
     policy = episode.policy
-    if policy is None or not policy.trainable or beta == 0:
+    # (a tensor beta, one per run of a batched model, is never 0: batched.shape_key)
+    if policy is None or not policy.trainable or (not torch.is_tensor(beta) and beta == 0):
         reinforce = last.new_zeros(())
     else:
         advantage = r[None] - episode.values()  # b(tau_{1:s-1}) for the pose q_s
