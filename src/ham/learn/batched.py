@@ -2,9 +2,9 @@
 
 The paper's grid is hundreds of small runs (LSTM 256, batch 64); one run at a time pays every
 operation's overhead for a few small matrices. Here N runs whose configs differ only in
-:data:`PER_RUN` fields (``seed``, ``steps``, the learning-rate schedule, ``beta``, the evaluation
-and logging settings: the seeds of a grid cell, or a sweep of rates) go through each step
-together: their weights are stacked along a leading run
+:data:`PER_RUN` fields (``seed``, ``steps``, the learning-rate schedule, the loss's ``beta`` and
+reductions, the evaluation and logging settings: the seeds of a grid cell, or a sweep of rates)
+go through each step together: their weights are stacked along a leading run
 axis, one glance of all N runs is one pass through the stacked layers (:class:`_StackedHam`,
 mirroring :mod:`ham.model` line by line), the hybrid loss is :func:`torch.vmap` of
 :func:`ham.learn.hybrid_loss.hybrid_loss`, and one backward yields every run's gradient (the
@@ -81,11 +81,12 @@ _PARTS = ("classification", "reinforce", "baseline_loss")  # TensorBoard, as tra
 
 
 # What may differ between the runs of one batched model: each run steps at its own learning
-# rate (its schedule), weighs its own REINFORCE term (beta), and is evaluated and logged on its own
-# cadence, batches and policy. Everything else (the model, the world, the optimizer, the loss's
-# reductions, the batch) is one for the group.
-PER_RUN = ("seed", "steps", "lr", "lr_decay", "lr_step", "lr_min", "beta", "eval_every",
-           "eval_batches", "eval_policy", "log_every")  # fmt: skip
+# rate (its schedule), has its own loss (beta, the reductions over the batch), and is evaluated
+# and logged on its own cadence, batches and policy. Everything else (the model, the world, the
+# optimizer's momentum, the batch) is one for the group.
+PER_RUN = ("seed", "steps", "lr", "lr_decay", "lr_step", "lr_min", "beta",
+           "classification_reduction", "reinforce_reduction", "eval_every", "eval_batches",
+           "eval_policy", "log_every")  # fmt: skip
 
 
 def shape_key(config: TrainConfig) -> str:
@@ -1000,10 +1001,34 @@ class BatchedRuns:
         )
 
     def _losses(self, objects, locations, logits, baselines, mu, sigma):
+        """Each active run's hybrid loss (:func:`ham.learn.hybrid_loss.hybrid_loss`, mapped
+        over the runs): ``(total, reward, classification, reinforce, baseline)``, each ``(N,
+        ...)``. Runs of other loss reductions are mapped apart (a reduction is code, not a
+        number), each with its own beta."""
         runs = [self.runs[i] for i in self.active]
-        c = runs[0].config
-        glances = c.model.glances
-        # one beta for the group: the number itself; else each run's, mapped with its episode
+        glances = runs[0].config.model.glances
+        kinds: dict[tuple[str, str], list[int]] = {}
+        for k, r in enumerate(runs):
+            c = r.config
+            kinds.setdefault((c.classification_reduction, c.reinforce_reduction), []).append(k)
+        args = (objects, locations, logits, baselines, mu, sigma)
+        if len(kinds) == 1:
+            ((reductions, ks),) = kinds.items()
+            return self._mapped_loss(glances, reductions, [runs[k] for k in ks], *args)
+        out = [None] * len(runs)
+        for reductions, ks in kinds.items():
+            idx = torch.tensor(ks, device=objects.device)
+            part = [None if a is None else a.index_select(0, idx) for a in args]
+            parts = self._mapped_loss(glances, reductions, [runs[k] for k in ks], *part)
+            for j, k in enumerate(ks):
+                out[k] = [x[j] for x in parts]
+        return tuple(torch.stack(xs) for xs in zip(*out, strict=True))
+
+    @staticmethod
+    def _mapped_loss(glances, reductions, runs, objects, locations, logits, baselines, mu,
+                     sigma):  # fmt: skip
+        """:func:`hybrid_loss` of ``runs`` (one pair of reductions), mapped over them."""
+        # one beta for the runs: the number itself; else each run's, mapped with its episode
         betas = [r.config.beta for r in runs]
         beta = torch.tensor(betas, dtype=logits.dtype, device=logits.device)
         one = len(set(betas)) == 1
@@ -1016,8 +1041,7 @@ class BatchedRuns:
             else:
                 policy = TruncatedGaussian(mu, sigma)
             episode = Episode(objects, locations, logits, baselines, policy)
-            h = hybrid_loss(episode, betas[0] if one else beta, c.classification_reduction,
-                            c.reinforce_reduction)  # fmt: skip
+            h = hybrid_loss(episode, betas[0] if one else beta, *reductions)
             return h.total, h.reward, h.classification, h.reinforce, h.baseline
 
         if mu is None:
