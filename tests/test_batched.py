@@ -97,13 +97,13 @@ def test_batched_equals_single_runs(tmp_path, model):
 
 
 def test_runs_of_other_rates_losses_and_evaluations_share_a_batch(tmp_path):
-    # a sweep: each run its own learning-rate schedule, loss and evaluation settings, one model
+    # a sweep: each run its own learning-rate schedule, loss, normalization and evaluation, one model
     configs = [
         tiny(0, steps=6),
         tiny(1, steps=6, lr=3e-3, lr_step=2, lr_decay=0.5, beta=1.5, eval_policy="sample"),
         tiny(2, steps=6, lr_min=2e-3, eval_every=3, eval_batches=3, log_every=1),
         tiny(3, steps=6, classification_reduction="mean", beta=0.8),
-        tiny(4, steps=6, reinforce_reduction="sum"),
+        tiny(4, steps=6, reinforce_reduction="sum", normalization="l1"),
     ]
     assert len({batched.shape_key(c) for c in configs}) == 1
     train_both(tmp_path, configs)

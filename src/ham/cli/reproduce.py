@@ -74,7 +74,7 @@ def add_commands(subparsers) -> None:
         choices=EXECUTORS,
         help="local: a process pool of single runs; ray: single runs as Ray tasks; batched: "
         "runs of one shape (seeds, and runs that differ only in the learning-rate schedule, beta, "
-        "loss reductions or evaluation settings) as one batched model each, on a process pool; ray-batched: "
+        "loss reductions, normalization or evaluation settings) as one batched model each, on a process pool; ray-batched: "
         "those batched models as Ray tasks (default: local)",
     )
     p.add_argument(

@@ -512,7 +512,7 @@ def check_ray_address(executor: str, ray_address: str | None) -> None:
 def group_jobs(jobs: list, batch_runs: int | None = None) -> list[list]:
     """Jobs of one shape (the same config but the fields each run of a batched model keeps
     its own: :data:`ham.learn.batched.PER_RUN`: the seed, the learning-rate schedule, the loss, the
-    evaluation settings) together, in plan order, at most
+    normalization, the evaluation settings) together, in plan order, at most
     ``batch_runs`` per group (``None``: all of a shape)."""
     from ham.learn.batched import shape_key
     from ham.learn.train import TrainConfig

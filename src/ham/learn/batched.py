@@ -3,8 +3,8 @@
 The paper's grid is hundreds of small runs (LSTM 256, batch 64); one run at a time pays every
 operation's overhead for a few small matrices. Here N runs whose configs differ only in
 :data:`PER_RUN` fields (``seed``, ``steps``, the learning-rate schedule, the loss's ``beta`` and
-reductions, the evaluation and logging settings: the seeds of a grid cell, or a sweep of rates)
-go through each step together: their weights are stacked along a leading run
+reductions, the normalization, the evaluation and logging settings: the seeds of a grid cell, or
+a sweep of rates) go through each step together: their weights are stacked along a leading run
 axis, one glance of all N runs is one pass through the stacked layers (:class:`_StackedHam`,
 mirroring :mod:`ham.model` line by line), the hybrid loss is :func:`torch.vmap` of
 :func:`ham.learn.hybrid_loss.hybrid_loss`, and one backward yields every run's gradient (the
@@ -74,6 +74,7 @@ from ham.model.agent import Episode, HamConfig
 from ham.model.location_net import truncated_normal, uniform_locations
 from ham.model.policy import TruncatedGaussian, Uniform
 from ham.world.devices import cpu_info
+from ham.world.sensor import normalize
 from ham.world.source import check_model_fits, make_source
 
 STOPPED_KEY = "stopped_at_perfect"
@@ -81,12 +82,13 @@ _PARTS = ("classification", "reinforce", "baseline_loss")  # TensorBoard, as tra
 
 
 # What may differ between the runs of one batched model: each run steps at its own learning
-# rate (its schedule), has its own loss (beta, the reductions over the batch), and is evaluated
-# and logged on its own cadence, batches and policy. Everything else (the model, the world, the
-# optimizer's momentum, the batch) is one for the group.
+# rate (its schedule), has its own loss (beta, the reductions over the batch), normalizes its
+# glances its own way, and is evaluated and logged on its own cadence, batches and policy.
+# Everything else (the model, the world, the optimizer's momentum, the batch) is one for the
+# group.
 PER_RUN = ("seed", "steps", "lr", "lr_decay", "lr_step", "lr_min", "beta",
-           "classification_reduction", "reinforce_reduction", "eval_every", "eval_batches",
-           "eval_policy", "log_every")  # fmt: skip
+           "classification_reduction", "reinforce_reduction", "normalization", "eval_every",
+           "eval_batches", "eval_policy", "log_every")  # fmt: skip
 
 
 def shape_key(config: TrainConfig) -> str:
@@ -449,6 +451,26 @@ class _LayerFn(torch.autograd.Function):
             gx = _mm_nt(grad, w.transpose(1, 2))
         blocks = [None] * len(ctx.widths) if gx is None else gx.split(ctx.widths, -1)
         return None, None, None, None, *blocks
+
+
+def _pressure(runs: list[Run], flat_objects: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+    """The normalized glances ``(N, B, N^2)`` of ``runs`` at poses ``q (N, B, 2)`` on objects
+    ``flat_objects (N * B,)``: one lookup, then each run's normalization (a row's numbers are
+    :meth:`HapticEnv.glance`'s)."""
+    n, rows = q.shape[0], q.shape[1]
+    env = runs[0].env
+    kinds: dict[str, list[int]] = {}
+    for k, r in enumerate(runs):
+        kinds.setdefault(r.env.normalization, []).append(k)
+    if len(kinds) == 1:
+        return env.glance(flat_objects, q.reshape(-1, 2)).view(n, rows, -1)
+    raw, _ = env.source.glance(flat_objects, q.reshape(-1, 2), None)
+    raw = raw.to(env.device, torch.float32).view(n, rows, *raw.shape[1:])
+    out = raw.new_empty(n, rows, raw.shape[2] * raw.shape[3])
+    for kind, ks in kinds.items():
+        idx = torch.tensor(ks, device=raw.device)
+        out.index_copy_(0, idx, normalize(raw.index_select(0, idx), kind))
+    return out
 
 
 def _is_view(a: torch.Tensor, b: torch.Tensor) -> bool:
@@ -960,7 +982,6 @@ class BatchedRuns:
         n, batch = objects.shape
         agent = self._template
         glances = agent.config.glances
-        env = runs[0].env
         q = torch.stack(
             [uniform_locations(batch, r.policy_generator, objects.device) for r in runs]
         )  # the first glance: random (the paper)
@@ -969,7 +990,7 @@ class BatchedRuns:
         flat_objects = objects.reshape(-1)
         for s in range(glances):
             # one lookup of N * B glances: a glance depends only on its object and pose
-            pressure = env.glance(flat_objects, q.reshape(-1, 2)).view(n, batch, -1)
+            pressure = _pressure(runs, flat_objects, q)
             final = s == glances - 1
             state, lg, b, dist = self._net.glance(self.stacked, pressure, q, state, not final)
             locations.append(q)
@@ -1179,7 +1200,7 @@ class BatchedRuns:
             state = None  # the core's initial state
             locations, logits, mode = [], [], None
             for s in range(glances):
-                pressure = env.glance(flat_objects, q.reshape(-1, 2)).view(n, rows, -1)
+                pressure = _pressure(runs, flat_objects, q)
                 final = s == glances - 1
                 state, lg, _, dist = self._net.glance(p, pressure, q, state, not final, False)
                 locations.append(q)
