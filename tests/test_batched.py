@@ -451,6 +451,22 @@ def test_reproduce_batched_executor_matches_local(batched_grid, tmp_path, ham_cl
     assert not (tmp_path / "x").exists()
 
 
+def test_groups_are_shapes_in_plan_order_capped_by_batch_runs():
+    from types import SimpleNamespace
+
+    from ham.experiments.reproduce import group_jobs
+
+    def job(seed, **kw):
+        return SimpleNamespace(config=tiny(seed, **kw).to_dict(), seed=seed)
+
+    sweep = [job(s, lr=lr) for lr in (1e-3, 2e-3, 4e-3) for s in range(4)]  # one shape
+    two = [job(s) for s in range(3)] + [job(s, batch_size=4) for s in range(3)]  # two shapes
+    assert [[j.seed for j in g] for g in group_jobs(sweep)] == [[0, 1, 2, 3] * 3]
+    assert [len(g) for g in group_jobs(sweep, batch_runs=5)] == [5, 5, 2]
+    assert [len(g) for g in group_jobs(two)] == [3, 3]
+    assert [len(g) for g in group_jobs(two + [job(9, steps=4)])] == [3, 3, 1]  # steps: apart
+
+
 SWEEP = """\
 name = "sweep"
 seeds = 2
@@ -474,9 +490,11 @@ beta = [0.4, 1.0]
 def test_a_grid_sweep_of_rates_and_betas_is_one_batched_model(tmp_path, ham_cli):
     (tmp_path / "sweep.toml").write_text(SWEEP)
     r = ham_cli("reproduce", "grid", str(tmp_path / "sweep.toml"), "--executor", "batched",
-                "--workers", "1", "--quiet", "--json", "--out", str(tmp_path / "o"))  # fmt: skip
+                "--workers", "2", "--json", "--out", str(tmp_path / "o"))  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["ran"] == 8
+    # one model, not one per worker (the grouping keeps the numbers the same on any machine)
+    assert "1 batched model(s) for 2 workers: --batch-runs N spreads" in r.stderr
     runs = sorted((tmp_path / "o/runs").iterdir())
     assert len(runs) == 8
     for run in runs:  # 4 cells x 2 seeds, one model

@@ -511,9 +511,10 @@ def check_ray_address(executor: str, ray_address: str | None) -> None:
 
 def group_jobs(jobs: list, batch_runs: int | None = None) -> list[list]:
     """Jobs of one shape (the same config but the fields each run of a batched model keeps
-    its own: :data:`ham.learn.batched.PER_RUN`: the seed, the learning-rate schedule, the loss, the
-    normalization, the evaluation settings) together, in plan order, at most
-    ``batch_runs`` per group (``None``: all of a shape)."""
+    its own, :data:`ham.learn.batched.PER_RUN`: the seed, the learning-rate schedule, the loss,
+    the normalization, the evaluation settings) together, in plan order, at most ``batch_runs``
+    per group (``None``: all of a shape). Not by the number of workers: a run's last bits
+    depend on the size of its batch, and the same command gives the same numbers anywhere."""
     from ham.learn.batched import shape_key
     from ham.learn.train import TrainConfig
 
@@ -589,7 +590,7 @@ def execute_batched(
     batch_runs: int | None = None,
     stop_at_perfect: bool = False,
 ) -> None:
-    """Jobs of one shape (seeds) trained as one batched model each (:func:`group_jobs`); the
+    """Jobs of one shape trained as one batched model each (:func:`group_jobs`); the
     groups on a process pool of ``workers`` (one torch thread each), or in this process when
     there is one group or one worker (the way to use one GPU)."""
     import multiprocessing as mp
@@ -645,6 +646,13 @@ def execute(
             bar.update(1)
         bar.set_postfix(failed=sum(x["status"] == "failed" for x in results.values()))
 
+    if progress and executor == "batched" and todo:
+        models = group_jobs(todo, batch_runs)
+        if len(models) < workers and max(len(g) for g in models) > 1:
+            # the grouping does not follow --workers: the same command gives the same numbers
+            # on any machine (a run's last bits depend on its batch's size)
+            print(f"{len(models)} batched model(s) for {workers} workers: --batch-runs N spreads "
+                  "one shape's runs over more models", file=sys.stderr)  # fmt: skip
     for attempt in range(retries + 1):
         if not todo:
             break
