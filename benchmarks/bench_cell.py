@@ -72,23 +72,22 @@ def main() -> None:
         if len(keep) > 10:
             keep.pop(0)
 
+    def cell_from(act: torch.Tensor):  # the cell after its activations, as the step's
+        si, sf, tu, so = act.unbind(-2)
+        c1 = torch.addcmul(sf * c, si, tu)
+        return so * torch.tanh(c1), c1
+
     def step_cell():  # as _TanhLSTMCell.forward
         act = torch.sigmoid(z)
         torch.tanh(z[..., 2, :], out=act[..., 2, :])
-        si, sf, tu, so = act.unbind(-2)
-        c1 = torch.addcmul(sf * c, si, tu)
-        tc = torch.tanh(c1)
-        return so * tc, c1
+        return cell_from(act)
 
     def three_sigmoids():
         act = torch.empty_like(z)
         torch.sigmoid(z[..., :2, :], out=act[..., :2, :])
         torch.sigmoid(z[..., 3, :], out=act[..., 3, :])
         torch.tanh(z[..., 2, :], out=act[..., 2, :])
-        si, sf, tu, so = act.unbind(-2)
-        c1 = torch.addcmul(sf * c, si, tu)
-        tc = torch.tanh(c1)
-        return so * tc, c1
+        return cell_from(act)
 
     def product_then_step_activations():
         g = torch.bmm(x, w).view(n, b, 4, h)

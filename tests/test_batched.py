@@ -8,6 +8,7 @@ import json
 import os
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -96,18 +97,25 @@ def test_batched_equals_single_runs(tmp_path, model):
     )
 
 
-def test_runs_of_other_rates_losses_and_evaluations_share_a_batch(tmp_path):
-    # a sweep: each run its own learning-rate schedule, loss, normalization and evaluation, one model
+CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (run on one)")
+
+
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=CUDA)])
+def test_runs_of_other_rates_losses_and_evaluations_share_a_batch(tmp_path, device):
+    # a sweep: each run its own learning-rate schedule, loss, normalization, evaluation and
+    # BPTT truncation, one model
     configs = [
         tiny(0, steps=6),
         tiny(1, steps=6, lr=3e-3, lr_step=2, lr_decay=0.5, beta=1.5, eval_policy="sample"),
         tiny(2, steps=6, lr_min=2e-3, eval_every=3, eval_batches=3, log_every=1),
         tiny(3, steps=6, classification_reduction="mean", beta=0.8),
         tiny(4, steps=6, reinforce_reduction="sum", normalization="l1"),
+        tiny(5, steps=6, model=HamConfig(glances=3, truncate_bptt=True)),
     ]
+    configs = [replace(c, device=device) for c in configs]
     assert len({batched.shape_key(c) for c in configs}) == 1
     train_both(tmp_path, configs)
-    assert_same_runs(tmp_path, configs)
+    assert_same_runs(tmp_path, configs, 1e-5 if device == "cuda" else 1e-6)
     steps = [[h["step"] for h in metrics(tmp_path / f"b{c.seed}")["history"]] for c in configs]
     assert steps[1] == [0, 2, 4, 6] and steps[2] == [0, 3, 6]
 
@@ -451,7 +459,7 @@ def test_reproduce_batched_executor_matches_local(batched_grid, tmp_path, ham_cl
     assert not (tmp_path / "x").exists()
 
 
-def test_groups_are_shapes_in_plan_order_capped_by_batch_runs():
+def test_groups_are_shapes_in_plan_order_in_near_equal_batches():
     from types import SimpleNamespace
 
     from ham.experiments.reproduce import group_jobs
@@ -461,8 +469,14 @@ def test_groups_are_shapes_in_plan_order_capped_by_batch_runs():
 
     sweep = [job(s, lr=lr) for lr in (1e-3, 2e-3, 4e-3) for s in range(4)]  # one shape
     two = [job(s) for s in range(3)] + [job(s, batch_size=4) for s in range(3)]  # two shapes
-    assert [[j.seed for j in g] for g in group_jobs(sweep)] == [[0, 1, 2, 3] * 3]
+    assert [[j.seed for j in g] for g in group_jobs(sweep)] == [
+        [0, 1, 2, 3, 0, 1],
+        [2, 3, 0, 1, 2, 3],
+    ]
+    assert [len(g) for g in group_jobs(sweep[:10])] == [10]  # at most 10 runs by default
+    assert [len(g) for g in group_jobs(sweep * 2)] == [8, 8, 8]
     assert [len(g) for g in group_jobs(sweep, batch_runs=5)] == [5, 5, 2]
+    assert [len(g) for g in group_jobs(sweep, batch_runs=12)] == [12]
     assert [len(g) for g in group_jobs(two)] == [3, 3]
     assert [len(g) for g in group_jobs(two + [job(9, steps=4)])] == [3, 3, 1]  # steps: apart
 

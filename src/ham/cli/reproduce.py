@@ -74,7 +74,8 @@ def add_commands(subparsers) -> None:
         choices=EXECUTORS,
         help="local: a process pool of single runs; ray: single runs as Ray tasks; batched: "
         "runs of one shape (seeds, and runs that differ only in the learning-rate schedule, beta, "
-        "loss reductions, normalization or evaluation settings) as one batched model each, on a process pool; ray-batched: "
+        "loss reductions, normalization, BPTT truncation or evaluation settings) as batched "
+        "models, on a process pool; ray-batched: "
         "those batched models as Ray tasks (default: local)",
     )
     p.add_argument(
@@ -95,7 +96,7 @@ def add_commands(subparsers) -> None:
         default=None,
         metavar="N",
         help="batched executors: at most N runs of one shape per batched model "
-        "(default: all of a shape)",
+        "(default: a shape's runs in near-equal models of at most 10)",
     )
     p.add_argument(
         "--stop-at-perfect",

@@ -509,21 +509,37 @@ def check_ray_address(executor: str, ray_address: str | None) -> None:
         ) from None
 
 
+# Runs per batched model by default: the paper's seeds of a cell, and the N the batched step was
+# measured at (docs/agent.md#batched-runs); a larger shape (a sweep) is cut into near-equal models
+# of at most this many, so that it still spreads over the workers
+BATCH_RUNS = 10
+
+
 def group_jobs(jobs: list, batch_runs: int | None = None) -> list[list]:
     """Jobs of one shape (the same config but the fields each run of a batched model keeps
     its own, :data:`ham.learn.batched.PER_RUN`: the seed, the learning-rate schedule, the loss,
-    the normalization, the evaluation settings) together, in plan order, at most ``batch_runs``
-    per group (``None``: all of a shape). Not by the number of workers: a run's last bits
-    depend on the size of its batch, and the same command gives the same numbers anywhere."""
+    the normalization, the evaluation settings, the BPTT truncation) together, in plan order:
+    at most ``batch_runs`` per group, or by default near-equal groups of at most
+    :data:`BATCH_RUNS`. Not by the number of workers: a run's last bits depend on the size of
+    its batch, and the same command gives the same numbers anywhere."""
     from ham.learn.batched import shape_key
     from ham.learn.train import TrainConfig
 
-    groups: dict[str, list] = {}
+    shapes: dict[str, list] = {}
     for j in jobs:
         config = TrainConfig.from_dict(j.config)
-        groups.setdefault(shape_key(config) + f"|{config.steps}", []).append(j)
-    size = batch_runs or max(len(g) for g in groups.values())
-    return [g[k : k + size] for g in groups.values() for k in range(0, len(g), size)]
+        shapes.setdefault(shape_key(config) + f"|{config.steps}", []).append(j)
+    if batch_runs:
+        return [
+            g[k : k + batch_runs] for g in shapes.values() for k in range(0, len(g), batch_runs)
+        ]
+    groups = []
+    for g in shapes.values():  # -(-n // m): the fewest groups of at most BATCH_RUNS
+        parts = -(-len(g) // BATCH_RUNS)
+        q, r = divmod(len(g), parts)
+        starts = [k * q + min(k, r) for k in range(parts + 1)]
+        groups += [g[a:b] for a, b in zip(starts, starts[1:], strict=False)]
+    return groups
 
 
 def run_batch(

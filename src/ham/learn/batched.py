@@ -3,8 +3,8 @@
 The paper's grid is hundreds of small runs (LSTM 256, batch 64); one run at a time pays every
 operation's overhead for a few small matrices. Here N runs whose configs differ only in
 :data:`PER_RUN` fields (``seed``, ``steps``, the learning-rate schedule, the loss's ``beta`` and
-reductions, the normalization, the evaluation and logging settings: the seeds of a grid cell, or
-a sweep of rates) go through each step together: their weights are stacked along a leading run
+reductions, the normalization, the BPTT truncation, the evaluation and logging settings: the
+seeds of a grid cell, or a sweep of rates) go through each step together: their weights are stacked along a leading run
 axis, one glance of all N runs is one pass through the stacked layers (:class:`_StackedHam`,
 mirroring :mod:`ham.model` line by line), the hybrid loss is :func:`torch.vmap` of
 :func:`ham.learn.hybrid_loss.hybrid_loss`, and one backward yields every run's gradient (the
@@ -83,7 +83,8 @@ _PARTS = ("classification", "reinforce", "baseline_loss")  # TensorBoard, as tra
 
 # What may differ between the runs of one batched model: each run steps at its own learning
 # rate (its schedule), has its own loss (beta, the reductions over the batch), normalizes its
-# glances its own way, and is evaluated and logged on its own cadence, batches and policy.
+# glances its own way, and is evaluated and logged on its own cadence, batches and policy; and
+# of the model, whether its core's state is detached between glances (model.truncate_bptt).
 # Everything else (the model, the world, the optimizer's momentum, the batch) is one for the
 # group.
 PER_RUN = ("seed", "steps", "lr", "lr_decay", "lr_step", "lr_min", "beta",
@@ -98,6 +99,7 @@ def shape_key(config: TrainConfig) -> str:
     d = config.to_dict()
     for name in PER_RUN:
         d.pop(name)
+    d["model"].pop("truncate_bptt")  # the core's state detached per run (_StackedHam.truncate)
     d["beta_zero"] = config.beta == 0
     return json.dumps(d, sort_keys=True)
 
@@ -644,6 +646,9 @@ class _StackedHam:
         self._dg_slots = 0
         self._dg_filled: set[int] = set()
         self._shift: torch.Tensor | None = None  # the forget bias along the gates
+        # which runs detach the core's state between glances (truncated BPTT): a bool per run
+        # (N, 1, 1) where the runs differ, else None and the config's one choice
+        self.truncate: torch.Tensor | None = None
         if config.policy == "learned" and config.glances > 1:  # a policy that chooses glances
             self._heads_names += ["location.mu", "location.sigma"]
 
@@ -832,7 +837,11 @@ class _StackedHam:
                 gates = lin(p, "core.gates", g, shift)
             else:
                 h, cell = state
-                if c.truncate_bptt:
+                if record and self.truncate is not None:  # some runs truncated: no gradient
+                    # through their state (an evaluation takes no gradient at all)
+                    h = torch.where(self.truncate, h.detach(), h)
+                    cell = torch.where(self.truncate, cell.detach(), cell)
+                elif c.truncate_bptt:
                     h, cell = h.detach(), cell.detach()
                 if record:  # [g, h] as blocks: written into the layer's record, not joined
                     gates = self._layer(p, "core.gates")(g, h)
@@ -1083,6 +1092,11 @@ class BatchedRuns:
                 group["lr"] = r.config.learning_rate(r.step) * group.get("lr_scale", 1.0)
         objects = torch.stack([r.env.sample_objects() for r in runs])
         self._net.begin(self.stacked)
+        truncate = [r.config.model.truncate_bptt for r in runs]
+        if all(t == self._template.config.truncate_bptt for t in truncate):
+            self._net.truncate = None  # the stacked model's config says it for all
+        else:
+            self._net.truncate = torch.tensor(truncate, device=objects.device).view(-1, 1, 1)
         totals, rewards, *parts = self._losses(objects, *self._forward(objects))
         if not self._checked:  # a weight the stacked layers skip would silently never train
             unused = set(self._names) - self._net.used
