@@ -3,37 +3,37 @@
 The paper's grid is hundreds of small runs (LSTM 256, batch 64); one run at a time pays every
 operation's overhead for a few small matrices. Here N runs whose configs differ only in
 :data:`PER_RUN` fields (``seed``, ``steps``, the learning-rate schedule, the loss's ``beta`` and
-reductions, the normalization, the BPTT truncation, the evaluation and logging settings: the
-seeds of a grid cell, or a sweep of rates) go through each step together: their weights are stacked along a leading run
-axis, one glance of all N runs is one pass through the stacked layers (:class:`_StackedHam`,
-mirroring :mod:`ham.model` line by line), the hybrid loss is :func:`torch.vmap` of
-:func:`ham.learn.hybrid_loss.hybrid_loss`, and one backward yields every run's gradient (the
-runs' graphs are disjoint). Each layer is one ``bmm`` for all runs (on an AMD CPU each large
-product is one oneDNN call per run: :func:`_mm_nt`), the layers reading the core's output
-are one layer (:meth:`_StackedHam._heads`), weight gradients are deferred to one product per
+reductions, the normalization, the BPTT truncation, the evaluation and logging settings: the seeds
+of a grid cell, or a sweep of rates) go through each step together: their weights are stacked along
+a leading run axis, one glance of all N runs is one pass through the stacked layers
+(:class:`_StackedHam`, mirroring :mod:`ham.model` line by line), the hybrid loss is
+:func:`torch.vmap` of :func:`ham.learn.hybrid_loss.hybrid_loss`, and one backward yields every
+run's gradient (the runs' graphs are disjoint). Each layer is one ``bmm`` for all runs (on an AMD
+CPU each large product is one oneDNN call per run: :func:`_mm_nt`), the layers reading the core's
+output are one layer (:meth:`_StackedHam._heads`), weight gradients are deferred to one product per
 layer over all glances, so is the tactile network's whole backward (concat combiners:
-:meth:`_StackedHam._tactile_backward`; on the CPU each of its ReLUs writes straight into the
-record the next layer reads, and ``[g, h]`` is never joined: :meth:`_Layer.slot`), the LSTM
-cell is fused (:class:`_TanhLSTMCell`, its backward compiled on the CPU), from 6 glances on the
-CPU the gates' forward is two products of half the outputs (:meth:`_Layer.split_forward`), and
-on the CPU one fused SGD call steps all runs (docs/agent.md#batched-runs has the measurements).
+:meth:`_StackedHam._tactile_backward`; on the CPU each of its ReLUs writes straight into the record
+the next layer reads, and ``[g, h]`` is never joined: :meth:`_Layer.slot`), the LSTM cell is fused
+(:class:`_TanhLSTMCell`, its backward compiled on the CPU), from 6 glances on the CPU the gates'
+forward is two products of half the outputs (:meth:`_Layer.split_forward`), and on the CPU one
+fused SGD call steps all runs (docs/agent.md#batched-runs has the measurements).
 
-Everything else stays per run and is the single run's own code (:mod:`ham.learn.train`): each
-run is a :class:`ham.learn.train.Run` with its own environment generator (objects, stream 0),
-pose generator (stream 1), optimizer (SGD with Nesterov momentum at its own learning-rate
-schedule), evaluation poses (stream 2), checkpoint, ``config.json``, ``metrics.json``,
-``timing.json`` and ``tb/``. The runs due for an evaluation are evaluated at once
-(:meth:`BatchedRuns.evaluate`: the single evaluation's counts, each run's poses from its own
-generator, eight evaluation batches per pass through the stacked layers). A run's parameters (and its SGD momentum buffers) are views into the stacked
-tensors, so its evaluation reads the current weights and its checkpoint the current state. The
-same seed gives the single run's numbers to float tolerance (the batched products sum in
-another order); resume is bit-identical to an uninterrupted batched group. A run whose loss or weights turn NaN/inf stops alone (its
-directory keeps its last checkpoint), the others go on. With ``stop_at_perfect`` a run whose
-best evaluation reaches 1.0 stops (its best accuracy can no longer change); its metrics say
-``"stopped_at_perfect": step``.
+Everything else stays per run and is the single run's own code (:mod:`ham.learn.train`): each run
+is a :class:`ham.learn.train.Run` with its own environment generator (objects, stream 0), pose
+generator (stream 1), optimizer (SGD with Nesterov momentum at its own learning-rate schedule),
+evaluation poses (stream 2), checkpoint, ``config.json``, ``metrics.json``, ``timing.json`` and
+``tb/``. The runs due for an evaluation are evaluated at once (:meth:`BatchedRuns.evaluate`: the
+single evaluation's counts, each run's poses from its own generator, eight evaluation batches per
+pass through the stacked layers). A run's parameters (and its SGD momentum buffers) are views into
+the stacked tensors, so its evaluation reads the current weights and its checkpoint the current
+state. The same seed gives the single run's numbers to float tolerance (the batched products sum in
+another order); resume is bit-identical to an uninterrupted batched group. A run whose loss or
+weights turn NaN/inf stops alone (its directory keeps its last checkpoint), the others go on. With
+``stop_at_perfect`` a run whose best evaluation reaches 1.0 stops (its best accuracy can no longer
+change); its metrics say ``"stopped_at_perfect": step``.
 
-Only the hybrid learner on the haptic world with a random first glance is batched; anything
-else is refused with one line (train it with ``ham train`` or ``--executor local``).
+Only the hybrid learner on the haptic world with a random first glance is batched; anything else is
+refused with one line (train it with ``ham train`` or ``--executor local``).
 """
 
 from __future__ import annotations
@@ -94,8 +94,8 @@ PER_RUN = ("seed", "steps", "lr", "lr_decay", "lr_step", "lr_min", "beta",
 
 def shape_key(config: TrainConfig) -> str:
     """Runs with equal keys can share one batched model: the config without the fields that
-    may differ per run (:data:`PER_RUN`; a beta of 0 skips the REINFORCE term, so it is its
-    own shape)."""
+    may differ per run (:data:`PER_RUN`, and the model's ``truncate_bptt``; a beta of 0 skips
+    the REINFORCE term, so it is its own shape)."""
     d = config.to_dict()
     for name in PER_RUN:
         d.pop(name)
