@@ -74,7 +74,6 @@ from ham.model.agent import Episode, HamConfig
 from ham.model.location_net import truncated_normal, uniform_locations
 from ham.model.policy import TruncatedGaussian, Uniform
 from ham.world.devices import cpu_info
-from ham.world.sensor import normalize
 from ham.world.source import check_model_fits, make_source
 
 STOPPED_KEY = "stopped_at_perfect"
@@ -455,23 +454,30 @@ class _LayerFn(torch.autograd.Function):
         return None, None, None, None, *blocks
 
 
+def _grouped(items, key) -> dict:
+    """``items`` by ``key(item)``, in order: ``{key: [item, ...]}``."""
+    out: dict = {}
+    for item in items:
+        out.setdefault(key(item), []).append(item)
+    return out
+
+
 def _pressure(runs: list[Run], flat_objects: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
-    """The normalized glances ``(N, B, N^2)`` of ``runs`` at poses ``q (N, B, 2)`` on objects
-    ``flat_objects (N * B,)``: one lookup, then each run's normalization (a row's numbers are
-    :meth:`HapticEnv.glance`'s)."""
+    """The glances ``(N, B, N^2)`` of ``runs`` at poses ``q (N, B, 2)`` on objects
+    ``flat_objects (N * B,)``, as each run's :meth:`HapticEnv.glance` gives them: one lookup
+    for all runs of one normalization (their envs share the glance source)."""
     n, rows = q.shape[0], q.shape[1]
-    env = runs[0].env
-    kinds: dict[str, list[int]] = {}
-    for k, r in enumerate(runs):
-        kinds.setdefault(r.env.normalization, []).append(k)
+    kinds = _grouped(range(n), lambda k: runs[k].env.normalization)
     if len(kinds) == 1:
-        return env.glance(flat_objects, q.reshape(-1, 2)).view(n, rows, -1)
-    raw, _ = env.source.glance(flat_objects, q.reshape(-1, 2), None)
-    raw = raw.to(env.device, torch.float32).view(n, rows, *raw.shape[1:])
-    out = raw.new_empty(n, rows, raw.shape[2] * raw.shape[3])
-    for kind, ks in kinds.items():
-        idx = torch.tensor(ks, device=raw.device)
-        out.index_copy_(0, idx, normalize(raw.index_select(0, idx), kind))
+        return runs[0].env.glance(flat_objects, q.reshape(-1, 2)).view(n, rows, -1)
+    objects, out = flat_objects.view(n, rows), None
+    for ks in kinds.values():
+        idx = torch.tensor(ks, device=q.device)
+        part = runs[ks[0]].env.glance(objects.index_select(0, idx).reshape(-1),
+                                      q.index_select(0, idx).reshape(-1, 2))  # fmt: skip
+        part = part.view(len(ks), rows, -1)
+        out = part.new_empty(n, rows, part.shape[2]) if out is None else out
+        out.index_copy_(0, idx, part)
     return out
 
 
@@ -919,6 +925,12 @@ class BatchedRuns:
                     # a run without one yet starts from zeros: 0 * m + g is exactly the
                     # optimizer's first buffer (a copy of g)
                     self._new_buffer(name, [st.get("momentum_buffer") for st in states])
+        truncate = [self.runs[i].config.model.truncate_bptt for i in self.active]
+        if all(t == self._template.config.truncate_bptt for t in truncate):
+            self._net.truncate = None  # the stacked model's config says it for all
+        else:  # the active runs' choices, as the stack's run axis
+            device = next(iter(self.stacked.values())).device
+            self._net.truncate = torch.tensor(truncate, device=device).view(-1, 1, 1)
 
     def _new_buffer(self, name: str, bufs: list[torch.Tensor | None]) -> torch.Tensor:
         big = torch.stack([torch.zeros_like(self.stacked[name][0]) if b is None else b.detach()
@@ -1037,10 +1049,8 @@ class BatchedRuns:
         number), each with its own beta."""
         runs = [self.runs[i] for i in self.active]
         glances = runs[0].config.model.glances
-        kinds: dict[tuple[str, str], list[int]] = {}
-        for k, r in enumerate(runs):
-            c = r.config
-            kinds.setdefault((c.classification_reduction, c.reinforce_reduction), []).append(k)
+        kinds = _grouped(range(len(runs)), lambda k: (runs[k].config.classification_reduction,
+                                                      runs[k].config.reinforce_reduction))  # fmt: skip
         args = (objects, locations, logits, baselines, mu, sigma)
         if len(kinds) == 1:
             ((reductions, ks),) = kinds.items()
@@ -1092,11 +1102,6 @@ class BatchedRuns:
                 group["lr"] = r.config.learning_rate(r.step) * group.get("lr_scale", 1.0)
         objects = torch.stack([r.env.sample_objects() for r in runs])
         self._net.begin(self.stacked)
-        truncate = [r.config.model.truncate_bptt for r in runs]
-        if all(t == self._template.config.truncate_bptt for t in truncate):
-            self._net.truncate = None  # the stacked model's config says it for all
-        else:
-            self._net.truncate = torch.tensor(truncate, device=objects.device).view(-1, 1, 1)
         totals, rewards, *parts = self._losses(objects, *self._forward(objects))
         if not self._checked:  # a weight the stacked layers skip would silently never train
             unused = set(self._names) - self._net.used
@@ -1164,10 +1169,9 @@ class BatchedRuns:
         evaluation batches: each batch is independent of the others) go through each stacked
         layer at once. The counts are the single evaluation's; sums of floats (path length,
         modes) to float tolerance."""
-        kinds: dict[tuple, list[int]] = {}  # runs evaluated alike go through the layers at once
-        for i in idx:
-            kinds.setdefault((self.runs[i].config.eval_batches,
-                              self.runs[i].config.eval_policy), []).append(i)  # fmt: skip
+        # runs evaluated alike go through the layers at once
+        kinds = _grouped(idx, lambda i: (self.runs[i].config.eval_batches,
+                                         self.runs[i].config.eval_policy))  # fmt: skip
         if len(kinds) > 1:
             done = {i: res for sub in kinds.values()
                     for i, res in zip(sub, self.evaluate(sub), strict=True)}  # fmt: skip
