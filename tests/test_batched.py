@@ -120,6 +120,30 @@ def test_runs_of_other_rates_losses_and_evaluations_share_a_batch(tmp_path, devi
     assert steps[1] == [0, 2, 4, 6] and steps[2] == [0, 3, 6]
 
 
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=CUDA)])
+def test_runs_of_other_momenta_and_policy_rates_share_a_batch(tmp_path, device):
+    # a sweep of the optimizer's settings: momentum (none, plain, Nesterov), the location
+    # network's rate, one model
+    configs = [
+        tiny(0, steps=6),
+        tiny(1, steps=6, momentum=0.0, nesterov=False),
+        tiny(2, steps=6, momentum=0.5, nesterov=False),
+        tiny(3, steps=6, policy_lr_scale=0.3),
+        tiny(4, steps=6, momentum=0.95, policy_lr_scale=3.0, lr=2e-3),
+    ]
+    configs = [replace(c, device=device) for c in configs]
+    assert len({batched.shape_key(c) for c in configs}) == 1
+    train_both(tmp_path, configs)
+    atol = 1e-5 if device == "cuda" else 1e-6
+    assert_same_runs(tmp_path, configs, atol)
+    for c in configs:  # each checkpoint's optimizer holds its single run's buffers (none at 0)
+        a, b = (load_run(tmp_path / f"{x}{c.seed}").optimizer.state_dict()["state"]
+                for x in ("b", "single"))  # fmt: skip
+        assert a.keys() == b.keys() and (len(a) == 0) == (c.momentum == 0)
+        for k in a:
+            assert torch.allclose(a[k]["momentum_buffer"], b[k]["momentum_buffer"], atol=atol)
+
+
 @pytest.mark.parametrize(
     "kw",
     [
@@ -405,7 +429,7 @@ def test_stop_at_perfect(tmp_path):
 def test_refused_configs(tmp_path):
     with pytest.raises(HamError, match="learner 'info' cannot be batched; accepted: hybrid"):
         train_batched([tiny(0, learner="info")], [tmp_path / "a"])
-    for kw in ({"momentum": 0.5}, {"batch_size": 4}, {"beta": 0.0}):  # one per group
+    for kw in ({"optimizer": "adam"}, {"batch_size": 4}, {"beta": 0.0}):  # one per group
         with pytest.raises(HamError, match="differ in more than seed, steps, lr, lr_decay"):
             train_batched([tiny(0), tiny(1, **kw)], [tmp_path / "a", tmp_path / "b"])
     with pytest.raises(HamError, match="share a directory"):

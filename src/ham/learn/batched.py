@@ -2,9 +2,9 @@
 
 The paper's grid is hundreds of small runs (LSTM 256, batch 64); one run at a time pays every
 operation's overhead for a few small matrices. Here N runs whose configs differ only in
-:data:`PER_RUN` fields (``seed``, ``steps``, the learning-rate schedule, the loss's ``beta`` and
-reductions, the normalization, the BPTT truncation, the evaluation and logging settings: the seeds
-of a grid cell, or a sweep of rates) go through each step together: their weights are stacked along
+:data:`PER_RUN` fields (``seed``, ``steps``, the learning-rate schedule, the momentum, the loss's
+``beta`` and reductions, the normalization, the BPTT truncation, the evaluation and logging
+settings: the seeds of a grid cell, or a sweep of rates) go through each step together: their weights are stacked along
 a leading run axis, one glance of all N runs is one pass through the stacked layers
 (:class:`_StackedHam`, mirroring :mod:`ham.model` line by line), the hybrid loss is
 :func:`torch.vmap` of :func:`ham.learn.hybrid_loss.hybrid_loss`, and one backward yields every
@@ -81,14 +81,14 @@ _PARTS = ("classification", "reinforce", "baseline_loss")  # TensorBoard, as tra
 
 
 # What may differ between the runs of one batched model: each run steps at its own learning
-# rate (its schedule), has its own loss (beta, the reductions over the batch), normalizes its
-# glances its own way, and is evaluated and logged on its own cadence, batches and policy; and
-# of the model, whether its core's state is detached between glances (model.truncate_bptt).
-# Everything else (the model, the world, the optimizer's momentum, the batch) is one for the
-# group.
-PER_RUN = ("seed", "steps", "lr", "lr_decay", "lr_step", "lr_min", "beta",
-           "classification_reduction", "reinforce_reduction", "normalization", "eval_every",
-           "eval_batches", "eval_policy", "log_every")  # fmt: skip
+# rate (its schedule, its location network's scale) and momentum (Nesterov or not), has its own
+# loss (beta, the reductions over the batch), normalizes its glances its own way, and is
+# evaluated and logged on its own cadence, batches and policy; and of the model, whether its
+# core's state is detached between glances (model.truncate_bptt). Everything else (the model,
+# the world, the optimizer, the batch) is one for the group.
+PER_RUN = ("seed", "steps", "lr", "lr_decay", "lr_step", "lr_min", "momentum", "nesterov",
+           "policy_lr_scale", "beta", "classification_reduction", "reinforce_reduction",
+           "normalization", "eval_every", "eval_batches", "eval_policy", "log_every")  # fmt: skip
 
 
 def shape_key(config: TrainConfig) -> str:
@@ -150,6 +150,13 @@ def check_batchable(config: TrainConfig) -> None:
             "a random object pose cannot be batched; accepted: none (train it with ham train "
             "or --executor local)"
         )
+
+
+def _lr_scales(run: Run, params: dict[str, torch.nn.Parameter]) -> dict[str, float]:
+    """Each weight's learning-rate scale in ``run``'s optimizer (its parameter group's
+    ``lr_scale``: the location network's ``policy_lr_scale``), by the weight's name."""
+    scale = {id(p): g.get("lr_scale", 1.0) for g in run.optimizer.param_groups for p in g["params"]}
+    return {n: scale[id(p)] for n, p in params.items()}
 
 
 def _keep_freed_memory() -> None:
@@ -898,9 +905,7 @@ class BatchedRuns:
         self._params = [dict(r.agent.named_parameters()) for r in self.runs]
         # SGD (the paper's) is stepped for all runs at once; Adam by each run's own optimizer
         self._sgd = self.runs[0].config.optimizer == "sgd"
-        scale = {id(p): g.get("lr_scale", 1.0)
-                 for g in self.runs[0].optimizer.param_groups for p in g["params"]}  # fmt: skip
-        self._lr_scale = {n: scale[id(p)] for n, p in self._params[0].items()}
+        self._lr_scale = [_lr_scales(r, p) for r, p in zip(self.runs, self._params, strict=True)]
         self._checked = False
         if self.active:
             self._stack()
@@ -919,7 +924,9 @@ class BatchedRuns:
                 p[name].data = big[k]
             self.stacked[name] = big.detach().requires_grad_()
             if self._sgd:
-                states = [self.runs[i].optimizer.state[self._params[i][name]]
+                # .get: the optimizer's state is a defaultdict, and a run without momentum
+                # keeps no entries (its checkpoint is the single run's)
+                states = [self.runs[i].optimizer.state.get(self._params[i][name], {})
                           for i in self.active]  # fmt: skip
                 if any("momentum_buffer" in st for st in states):
                     # a run without one yet starts from zeros: 0 * m + g is exactly the
@@ -936,7 +943,8 @@ class BatchedRuns:
         big = torch.stack([torch.zeros_like(self.stacked[name][0]) if b is None else b.detach()
                            for b in bufs])  # fmt: skip
         for k, i in enumerate(self.active):
-            self.runs[i].optimizer.state[self._params[i][name]]["momentum_buffer"] = big[k]
+            if self.runs[i].config.momentum != 0:  # SGD keeps no buffers without momentum
+                self.runs[i].optimizer.state[self._params[i][name]]["momentum_buffer"] = big[k]
         self.buffers[name] = big
         return big
 
@@ -953,29 +961,34 @@ class BatchedRuns:
             self._stack()
 
     def _sgd_step(self, runs: list[Run], stepping: list[int], grads: dict) -> None:
-        """``torch.optim.SGD``'s update (Nesterov momentum, no dampening or weight decay) of
-        every stepping run over the stacked tensors: one fused pass per learning rate (PyTorch's
-        ``_fused_sgd_``: the foreach optimizer's numbers to the last bit of the momentum
-        buffer) instead of N optimizers looping over their parameters. Runs at one learning
-        rate (the usual case: one schedule, one step) are updated as whole stacked tensors;
-        others, and a group some of whose runs diverged, run by run."""
-        c = runs[0].config  # momentum and Nesterov are one for the group (shape_key)
-        m = c.momentum
-        by_lr: dict[float, list[int]] = {}
-        for k in stepping:  # each run at its own schedule's rate
-            by_lr.setdefault(runs[k].config.learning_rate(runs[k].step), []).append(k)
-        if len(by_lr) == 1 and len(stepping) == len(runs):
-            parts = [(slice(None), next(iter(by_lr)))]
+        """``torch.optim.SGD``'s update (momentum, Nesterov or not, no dampening or weight decay)
+        of every stepping run over the stacked tensors: one fused pass per learning rate and
+        momentum (PyTorch's ``_fused_sgd_``: the foreach optimizer's numbers to the last bit of
+        the momentum buffer) instead of N optimizers looping over their parameters. Runs of one
+        rate and momentum (the usual case: one schedule, one step) are updated as whole stacked
+        tensors; others, and a group some of whose runs diverged, run by run."""
+        by_setting: dict[tuple, list[int]] = {}
+        for k in stepping:  # each run at its own schedule's rate, scales and momentum
+            c, i = runs[k].config, self.active[k]
+            key = (c.learning_rate(runs[k].step), c.momentum, c.nesterov,
+                   tuple(self._lr_scale[i][n] for n in grads))  # fmt: skip
+            by_setting.setdefault(key, []).append(k)
+        if len(by_setting) == 1 and len(stepping) == len(runs):
+            parts = [(slice(None), stepping[0])]
         else:
-            parts = [(k, lr) for lr, ks in by_lr.items() for k in ks]
-        by_scale: dict[float, list[str]] = {}
-        for name in grads:
-            by_scale.setdefault(self._lr_scale[name], []).append(name)
-            if m != 0 and name not in self.buffers:
-                self._new_buffer(name, [None] * len(runs))
+            parts = [(k, k) for ks in by_setting.values() for k in ks]
+        if any(runs[k].config.momentum != 0 for k in stepping):
+            for name in grads:
+                if name not in self.buffers:
+                    self._new_buffer(name, [None] * len(runs))
         with torch.no_grad():
-            for scale, names in by_scale.items():
-                for idx, lr in parts:
+            for idx, k in parts:
+                c, scales = runs[k].config, self._lr_scale[self.active[k]]
+                lr, m = c.learning_rate(runs[k].step), c.momentum
+                by_scale: dict[float, list[str]] = {}
+                for name in grads:
+                    by_scale.setdefault(scales[name], []).append(name)
+                for scale, names in by_scale.items():
                     ps = [self.stacked[n][idx] for n in names]
                     gs = [grads[n][idx] for n in names]
                     if m == 0:  # the optimizer keeps no buffers
