@@ -1,6 +1,7 @@
 """The batched step of two versions of ``ham.learn.batched``, A/B in one process.
 
-Version A is ``src/ham/learn/batched.py`` at a git ref (``--ref``, default HEAD), version B the
+Version A is the batched trainer's modules (``src/ham/learn/batched.py`` and, where the ref has
+it, ``src/ham/learn/stacked_ham.py``) at a git ref (``--ref``, default HEAD), version B the
 working tree's. Each builds its own group of N runs of the paper's model (seeds 0..N-1, one
 torch thread); their steps alternate A B, B A, ... so that both see the same machine load, and
 the CPU time of each step is taken. Prints each version's median ms per batched step, the
@@ -10,7 +11,7 @@ drifted apart (float rounding, amplified by training: ~1e-3 after 30 steps at 10
 On a noisy machine this resolves a few percent where ``bench_batched.py`` (single runs
 against a batched group, run by run) does not: its two halves differ by 2x and the machine's
 speed drifts between them. Version A imports the rest of ``ham`` from the working tree, so
-the ref must share its interfaces (the module's own code may differ).
+the ref must share its interfaces (the modules' own code may differ).
 
     PYTHONPATH=src python benchmarks/ab_batched.py [--ref HEAD~1] [--table TABLE]
         [--glances 10] [--runs 10] [--repeats 20]
@@ -33,6 +34,7 @@ from ham.learn.train import TrainConfig
 from ham.model.agent import HamConfig
 
 MODULE = "src/ham/learn/batched.py"
+STACKED = "src/ham/learn/stacked_ham.py"  # the stacked model (in MODULE itself before 2026-12-02)
 
 
 def load(path: Path, name: str):
@@ -40,6 +42,31 @@ def load(path: Path, name: str):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def show(root: Path, ref: str, path: str) -> str | None:
+    """The file ``path`` at git ``ref``; ``None`` where the ref has no such file."""
+    r = subprocess.run(["git", "show", f"{ref}:{path}"], cwd=root, capture_output=True, text=True)
+    return r.stdout if r.returncode == 0 else None
+
+
+def load_ref(tmp: Path, batched: str, stacked: str | None):
+    """Version A's batched module, importing version A's stacked model (where the ref has one):
+    it stands in for the working tree's in ``sys.modules`` while the module is executed."""
+    (tmp / "a.py").write_text(batched)
+    if stacked is None:
+        return load(tmp / "a.py", "batched_a")
+    (tmp / "a_stacked.py").write_text(stacked)
+    name = "ham.learn.stacked_ham"
+    saved = sys.modules.get(name)
+    sys.modules[name] = load(tmp / "a_stacked.py", name)
+    try:
+        return load(tmp / "a.py", "batched_a")
+    finally:
+        if saved is None:
+            sys.modules.pop(name, None)
+        else:
+            sys.modules[name] = saved
 
 
 def main() -> None:
@@ -52,16 +79,14 @@ def main() -> None:
     args = p.parse_args()
     torch.set_num_threads(1)
     root = Path(__file__).resolve().parent.parent
-    try:
-        old = subprocess.run(["git", "show", f"{args.ref}:{MODULE}"], cwd=root, check=True,
-                             capture_output=True, text=True).stdout  # fmt: skip
-    except subprocess.CalledProcessError as exc:
-        sys.exit(f"git show {args.ref}:{MODULE} failed: {exc.stderr.strip()}")
+    old = show(root, args.ref, MODULE)
+    if old is None:
+        sys.exit(f"git show {args.ref}:{MODULE} failed: no such ref or file")
     configs = [TrainConfig(model=HamConfig(glances=args.glances), seed=s, table=args.table)
                for s in range(args.runs)]  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
-        (Path(tmp) / "a.py").write_text(old)
-        versions = [load(Path(tmp) / "a.py", "batched_a"), load(root / MODULE, "batched_b")]
+        versions = [load_ref(Path(tmp), old, show(root, args.ref, STACKED)),
+                    load(root / MODULE, "batched_b")]  # fmt: skip
         groups = []
         for j, m in enumerate(versions):
             outs = [Path(tmp) / f"{j}_{s}" for s in range(args.runs)]

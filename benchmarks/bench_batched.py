@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-import ham.learn.batched as batched
+import ham.learn.stacked_ham as stacked_ham
 from ham.learn.batched import BatchedRuns, _open_runs
 from ham.learn.environment import HapticEnv
 from ham.learn.evaluation import evaluate
@@ -150,8 +150,8 @@ def main() -> None:
     args = p.parse_args()
     torch.set_num_threads(args.threads)
     if args.products != "auto":
-        batched._PER_RUN_ONEDNN = args.products == "onednn"
-    products = "oneDNN per run" if batched._PER_RUN_ONEDNN else "bmm"
+        stacked_ham._PER_RUN_ONEDNN = args.products == "onednn"
+    products = "oneDNN per run" if stacked_ham._PER_RUN_ONEDNN else "bmm"
     vendor = cpu_info("vendor_id")
     rows = [measure(g, args.runs, args.repeats, args.table, args.device) for g in args.glances]
     cuda = args.device.startswith("cuda")

@@ -1,11 +1,11 @@
 """The LSTM cell's elementwise work of one batched glance, in the variants tried for the CPU.
 
 N runs (10), a batch of 64, the paper's 256 units: the batched step's cell forward
-(:class:`ham.learn.batched._TanhLSTMCell`: ``sigmoid`` over the four gates, ``tanh`` over ``u``
+(:class:`ham.learn.stacked_ham._TanhLSTMCell`: ``sigmoid`` over the four gates, ``tanh`` over ``u``
 written on top) against ``sigmoid`` over the three sigmoid gates only, against the activations
 computed in place on a fresh gates tensor (each timed with the gates' product that makes it, as
 in the step), against the whole cell forward compiled (``torch.compile``, dynamic and static
-shapes); and the cell's backward (:func:`ham.learn.batched._cell_backward`) eager and compiled.
+shapes); and the cell's backward (:func:`ham.learn.stacked_ham._cell_backward`) eager and compiled.
 Each variant is timed against the batched step's own, call after call (A B A B ...), one torch
 thread: the median and quartiles of the per-pair ratio B/A, so the machine's swings cancel.
 
@@ -20,7 +20,7 @@ import time
 
 import torch
 
-from ham.learn.batched import _cell_backward
+from ham.learn.stacked_ham import _cell_backward
 
 
 def pairs(a, b, n: int) -> tuple[float, float, list[float]]:

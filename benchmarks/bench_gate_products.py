@@ -21,7 +21,7 @@ import time
 
 import torch
 
-import ham.learn.batched as batched
+import ham.learn.stacked_ham as stacked_ham
 
 
 def timed(fn, calls: int) -> float:
@@ -50,7 +50,7 @@ def main() -> None:
     g = torch.randn(n, b, o)
     xs, gs = torch.randn(n, glances * b, k), torch.randn(n, glances * b, o)  # the step's records
     wt = w.transpose(1, 2).contiguous()
-    layer = batched._Layer(w, bias, glances)  # the batched step's gates layer, split forward
+    layer = stacked_ham._Layer(w, bias, glances)  # the batched step's gates layer, split forward
     split = layer.split_forward(x)  # not on an AMD CPU (its products are oneDNN's, per run)
     halves = (wt[..., : o // 2].contiguous(), wt[..., o // 2 :].contiguous())
     xt, gt = x.transpose(1, 2).contiguous(), g.transpose(1, 2).contiguous()
@@ -94,13 +94,13 @@ def main() -> None:
         "transposed: input gradient W^T g^T": lambda: torch.bmm(w.transpose(1, 2), gt),
         "transposed: weight gradient / glance": lambda: torch.bmm(gst, xst.transpose(1, 2)),
     }
-    compiled = torch.compile(batched._halves, dynamic=True)
+    compiled = torch.compile(stacked_ham._halves, dynamic=True)
     cases["per step: W^T halves, compiled (batched.py)"] = lambda: compiled(w)
     if split:
         layer.halves()
         layer.slot(x)  # the record buffers; each call copies x into the first glance's record
         cases["forward: halves + bias + record (batched.py, 6+ glances)"] = lambda: (
-            batched._LayerFn.apply(layer, 0, w, bias, x)
+            stacked_ham._LayerFn.apply(layer, 0, w, bias, x)
         )
     else:
         print("(this machine's batched step keeps one forward product: not timed as batched.py)")

@@ -17,7 +17,7 @@ import torch
 from ham.errors import HamError
 from ham.experiments.reproduce import PROFILES, Job, render_report, stopped_at_perfect
 from ham.experiments.runs import is_finished
-from ham.learn import batched
+from ham.learn import batched, stacked_ham
 from ham.learn.batched import BatchedRuns, _open_runs, train_batched
 from ham.learn.evaluation import evaluate
 from ham.learn.train import TrainConfig, load_run, resume, stream_seed, train
@@ -166,7 +166,7 @@ def test_batched_optimizers_equal_single_runs(tmp_path, kw):
 def test_the_portable_path_equals_single_runs(tmp_path, monkeypatch):
     # without oneDNN and the fused SGD (what CUDA runs: one bmm per layer for all runs, the
     # foreach SGD steps) the numbers are the single runs' too
-    monkeypatch.setattr(batched, "_LINEAR_ONEDNN", None)
+    monkeypatch.setattr(stacked_ham, "_LINEAR_ONEDNN", None)
     monkeypatch.setattr(batched, "_FUSED_SGD", None)
     configs = [tiny(s) for s in range(2)]
     train_both(tmp_path, configs)
@@ -219,7 +219,7 @@ def test_cuda_batched_equals_single_runs(tmp_path, kw):
 
 def test_the_onednn_path_equals_single_runs(tmp_path, monkeypatch):
     # batches of 16: the CPU's per-run oneDNN products (the tiny runs' 8 rows go to bmm)
-    if batched._LINEAR_ONEDNN is None:
+    if stacked_ham._LINEAR_ONEDNN is None:
         pytest.skip("this torch has no oneDNN linear")
     calls = []
 
@@ -227,9 +227,9 @@ def test_the_onednn_path_equals_single_runs(tmp_path, monkeypatch):
         calls.append(args[1].shape)
         return onednn(*args)
 
-    onednn = batched._LINEAR_ONEDNN
-    monkeypatch.setattr(batched, "_LINEAR_ONEDNN", linear)
-    monkeypatch.setattr(batched, "_PER_RUN_ONEDNN", True)  # the AMD path on any CPU
+    onednn = stacked_ham._LINEAR_ONEDNN
+    monkeypatch.setattr(stacked_ham, "_LINEAR_ONEDNN", linear)
+    monkeypatch.setattr(stacked_ham, "_PER_RUN_ONEDNN", True)  # the AMD path on any CPU
     configs = [tiny(s, batch_size=16, steps=4) for s in range(2)]
     train_both(tmp_path, configs)
     assert (1024, 256) in calls  # the gates' first glance: the weight's g columns alone
@@ -240,7 +240,7 @@ def test_the_onednn_path_equals_single_runs(tmp_path, monkeypatch):
 def assert_compiled() -> None:
     """The cell's backward ran compiled, not the eager fallback; where this machine cannot
     compile (no working C++ compiler), the test skips: the fallback is what it then runs."""
-    fn = batched._COMPILED["backward"]
+    fn = stacked_ham._COMPILED["backward"]
     if isinstance(fn, str):
         pytest.skip(f"torch.compile cannot run here: {fn}")
     assert callable(fn)
@@ -252,10 +252,10 @@ def assert_compiled() -> None:
 def test_the_cell_paths_equal_single_runs(tmp_path, monkeypatch, sigmoid_tanh, compiled):
     # the LSTM cell's tanh as 2 sigmoid(2x) - 1 (the AMD path), and its backward compiled by
     # torch.compile (what the paper's size runs on the CPU), on any CPU
-    monkeypatch.setattr(batched, "_SIGMOID_TANH", sigmoid_tanh)
+    monkeypatch.setattr(stacked_ham, "_SIGMOID_TANH", sigmoid_tanh)
     if compiled:
-        monkeypatch.setattr(batched, "_COMPILE_MIN", 0)
-        monkeypatch.setattr(batched, "_COMPILED", {})
+        monkeypatch.setattr(stacked_ham, "_COMPILE_MIN", 0)
+        monkeypatch.setattr(stacked_ham, "_COMPILED", {})
     configs = [tiny(s, steps=4) for s in range(2)]
     train_both(tmp_path, configs)
     assert_same_runs(tmp_path, configs)
@@ -265,22 +265,22 @@ def test_the_cell_paths_equal_single_runs(tmp_path, monkeypatch, sigmoid_tanh, c
 
 _NO_COMPILER = """
 import warnings, torch
-from ham.learn import batched
-batched._COMPILE_MIN = 0
+from ham.learn import stacked_ham
+stacked_ham._COMPILE_MIN = 0
 g = torch.Generator().manual_seed(0)
 dh, dc1, tc, cell = (torch.randn(2, 3, 8, generator=g) for _ in range(4))
 act = torch.rand(2, 3, 4, 8, generator=g)
-want = batched._cell_backward(dh, dc1, act, tc, cell)
+want = stacked_ham._cell_backward(dh, dc1, act, tc, cell)
 weight = torch.randn(3, 16, 5, generator=g)
 with warnings.catch_warnings(record=True) as seen:
     warnings.simplefilter("always")
-    got = [batched._backward(dh, dc1, act, tc, cell) for _ in range(2)]
-    halves = [batched._compiled("halves", batched._halves, batched._halves_eager,
+    got = [stacked_ham._backward(dh, dc1, act, tc, cell) for _ in range(2)]
+    halves = [stacked_ham._compiled("halves", stacked_ham._halves, stacked_ham._halves_eager,
                                 "the batched gates' transpose", weight) for _ in range(2)]
 for g in got:
     assert all(torch.equal(a, b) for a, b in zip(g, want, strict=True))
 for h in halves:
-    assert torch.equal(h, batched._halves(weight))
+    assert torch.equal(h, stacked_ham._halves(weight))
 for w in seen:
     if "batched" in str(w.message):
         print("WARNING", w.message)
@@ -312,14 +312,14 @@ def test_the_gates_forward_in_halves_gives_the_whole_products_numbers(tmp_path, 
     configs = [tiny(s, steps=4) for s in range(2)]
     train_batched(configs, [tmp_path / f"whole{c.seed}" for c in configs])  # 3 glances: whole
     calls = []
-    halves = batched._Layer.halves
+    halves = stacked_ham._Layer.halves
 
     def counted(layer):
         calls.append(tuple(layer.weight.shape))
         return halves(layer)
 
-    monkeypatch.setattr(batched._Layer, "halves", counted)
-    monkeypatch.setattr(batched, "_SPLIT_GLANCES", 3)
+    monkeypatch.setattr(stacked_ham._Layer, "halves", counted)
+    monkeypatch.setattr(stacked_ham, "_SPLIT_GLANCES", 3)
     train_both(tmp_path, configs)
     # the gates (2 runs, 1024 outputs), at every glance of each training step (the first
     # glance's g reads the halves' first rows)
@@ -378,7 +378,7 @@ def test_a_diverged_run_stops_alone(tmp_path):
 @pytest.mark.parametrize("compiled", [False, True], ids=["eager", "compiled-cell"])
 def test_resume_of_a_batched_group_is_bit_identical(tmp_path, monkeypatch, compiled):
     if compiled:  # the paper's size takes the compiled cell backward
-        monkeypatch.setattr(batched, "_COMPILE_MIN", 0)
+        monkeypatch.setattr(stacked_ham, "_COMPILE_MIN", 0)
     full = [tiny(s) for s in (0, 1)]
     train_batched(full, [tmp_path / f"full{c.seed}" for c in full])
     half = [tiny(s, steps=4) for s in (0, 1)]
