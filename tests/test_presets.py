@@ -247,11 +247,16 @@ v = [{ name = "paper" }, { name = "authors", world = { pose = "authors" } }]
     assert '| `authors` | world: pose="authors" | 1/1 | 2 |' in report
 
 
-def test_the_factor_grid_in_docs_loads():
+def test_the_factor_grids_in_docs_load():
     grid = load_grid(DOCS / "grids" / "factors.toml")
     cells = [c.name for c in grid.expand()]
     assert len(cells) == 27 and cells[0] == "preset-g1" and grid.table_cache
     assert len(grid.worlds()) == 3 and grid.seeds == (0, 1, 2)
+    # the whole table at 2,000 steps: the same factors and worlds, every row
+    long = load_grid(DOCS / "grids" / "factors_2000.toml")
+    names = [c.name for c in long.expand()]
+    assert len(names) == 32 and set(cells) < set(names) and long.worlds() == grid.worlds()
+    assert long.base["steps"] == 2000 and long.seeds == (0, 1, 2)
 
 
 @needs_mujoco
