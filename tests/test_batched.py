@@ -379,9 +379,13 @@ def test_a_diverged_run_stops_alone(tmp_path):
 def test_resume_of_a_batched_group_is_bit_identical(tmp_path, monkeypatch, compiled):
     if compiled:  # the paper's size takes the compiled cell backward
         monkeypatch.setattr(stacked_ham, "_COMPILE_MIN", 0)
-    full = [tiny(s) for s in (0, 1)]
+    # runs at their own momentum and location-network rate (per-run optimizer state; the
+    # last one keeps none)
+    own = ({}, {"momentum": 0.5, "nesterov": False, "policy_lr_scale": 0.3},
+           {"momentum": 0.0, "nesterov": False})  # fmt: skip
+    full = [tiny(s, **kw) for s, kw in enumerate(own)]
     train_batched(full, [tmp_path / f"full{c.seed}" for c in full])
-    half = [tiny(s, steps=4) for s in (0, 1)]
+    half = [tiny(s, steps=4, **kw) for s, kw in enumerate(own)]
     outs = [tmp_path / f"part{c.seed}" for c in half]
     train_batched(half, outs)
     assert metrics(outs[0])["steps"] == 4
