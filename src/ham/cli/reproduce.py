@@ -73,11 +73,10 @@ def add_commands(subparsers) -> None:
         default="local",
         choices=EXECUTORS,
         help="local: a process pool of single runs; ray: single runs as Ray tasks; batched: "
-        "runs of one shape (seeds, and runs that differ only in the learning-rate schedule, momentum, "
-        "beta, "
-        "loss reductions, normalization, BPTT truncation or evaluation settings) as batched "
-        "models, on a process pool; ray-batched: "
-        "those batched models as Ray tasks (default: local)",
+        "runs of one shape (seeds, and runs that differ only in the learning-rate schedule, "
+        "momentum, beta, loss reductions, normalization, BPTT truncation or evaluation "
+        "settings) as batched models, on a process pool; ray-batched: those batched models as "
+        "Ray tasks (default: local)",
     )
     p.add_argument(
         "--ray-address",

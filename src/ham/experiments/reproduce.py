@@ -519,9 +519,8 @@ def group_jobs(jobs: list, batch_runs: int | None = None) -> list[list]:
     """Jobs of one shape (the same config but the fields each run of a batched model keeps
     its own, :data:`ham.learn.batched.PER_RUN`: the seed, the learning-rate schedule, the
     momentum, the loss, the normalization, the evaluation settings, the BPTT truncation)
-    together, in plan order:
-    at most ``batch_runs`` per group, or by default near-equal groups of at most
-    :data:`BATCH_RUNS`. Not by the number of workers: a run's last bits depend on the size of
+    together, in plan order: at most ``batch_runs`` per group, or by default near-equal groups
+    of at most :data:`BATCH_RUNS`. Not by the number of workers: a run's last bits depend on the size of
     its batch, and the same command gives the same numbers anywhere."""
     from ham.learn.batched import shape_key
     from ham.learn.train import TrainConfig

@@ -293,24 +293,22 @@ class BatchedRuns:
         the momentum buffer) instead of N optimizers looping over their parameters. Runs of one
         rate and momentum (the usual case: one schedule, one step) are updated as whole stacked
         tensors; others, and a group some of whose runs diverged, run by run."""
-        by_setting: dict[tuple, list[int]] = {}
-        for k in stepping:  # each run at its own schedule's rate, scales and momentum
-            c, i = runs[k].config, self.active[k]
-            key = (c.learning_rate(runs[k].step), c.momentum, c.nesterov,
-                   tuple(self._lr_scale[i][n] for n in grads))  # fmt: skip
-            by_setting.setdefault(key, []).append(k)
-        if len(by_setting) == 1 and len(stepping) == len(runs):
-            parts = [(slice(None), stepping[0])]
+        settings = {}  # each run at its own schedule's rate and momentum
+        for k in stepping:
+            c = runs[k].config
+            settings[k] = (c.learning_rate(runs[k].step), c.momentum, c.nesterov,
+                           self._lr_scale[self.active[k]])  # fmt: skip
+        if len(stepping) == len(runs) and all(v == settings[0] for v in settings.values()):
+            parts = [(slice(None), 0)]
         else:
-            parts = [(k, k) for ks in by_setting.values() for k in ks]
-        if any(runs[k].config.momentum != 0 for k in stepping):
+            parts = [(k, k) for k in stepping]
+        if any(m != 0 for _, m, _, _ in settings.values()):
             for name in grads:
                 if name not in self.buffers:
                     self._new_buffer(name, [None] * len(runs))
         with torch.no_grad():
             for idx, k in parts:
-                c, scales = runs[k].config, self._lr_scale[self.active[k]]
-                lr, m = c.learning_rate(runs[k].step), c.momentum
+                lr, m, nesterov, scales = settings[k]
                 by_scale: dict[float, list[str]] = {}
                 for name in grads:
                     by_scale.setdefault(scales[name], []).append(name)
@@ -323,13 +321,13 @@ class BatchedRuns:
                         # zero-initialized buffers: 0 * m + g is exactly the first buffer
                         _FUSED_SGD(ps, gs, [self.buffers[n][idx] for n in names],
                                    weight_decay=0.0, momentum=m, lr=lr * scale, dampening=0.0,
-                                   nesterov=c.nesterov, maximize=False,
+                                   nesterov=nesterov, maximize=False,
                                    is_first_step=False)  # fmt: skip
                     else:  # torch.optim.SGD's foreach steps
                         bs = [self.buffers[n][idx] for n in names]
                         torch._foreach_mul_(bs, m)
                         torch._foreach_add_(bs, gs)
-                        ds = torch._foreach_add(gs, bs, alpha=m) if c.nesterov else bs
+                        ds = torch._foreach_add(gs, bs, alpha=m) if nesterov else bs
                         torch._foreach_add_(ps, ds, alpha=-(lr * scale))
 
     def _done(self, i: int) -> bool:
