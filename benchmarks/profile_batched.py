@@ -10,6 +10,11 @@ one thread) and the step of the same group with every layer 8 units wide (the co
 grow with the model: Python, dispatch, glance lookups, sampling). A batched step cannot be
 faster than its products; how much of the rest can go is what is left to gain.
 
+Last, the operators of one step as the dispatcher sees them (``TorchDispatchMode``: what
+autograd and the composite operators finally run), and those that are not views: on a GPU
+each of those is a kernel launch, so their count per step is what a launch-bound GPU pays
+(the CUDA path differs a little: no compiled cell backward, no ReLUs written into records).
+
     PYTHONPATH=src python benchmarks/profile_batched.py [--table TABLE] [--glances 10]
         [--runs 10] [--steps 4] [--shapes]
 """
@@ -24,12 +29,30 @@ from pathlib import Path
 
 import torch
 from torch.profiler import ProfilerActivity, profile
+from torch.utils._python_dispatch import TorchDispatchMode
 
 from ham.learn.batched import BatchedRuns, _open_runs
 from ham.learn.train import TrainConfig
 from ham.model.agent import HamConfig
 
 PRODUCTS = ("aten::bmm", "aten::mm", "aten::baddbmm", "aten::addmm")
+# operators that only make a view (no kernel on a GPU), as the dispatcher names them
+VIEWS = {"alias", "as_strided", "chunk", "detach", "expand", "narrow", "permute", "select",
+         "slice", "split", "split_with_sizes", "squeeze", "t", "transpose", "unbind",
+         "unsqueeze", "view", "_unsafe_view", "view_as"}  # fmt: skip
+
+
+class _Count(TorchDispatchMode):
+    """Counts the operators dispatched while it is on, and those that make no view."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.ops = self.kernels = 0
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        self.ops += 1
+        self.kernels += func.overloadpacket.__name__ not in VIEWS
+        return func(*args, **(kwargs or {}))
 
 
 def group(tmp: str, args, units: int | None = None) -> BatchedRuns:
@@ -85,6 +108,8 @@ def main() -> None:
             for _ in range(args.steps):
                 paper.step()
         ms = step_ms(paper, 2 * args.steps)
+        with _Count() as count:
+            paper.step()
         del paper
         tiny = step_ms(group(tmp, args, units=8), 2 * args.steps)
     print(f"{args.runs} runs, {args.glances} glances, {args.steps} steps profiled (divide the "
@@ -109,6 +134,8 @@ def main() -> None:
           f"layer 8 units wide: {tiny:.0f} ms ({tiny / args.runs:.1f}); the products alone "
           f"{prod_ms / args.runs:.1f} ms per run-step, at that CPU rate "
           f"{gflop / peak * 1e3 / args.runs:.1f}")  # fmt: skip
+    print(f"one step at the dispatcher: {count.ops:,} operators, {count.kernels:,} of them not "
+          f"views ({count.kernels / args.runs:.0f} per run-step)")  # fmt: skip
 
 
 if __name__ == "__main__":
