@@ -2,7 +2,7 @@
 
 N runs (10), a batch of 64, the paper's core (input 512 = [g, h], 1024 gate outputs): the
 batched step's forward ``x W^T + b`` (one ``bmm`` per glance), its input gradient ``g W`` and its
-weight gradient over G glances, against the alternatives measured in docs/agent.md ("The gates'
+weight gradient over G glances, against the alternatives measured in docs/batched.md ("The gates'
 products looked at once more"): MKL's packed weights (and what packing them every step costs),
 the forward in two halves of outputs (NT views, or NN on contiguous halves of ``W^T``, and what
 transposing ``W`` every step costs; or ``W^T`` kept as the stacked master, its halves strided),

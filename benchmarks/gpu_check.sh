@@ -5,7 +5,7 @@
 # the paper grid's projected GPU-hours, one group after another) and bench_side_by_side.py
 # (1 and 15 groups sharing the GPU, as --executor batched --workers 15 runs them), then one
 # group of 70 runs at 10 glances (what a group holding a Table 1 column's 7 glance counts x 10
-# seeds would cost a step, if runs of other glance counts shared a model: docs/agent.md). The
+# seeds would cost a step, if runs of other glance counts shared a model: docs/batched.md). The
 # device machine's python3 holds PyTorch with CUDA, h5py, TensorBoard, tqdm and pytest, which
 # is all these need; ham runs from src/. From the device tool:
 #   run(command="bash benchmarks/gpu_check.sh", timeout_s=600)

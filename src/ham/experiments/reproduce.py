@@ -510,7 +510,7 @@ def check_ray_address(executor: str, ray_address: str | None) -> None:
 
 
 # Runs per batched model by default: the paper's seeds of a cell, and the N the batched step was
-# measured at (docs/agent.md#batched-runs); a larger shape (a sweep) is cut into near-equal models
+# measured at (docs/batched.md); a larger shape (a sweep) is cut into near-equal models
 # of at most this many, so that it still spreads over the workers
 BATCH_RUNS = 10
 

@@ -10,7 +10,7 @@ stacked layers (:class:`ham.learn.stacked_ham.StackedHam`, mirroring :mod:`ham.m
 its products, deferred weight gradients and fused LSTM cell are described there), the hybrid loss
 is :func:`torch.vmap` of :func:`ham.learn.hybrid_loss.hybrid_loss`, one backward yields every
 run's gradient (the runs' graphs are disjoint), and on the CPU one fused SGD call steps all runs
-(docs/agent.md#batched-runs has the measurements).
+(docs/batched.md has the measurements).
 
 Everything else stays per run and is the single run's own code (:mod:`ham.learn.train`): each run
 is a :class:`ham.learn.train.Run` with its own environment generator (objects, stream 0), pose

@@ -2,7 +2,7 @@
 
 :class:`StackedHam` mirrors :mod:`ham.model` line by line over weights stacked along a leading run
 axis, ``(N, B, ...)`` in and out; :class:`ham.learn.batched.BatchedRuns` trains N runs through it.
-What makes a step of N runs cheaper than N steps of one (docs/agent.md#batched-runs has the
+What makes a step of N runs cheaper than N steps of one (docs/batched.md has the
 measurements):
 
 - the products (:func:`_mm_nt`): one ``bmm`` for all runs (on an AMD CPU each large product is one
@@ -46,7 +46,7 @@ def _onednn_ok(a: torch.Tensor, b: torch.Tensor) -> bool:
 _LINEAR_ONEDNN = getattr(getattr(torch.ops, "mkldnn", None), "_linear_pointwise", None)
 if _LINEAR_ONEDNN is not None and not torch.backends.mkldnn.is_available():
     _LINEAR_ONEDNN = None
-# The CPU products' path, by what was measured (docs/agent.md#batched-runs): MKL, torch's BLAS,
+# The CPU products' path, by what was measured (docs/batched.md): MKL, torch's BLAS,
 # picks its kernels by the CPU's vendor. On AMD it runs AVX2 kernels, and one oneDNN product
 # per run (AVX-512) is twice as fast as its batched bmm; on Intel it runs AVX-512 kernels, and
 # its bmm makes the batched step 1.2-1.3x faster than oneDNN per run. Fixed per machine, so a
@@ -63,7 +63,7 @@ _ONEDNN_MIN = 128 * 256
 # per core) MKL's product of 1024 outputs (a 2 MB panel of weights) takes 7.2 ms for 10 runs,
 # two of 512 on contiguous halves 5.5 ms (at the paper's batch of 64 their outputs were the
 # same to the bit; in general the same to float rounding); the transpose costs 7.8 ms a step,
-# so it pays from 6 glances (docs/agent.md#batched-runs, the step's time against one product:
+# so it pays from 6 glances (docs/batched.md, the step's time against one product:
 # 0.97x at 10 and 8 glances, 0.98x at 6, 1.00x at 4, 1.05x at 3).
 _SPLIT_OUTPUTS = 1024
 _SPLIT_GLANCES = 6
@@ -79,7 +79,7 @@ def _mm_nt(a: torch.Tensor, b: torch.Tensor, bias: torch.Tensor | None = None) -
     ``bmm`` is no faster than a loop of single products. Elsewhere (Intel: MKL's AVX-512
     kernels; CUDA: one launch for all runs) one ``bmm``, the bias added in place on the CPU
     (``baddbmm`` first copies the broadcast bias into the output: 10.2 vs 8.7 ms for the LSTM's
-    gates of 10 runs) and by ``baddbmm`` on a GPU (docs/agent.md#batched-runs)."""
+    gates of 10 runs) and by ``baddbmm`` on a GPU (docs/batched.md)."""
     if _onednn_ok(a, b):
         return torch.stack(
             [
@@ -330,7 +330,7 @@ def _cell_backward(dh, dc1, act, tc, cell):
 # The compiled backward: on the CPU, when the step's cell state has at least this many entries
 # (the paper's 10 runs x 64 x 256: 163,840; a test's tiny models stay eager). Eager, the
 # backward is a dozen passes over tensors that outgrow the caches (3.2 ms per glance of 10
-# runs at the paper's size on an Intel Xeon), compiled one (0.7 ms): docs/agent.md#batched-runs.
+# runs at the paper's size on an Intel Xeon), compiled one (0.7 ms): docs/batched.md.
 # Compiled once for any shape (dynamic): a group that loses runs keeps its kernel (one compile
 # per shape would reach dynamo's limit of 8 and fall back to eager mid-run); elementwise, its
 # numbers equal the eager expression's (measured: equal to the bit at 10 x 64 x 256).
