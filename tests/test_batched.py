@@ -174,6 +174,28 @@ def test_the_portable_path_equals_single_runs(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize(
+    "policy,device",
+    [("learned", "cpu"), ("random", "cpu"), pytest.param("learned", "cuda", marks=CUDA)],
+    ids=["learned", "random", "learned-cuda"],
+)
+def test_runs_of_other_glance_counts_share_a_batch(tmp_path, policy, device):
+    # a Table 1 column's runs in one model that steps 4 glances: each run's loss, draws and
+    # evaluations its own glances' (the others computed and left out), at other steps
+    counts = (2, 4, 3, 2)
+    configs = [tiny(s, steps=6 + 2 * (s == 1), device=device, eval_policy="sample",
+                    model=HamConfig(glances=g, policy=policy)) for s, g in enumerate(counts)]  # fmt: skip
+    assert len({batched.shape_key(c) for c in configs}) == 3
+    assert len({batched.shape_key(c, glances=False) for c in configs}) == 1
+    one = replace(configs[0], model=HamConfig(glances=1, policy=policy))
+    assert batched.shape_key(one, glances=False) != batched.shape_key(configs[0], glances=False)
+    train_both(tmp_path, configs)
+    assert_same_runs(tmp_path, configs, 1e-5 if device == "cuda" else 1e-6)
+    for c in configs:
+        history = metrics(tmp_path / f"b{c.seed}")["history"]
+        assert len(history[-1]["accuracy_per_glance"]) == c.model.glances
+
+
+@pytest.mark.parametrize(
     "model,policy",
     [
         (HamConfig(glances=3), "mean"),
@@ -380,9 +402,9 @@ def test_resume_of_a_batched_group_is_bit_identical(tmp_path, monkeypatch, compi
     if compiled:  # the paper's size takes the compiled cell backward
         monkeypatch.setattr(stacked_ham, "_COMPILE_MIN", 0)
     # runs at their own momentum and location-network rate (per-run optimizer state; the
-    # last one keeps none)
+    # last one keeps none) and glance count
     own = ({}, {"momentum": 0.5, "nesterov": False, "policy_lr_scale": 0.3},
-           {"momentum": 0.0, "nesterov": False})  # fmt: skip
+           {"momentum": 0.0, "nesterov": False, "model": HamConfig(glances=2)})  # fmt: skip
     full = [tiny(s, **kw) for s, kw in enumerate(own)]
     train_batched(full, [tmp_path / f"full{c.seed}" for c in full])
     half = [tiny(s, steps=4, **kw) for s, kw in enumerate(own)]
@@ -433,7 +455,8 @@ def test_stop_at_perfect(tmp_path):
 def test_refused_configs(tmp_path):
     with pytest.raises(HamError, match="learner 'info' cannot be batched; accepted: hybrid"):
         train_batched([tiny(0, learner="info")], [tmp_path / "a"])
-    for kw in ({"optimizer": "adam"}, {"batch_size": 4}, {"beta": 0.0}):  # one per group
+    one = {"model": HamConfig(glances=1)}  # no pose to choose: not with runs of 3 glances
+    for kw in ({"optimizer": "adam"}, {"batch_size": 4}, {"beta": 0.0}, one):  # one per group
         with pytest.raises(HamError, match="differ in more than seed, steps, lr, lr_decay"):
             train_batched([tiny(0), tiny(1, **kw)], [tmp_path / "a", tmp_path / "b"])
     with pytest.raises(HamError, match="share a directory"):
@@ -507,6 +530,14 @@ def test_groups_are_shapes_in_plan_order_in_near_equal_batches():
     assert [len(g) for g in group_jobs(sweep, batch_runs=12)] == [12]
     assert [len(g) for g in group_jobs(two)] == [3, 3]
     assert [len(g) for g in group_jobs(two + [job(9, steps=4)])] == [3, 3, 1]  # steps: apart
+    column = [job(s, model=HamConfig(glances=g)) for g in (1, 2, 3, 4) for s in range(2)]
+    assert [len(g) for g in group_jobs(column)] == [2, 2, 2, 2]
+    # runs of other glance counts in one model, but one glance (no pose to choose) apart
+    merged = group_jobs(column, merge_glances=True)
+    assert [[json.loads(json.dumps(j.config))["model"]["glances"] for j in g] for g in merged] == [
+        [1, 1],
+        [2, 2, 3, 3, 4, 4],
+    ]
 
 
 SWEEP = """\
@@ -543,6 +574,27 @@ def test_a_grid_sweep_of_rates_and_betas_is_one_batched_model(tmp_path, ham_cli)
         assert json.loads((run / "timing.json").read_text())["batched_runs"] == 8
     configs = {json.loads((run / "config.json").read_text())["lr"] for run in runs}
     assert configs == {1e-3, 3e-3}
+
+
+def test_merge_glances_trains_a_grid_of_glance_counts_as_one_model(tmp_path, ham_cli, ham_main):
+    grid = SWEEP.replace("model.glances = 2\n", "").replace(
+        "beta = [0.4, 1.0]", "model.glances = [2, 3]"
+    )
+    (tmp_path / "g.toml").write_text(grid)
+    args = ["reproduce", "grid", str(tmp_path / "g.toml"), "--executor", "batched", "--workers",
+            "1", "--json"]  # fmt: skip
+    r = ham_cli(*args, "--merge-glances", "--out", str(tmp_path / "o"))
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["ran"] == 8
+    runs = sorted((tmp_path / "o/runs").iterdir())
+    for run in runs:  # 2 rates x 2 glance counts x 2 seeds, one model
+        assert json.loads((run / "timing.json").read_text())["batched_runs"] == 8
+    glances = {json.loads((run / "config.json").read_text())["model"]["glances"] for run in runs}
+    assert glances == {2, 3}
+    bad = ham_main(*args[:3], "--merge-glances", "--out", str(tmp_path / "x"))
+    assert bad.returncode == 2
+    assert "ham: error: --merge-glances needs --executor batched or ray-batched" in bad.stderr
+    assert not (tmp_path / "x").exists()
 
 
 def test_ray_batched_executor_matches_batched(batched_grid, tmp_path, ham_cli):

@@ -104,6 +104,13 @@ def add_commands(subparsers) -> None:
         help="batched executors: stop a run whose best evaluation is 1.000 (its table entry "
         "cannot change); its metrics.json says stopped_at_perfect",
     )
+    p.add_argument(
+        "--merge-glances",
+        action="store_true",
+        help="batched executors: runs of other glance counts (2 or more) in one model, which "
+        "steps its longest run's glances (fewer models: for a GPU, where a step costs its "
+        "kernel launches; on a CPU it costs more)",
+    )
     p.add_argument("--device", default=None, help="cpu or cuda (default cpu; grid: the file's)")
     p.add_argument("--retries", type=int, default=1, help="re-runs of a failed run (default 1)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -155,6 +162,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         world=world,
         batch_runs=args.batch_runs,
         stop_at_perfect=args.stop_at_perfect,
+        merge_glances=args.merge_glances,
         eval_policy=preset["eval_policy"] if preset else None,
         table_cache=preset is not None,
         cache_dir=args.cache_dir,
@@ -203,6 +211,7 @@ def cmd_grid(args: argparse.Namespace) -> int:
         command=command_line(args),
         batch_runs=args.batch_runs,
         stop_at_perfect=args.stop_at_perfect,
+        merge_glances=args.merge_glances,
         cache_dir=args.cache_dir,
     )
     _print_summary(args, summary, ["results.json"])

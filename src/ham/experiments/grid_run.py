@@ -57,13 +57,14 @@ def run_grid(
     command: str | None = None,
     batch_runs: int | None = None,
     stop_at_perfect: bool = False,
+    merge_glances: bool = False,
     cache_dir: str | os.PathLike | None = None,
 ) -> dict:
     """Run what is not finished of ``grid`` (a :class:`Grid` or a grid file) into ``out``.
 
     ``seeds`` replaces every cell's seeds by ``0..seeds-1``; ``device`` sets every run's device.
-    ``batch_runs`` (runs per batch) and ``stop_at_perfect`` go with ``executor="batched"`` and
-    ``"ray-batched"``.
+    ``batch_runs`` (runs per batch), ``stop_at_perfect`` and ``merge_glances`` (runs of other
+    glance counts in one model) go with ``executor="batched"`` and ``"ray-batched"``.
     ``cache_dir``: the table cache of a grid with ``[table] cache = true`` (default
     ``$HAM_CACHE_DIR`` or ``~/.cache/ham``). Returns the summary (``results.json`` plus ``ran``, ``skipped`` and ``failures``).
     """
@@ -73,7 +74,7 @@ def run_grid(
 
     if executor not in EXECUTORS:
         raise HamError(f"executor {executor!r}; accepted: {', '.join(EXECUTORS)}")
-    check_batched_options(executor, batch_runs, stop_at_perfect)
+    check_batched_options(executor, batch_runs, stop_at_perfect, merge_glances)
     check_ray_address(executor, ray_address)
     if not isinstance(grid, Grid):
         grid = load_grid(grid)
@@ -111,7 +112,7 @@ def run_grid(
         jobs, todo, root, grid.world, grid.table_grid,
         executor=executor, workers=workers, ray_address=ray_address, retries=retries,
         progress=progress, desc=f"grid {grid.name}",
-        batch_runs=batch_runs, stop_at_perfect=stop_at_perfect,
+        batch_runs=batch_runs, stop_at_perfect=stop_at_perfect, merge_glances=merge_glances,
     )  # fmt: skip
     summary = write_report(root, grid, jobs, failures, command=command, executor=executor)
     summary["skipped"] = len(jobs) - len(todo)

@@ -452,6 +452,7 @@ def execute_ray_batched(
     batch_runs: int | None = None,
     stop_at_perfect: bool = False,
     workers: int | None = None,
+    merge_glances: bool = False,
 ) -> None:
     """The batched executor's groups (:func:`group_jobs`) as Ray tasks, one CPU each (a Ray
     started here gets ``workers`` CPUs, default all): Ray hands each node whole batched models,
@@ -460,18 +461,21 @@ def execute_ray_batched(
 
     def submit(ray):
         remote = ray.remote(**_ray_options(ray, jobs))(_safe_batch)
-        groups = [[j.to_dict() for j in g] for g in group_jobs(jobs, batch_runs)]
+        groups = [[j.to_dict() for j in g] for g in group_jobs(jobs, batch_runs, merge_glances)]
         return {remote.remote(g, str(root), world, grid, stop_at_perfect): [j["key"] for j in g]
                 for g in groups}  # fmt: skip
 
     _on_ray(address, submit, on_result, workers)
 
 
-def check_batched_options(executor: str, batch_runs: int | None, stop_at_perfect: bool) -> None:
-    """``batch_runs`` and ``stop_at_perfect`` need a batched executor; ``batch_runs`` >= 1."""
+def check_batched_options(
+    executor: str, batch_runs: int | None, stop_at_perfect: bool, merge_glances: bool = False
+) -> None:
+    """``batch_runs``, ``stop_at_perfect`` and ``merge_glances`` need a batched executor;
+    ``batch_runs`` >= 1."""
     if executor not in BATCHED_EXECUTORS:
-        given = [n for n, v in (("--batch-runs", batch_runs), ("--stop-at-perfect", stop_at_perfect))
-                 if v]  # fmt: skip
+        given = [n for n, v in (("--batch-runs", batch_runs), ("--stop-at-perfect", stop_at_perfect),
+                                ("--merge-glances", merge_glances)) if v]  # fmt: skip
         if given:
             verb = "needs" if len(given) == 1 else "need"
             raise HamError(f"{', '.join(given)} {verb} --executor batched or ray-batched "
@@ -515,20 +519,24 @@ def check_ray_address(executor: str, ray_address: str | None) -> None:
 BATCH_RUNS = 10
 
 
-def group_jobs(jobs: list, batch_runs: int | None = None) -> list[list]:
+def group_jobs(
+    jobs: list, batch_runs: int | None = None, merge_glances: bool = False
+) -> list[list]:
     """Jobs of one shape (the same config but the fields each run of a batched model keeps
     its own, :data:`ham.learn.batched.PER_RUN`: the seed, the learning-rate schedule, the
-    momentum, the loss, the normalization, the evaluation settings, the BPTT truncation)
-    together, in plan order: at most ``batch_runs`` per group, or by default near-equal groups
-    of at most :data:`BATCH_RUNS`. Not by the number of workers: a run's last bits depend on the size of
-    its batch, and the same command gives the same numbers anywhere."""
+    momentum, the loss, the normalization, the evaluation settings, the BPTT truncation; with
+    ``merge_glances`` the glance count too, from 2 glances on) together, in plan order: at most
+    ``batch_runs`` per group, or by default near-equal groups of at most :data:`BATCH_RUNS`. Not
+    by the number of workers: a run's last bits depend on the size of its batch, and the same
+    command gives the same numbers anywhere."""
     from ham.learn.batched import shape_key
     from ham.learn.train import TrainConfig
 
     shapes: dict[str, list] = {}
     for j in jobs:
         config = TrainConfig.from_dict(j.config)
-        shapes.setdefault(shape_key(config) + f"|{config.steps}", []).append(j)
+        key = shape_key(config, glances=not merge_glances)
+        shapes.setdefault(key + f"|{config.steps}", []).append(j)
     if batch_runs:
         return [
             g[k : k + batch_runs] for g in shapes.values() for k in range(0, len(g), batch_runs)
@@ -605,6 +613,7 @@ def execute_batched(
     on_result: Callable[[dict], None],
     batch_runs: int | None = None,
     stop_at_perfect: bool = False,
+    merge_glances: bool = False,
 ) -> None:
     """Jobs of one shape trained as one batched model each (:func:`group_jobs`); the
     groups on a process pool of ``workers`` (one torch thread each), or in this process when
@@ -612,7 +621,7 @@ def execute_batched(
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    groups = [[j.to_dict() for j in g] for g in group_jobs(jobs, batch_runs)]
+    groups = [[j.to_dict() for j in g] for g in group_jobs(jobs, batch_runs, merge_glances)]
     workers = min(workers, len(groups))
     if workers <= 1:
         for g in groups:
@@ -643,10 +652,11 @@ def execute(
     desc: str,
     batch_runs: int | None = None,
     stop_at_perfect: bool = False,
+    merge_glances: bool = False,
 ) -> tuple[dict[str, dict], list[dict]]:
     """Run ``todo`` (a part of ``jobs``) on ``executor``, re-running failed runs ``retries`` times.
 
-    ``batch_runs`` and ``stop_at_perfect`` go with the batched executors only.
+    ``batch_runs``, ``stop_at_perfect`` and ``merge_glances`` go with the batched executors only.
 
     Returns every run's last result by key and the results of the runs that failed every try.
     """
@@ -663,7 +673,7 @@ def execute(
         bar.set_postfix(failed=sum(x["status"] == "failed" for x in results.values()))
 
     if progress and executor == "batched" and todo:
-        models = group_jobs(todo, batch_runs)
+        models = group_jobs(todo, batch_runs, merge_glances)
         if len(models) < workers and max(len(g) for g in models) > 1:
             # the grouping does not follow --workers: the same command gives the same numbers
             # on any machine (a run's last bits depend on its batch's size)
@@ -678,10 +688,10 @@ def execute(
             execute_ray(todo, root, world, grid, ray_address, on_result, workers)
         elif executor == "ray-batched":
             execute_ray_batched(todo, root, world, grid, ray_address, on_result, batch_runs,
-                                stop_at_perfect, workers)  # fmt: skip
+                                stop_at_perfect, workers, merge_glances)  # fmt: skip
         elif executor == "batched":
             execute_batched(todo, root, world, grid, workers, on_result, batch_runs,
-                            stop_at_perfect)  # fmt: skip
+                            stop_at_perfect, merge_glances)  # fmt: skip
         else:
             execute_local(todo, root, world, grid, workers, on_result)
         todo = [j for j in todo if results.get(j.key, {}).get("status") == "failed"]
@@ -792,6 +802,7 @@ def reproduce(
     world: WorldConfig | None = None,
     batch_runs: int | None = None,
     stop_at_perfect: bool = False,
+    merge_glances: bool = False,
     eval_policy: str | None = None,
     table_cache: bool = False,
     cache_dir: str | os.PathLike | None = None,
@@ -804,8 +815,8 @@ def reproduce(
     the report names the change), e.g. as many steps as a GPU lease holds.
     ``world``: the world of the glance table (default: the paper's); with an objects file, every
     worker registers the file's objects from the record in the table and the world.
-    ``batch_runs`` (runs per batch) and ``stop_at_perfect`` go with ``executor="batched"`` and
-    ``"ray-batched"``.
+    ``batch_runs`` (runs per batch), ``stop_at_perfect`` and ``merge_glances`` (runs of other
+    glance counts in one model) go with ``executor="batched"`` and ``"ray-batched"``.
     ``eval_policy``: the evaluation during training (a world preset's; default TrainConfig's).
     ``table_cache``: take the glance table from the table cache (:mod:`ham.world.cache`, in
     ``cache_dir``), built there once, instead of ``OUT/table_<N>.h5`` (a preset's slow world).
@@ -822,7 +833,7 @@ def reproduce(
         raise HamError(f"profile {profile_name!r}; accepted: {', '.join(PROFILES)}")
     if executor not in EXECUTORS:
         raise HamError(f"executor {executor!r}; accepted: {', '.join(EXECUTORS)}")
-    check_batched_options(executor, batch_runs, stop_at_perfect)
+    check_batched_options(executor, batch_runs, stop_at_perfect, merge_glances)
     profile = PROFILES[profile_name]
     if seeds is not None:
         if not (isinstance(seeds, int) and seeds >= 1):
@@ -861,7 +872,7 @@ def reproduce(
         jobs, todo, root, world.to_dict(), profile.table_grid,
         executor=executor, workers=workers, ray_address=ray_address, retries=retries,
         progress=progress, desc=f"reproduce {target} ({profile.name})",
-        batch_runs=batch_runs, stop_at_perfect=stop_at_perfect,
+        batch_runs=batch_runs, stop_at_perfect=stop_at_perfect, merge_glances=merge_glances,
     )  # fmt: skip
     skipped = len(jobs) - len(todo)
     summary = write_outputs(

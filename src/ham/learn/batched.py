@@ -82,14 +82,21 @@ PER_RUN = ("seed", "steps", "lr", "lr_decay", "lr_step", "lr_min", "momentum", "
            "normalization", "eval_every", "eval_batches", "eval_policy", "log_every")  # fmt: skip
 
 
-def shape_key(config: TrainConfig) -> str:
+def shape_key(config: TrainConfig, glances: bool = True) -> str:
     """Runs with equal keys can share one batched model: the config without the fields that
     may differ per run (:data:`PER_RUN`, and the model's ``truncate_bptt``; a beta of 0 skips
-    the REINFORCE term, so it is its own shape)."""
+    the REINFORCE term, so it is its own shape). ``glances=False``: runs of other glance counts
+    too (``model.glances``, 2 or more; one glance, with no pose to choose, stays a shape of its
+    own): the model steps as many glances as its longest run, and a run's glances after its
+    last are computed, left out of its loss and its evaluation, and draw nothing from its
+    generators (:meth:`BatchedRuns._forward`). That pays where a step costs its kernel launches
+    (a GPU), not on a CPU (docs/batched.md)."""
     d = config.to_dict()
     for name in PER_RUN:
         d.pop(name)
     d["model"].pop("truncate_bptt")  # the core's state detached per run (StackedHam.truncate)
+    if not glances and config.model.glances > 1:
+        d["model"].pop("glances")
     d["beta_zero"] = config.beta == 0
     return json.dumps(d, sort_keys=True)
 
@@ -188,6 +195,15 @@ def _grouped(items, key) -> dict:
     return out
 
 
+def _own_glances(episode: list, glances: int) -> list:
+    """The episode tensors ``(objects, locations, logits, baselines, mu, sigma)`` of runs of
+    ``glances`` glances in a model stepping more (runs of other glance counts): their first
+    ``glances`` along axis 1 (``glances - 1`` of the policy's ``mu`` and ``sigma``)."""
+    objects, locations, logits, baselines, mu, sigma = episode
+    policy = [None if t is None else t[:, : glances - 1] for t in (mu, sigma)]
+    return [objects, locations[:, :glances], logits[:, :glances], baselines[:, :glances], *policy]
+
+
 def _pressure(runs: list[Run], flat_objects: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
     """The glances ``(N, B, N^2)`` of ``runs`` at poses ``q (N, B, 2)`` on objects
     ``flat_objects (N * B,)``, as each run's :meth:`HapticEnv.glance` gives them: one lookup
@@ -225,7 +241,8 @@ class BatchedRuns:
             i for i in range(len(self.runs)) if not self._done(i) and i not in self.stopped
         ]
         _keep_freed_memory()
-        self._template = self.runs[0].agent  # its config and initial state only
+        # its config and initial state only; the longest run's (runs of other glance counts)
+        self._template = max(self.runs, key=lambda r: r.config.model.glances).agent
         self._net = StackedHam(self._template.config)
         self._names = [n for n, _ in self.runs[0].agent.named_parameters()]
         self._params = [dict(r.agent.named_parameters()) for r in self.runs]
@@ -338,8 +355,8 @@ class BatchedRuns:
         """One episode of every active run: objects ``(N, B)`` -> the stacked episode tensors."""
         runs = [self.runs[i] for i in self.active]
         n, batch = objects.shape
-        agent = self._template
-        glances = agent.config.glances
+        own = [r.config.model.glances for r in runs]
+        glances = max(own)  # a run's glances after its own last are left out of its loss
         q = torch.stack(
             [uniform_locations(batch, r.policy_generator, objects.device) for r in runs]
         )  # the first glance: random (the paper)
@@ -356,19 +373,30 @@ class BatchedRuns:
             baselines.append(b)
             if final:
                 break
+            # a run past its last glance draws nothing (its generator as its single run's):
+            # its pose stays where it was
+            drawing = [s < g - 1 for g in own]
             if dist:
                 mus.append(dist[0])
                 sigmas.append(dist[1])
                 # each run's draws from its own generator (as TruncatedGaussian.sample draws
                 # them), the inverse-CDF transform once for all runs
-                u = torch.stack([torch.rand(dist[0].shape[1:], generator=r.policy_generator,
+                shape = dist[0].shape[1:]
+                u = torch.stack([torch.rand(shape, generator=r.policy_generator,
                                             dtype=torch.float64, device=objects.device)
-                                 for r in runs])  # fmt: skip
-                q = truncated_normal(dist[0], dist[1], uniform=u)
+                                 if d else torch.full(shape, 0.5, dtype=torch.float64,
+                                                      device=objects.device)
+                                 for r, d in zip(runs, drawing, strict=True)])  # fmt: skip
+                drawn = truncated_normal(dist[0], dist[1], uniform=u)
             else:
-                q = torch.stack(
-                    [Uniform((batch,), objects.device).sample(r.policy_generator) for r in runs]
-                )
+                drawn = torch.stack([Uniform((batch,), objects.device).sample(r.policy_generator)
+                                     if d else q[k]
+                                     for k, (r, d) in enumerate(zip(runs, drawing, strict=True))])  # fmt: skip
+            if all(drawing):
+                q = drawn
+            else:
+                keep = torch.tensor(drawing, device=q.device).view(-1, 1, 1)
+                q = torch.where(keep, drawn.to(q.dtype), q)
         mu = torch.stack(mus, 1) if mus else None
         sigma = torch.stack(sigmas, 1) if sigmas else None
         return (
@@ -385,17 +413,18 @@ class BatchedRuns:
         ...)``. Runs of other loss reductions are mapped apart (a reduction is code, not a
         number), each with its own beta."""
         runs = [self.runs[i] for i in self.active]
-        glances = runs[0].config.model.glances
         kinds = _grouped(range(len(runs)), lambda k: (runs[k].config.classification_reduction,
-                                                      runs[k].config.reinforce_reduction))  # fmt: skip
+                                                      runs[k].config.reinforce_reduction,
+                                                      runs[k].config.model.glances))  # fmt: skip
         args = (objects, locations, logits, baselines, mu, sigma)
         if len(kinds) == 1:
-            ((reductions, ks),) = kinds.items()
+            (((*reductions, glances), ks),) = kinds.items()
             return self._mapped_loss(glances, reductions, [runs[k] for k in ks], *args)
         out = [None] * len(runs)
-        for reductions, ks in kinds.items():
+        for (*reductions, glances), ks in kinds.items():
             idx = torch.tensor(ks, device=objects.device)
-            part = [None if a is None else a.index_select(0, idx) for a in args]
+            part = _own_glances([None if a is None else a.index_select(0, idx) for a in args],
+                                glances)  # fmt: skip
             parts = self._mapped_loss(glances, reductions, [runs[k] for k in ks], *part)
             for j, k in enumerate(ks):
                 out[k] = [x[j] for x in parts]
@@ -508,7 +537,8 @@ class BatchedRuns:
         modes) to float tolerance."""
         # runs evaluated alike go through the layers at once
         kinds = _grouped(idx, lambda i: (self.runs[i].config.eval_batches,
-                                         self.runs[i].config.eval_policy))  # fmt: skip
+                                         self.runs[i].config.eval_policy,
+                                         self.runs[i].config.model.glances))  # fmt: skip
         if len(kinds) > 1:
             done = {i: res for sub in kinds.values()
                     for i, res in zip(sub, self.evaluate(sub), strict=True)}  # fmt: skip
@@ -725,11 +755,11 @@ def _open_runs(configs: list[TrainConfig], outs: list[Path]) -> list[Run]:
         raise HamError("two runs of one batch share a directory; give each its own")
     for c in configs:
         check_batchable(c)
-    keys = {shape_key(c) for c in configs}
+    keys = {shape_key(c, glances=False) for c in configs}
     if len(keys) > 1:
         raise HamError(
-            "the batched runs differ in more than " + ", ".join(PER_RUN) + "; accepted: "
-            "configs of one shape (a beta of 0 is a shape of its own)"
+            "the batched runs differ in more than " + ", ".join(PER_RUN) + " and glances (2 or "
+            "more); accepted: configs of one shape (a beta of 0 is a shape of its own)"
         )
     c0 = configs[0]
     device = torch.device(c0.device)
