@@ -3,11 +3,11 @@
 # CUDA tests of tests/test_batched.py (CUDA batched runs equal single runs on the GPU, SGD and
 # Adam) with the CPU ones beside them, bench_batched.py --device cuda (steps, evaluations,
 # the paper grid's projected GPU-hours, one group after another) and bench_side_by_side.py
-# (1 and 15 groups sharing the GPU, as --executor batched --workers 15 runs them), then one
-# group of 70 runs at 10 glances (what a group holding a Table 1 column's 7 glance counts x 10
-# seeds would cost a step, if runs of other glance counts shared a model: docs/batched.md). The
-# device machine's python3 holds PyTorch with CUDA, h5py, TensorBoard, tqdm and pytest, which
-# is all these need; ham runs from src/. From the device tool:
+# (1 and 15 groups sharing the GPU, as --executor batched --workers 15 runs them), then
+# bench_merge_glances.py --device cuda (a Table 1 column's 2-10-glance runs as six models or as
+# one, --merge-glances: docs/batched.md). The device machine's python3 holds PyTorch with CUDA,
+# h5py, TensorBoard, tqdm and pytest, which is all these need; ham runs from src/. From the
+# device tool:
 #   run(command="bash benchmarks/gpu_check.sh", timeout_s=600)
 # Everything it prints also lands in $OUT/gpu_check.log. PYTHON=... picks another interpreter
 # (on a machine without CUDA it runs the CPU tests and says it skipped the bench).
@@ -27,9 +27,8 @@ export PYTHONPATH=src PYTHONUNBUFFERED=1 MPLBACKEND=Agg
       --table "$TABLE"
     "$PY" benchmarks/bench_side_by_side.py --device cuda --groups 1 15 --glances 3 10 \
       --steps 20 --table "$TABLE"
-    "$PY" benchmarks/bench_batched.py --device cuda --runs 70 --glances 10 --repeats 3 \
-      --table "$TABLE"
+    "$PY" benchmarks/bench_merge_glances.py --device cuda --runs 10 --repeats 5 --table "$TABLE"
   else
-    echo "no CUDA: bench_batched.py and bench_side_by_side.py --device cuda skipped"
+    echo "no CUDA: bench_batched.py, bench_side_by_side.py and bench_merge_glances.py --device cuda skipped"
   fi
 } 2>&1 | tee "$LOG"

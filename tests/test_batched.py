@@ -534,10 +534,14 @@ def test_groups_are_shapes_in_plan_order_in_near_equal_batches():
     assert [len(g) for g in group_jobs(column)] == [2, 2, 2, 2]
     # runs of other glance counts in one model, but one glance (no pose to choose) apart
     merged = group_jobs(column, merge_glances=True)
-    assert [[json.loads(json.dumps(j.config))["model"]["glances"] for j in g] for g in merged] == [
+    assert [[j.config["model"]["glances"] for j in g] for g in merged] == [
         [1, 1],
         [2, 2, 3, 3, 4, 4],
     ]
+    wide = [job(s, model=HamConfig(glances=g)) for g in (2, 3, 4) for s in range(4)]
+    assert [len(g) for g in group_jobs(wide)] == [4, 4, 4]
+    assert [len(g) for g in group_jobs(wide, merge_glances=True)] == [12]  # one model a shape
+    assert [len(g) for g in group_jobs(wide, batch_runs=5, merge_glances=True)] == [5, 5, 2]
 
 
 SWEEP = """\

@@ -108,8 +108,9 @@ def add_commands(subparsers) -> None:
         "--merge-glances",
         action="store_true",
         help="batched executors: runs of other glance counts (2 or more) in one model, which "
-        "steps its longest run's glances (fewer models: for a GPU, where a step costs its "
-        "kernel launches; on a CPU it costs more)",
+        "steps its longest run's glances; a shape's runs in one model unless --batch-runs N "
+        "(fewer models: for a GPU, where a step costs its kernel launches; on a CPU it costs "
+        "more)",
     )
     p.add_argument("--device", default=None, help="cpu or cuda (default cpu; grid: the file's)")
     p.add_argument("--retries", type=int, default=1, help="re-runs of a failed run (default 1)")

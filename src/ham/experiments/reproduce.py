@@ -526,9 +526,10 @@ def group_jobs(
     its own, :data:`ham.learn.batched.PER_RUN`: the seed, the learning-rate schedule, the
     momentum, the loss, the normalization, the evaluation settings, the BPTT truncation; with
     ``merge_glances`` the glance count too, from 2 glances on) together, in plan order: at most
-    ``batch_runs`` per group, or by default near-equal groups of at most :data:`BATCH_RUNS`. Not
-    by the number of workers: a run's last bits depend on the size of its batch, and the same
-    command gives the same numbers anywhere."""
+    ``batch_runs`` per group, or by default near-equal groups of at most :data:`BATCH_RUNS`
+    (with ``merge_glances`` one group per shape: a Table 1 column's 2-10-glance runs in one).
+    Not by the number of workers: a run's last bits depend on the size of its batch, and the
+    same command gives the same numbers anywhere."""
     from ham.learn.batched import shape_key
     from ham.learn.train import TrainConfig
 
@@ -541,6 +542,8 @@ def group_jobs(
         return [
             g[k : k + batch_runs] for g in shapes.values() for k in range(0, len(g), batch_runs)
         ]
+    if merge_glances:  # fewer models is the point: a shape's runs all in one
+        return list(shapes.values())
     groups = []
     for g in shapes.values():  # -(-n // m): the fewest groups of at most BATCH_RUNS
         parts = -(-len(g) // BATCH_RUNS)

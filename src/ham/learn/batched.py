@@ -4,7 +4,8 @@ The paper's grid is hundreds of small runs (LSTM 256, batch 64); one run at a ti
 operation's overhead for a few small matrices. Here N runs whose configs differ only in
 :data:`PER_RUN` fields (``seed``, ``steps``, the learning-rate schedule, the momentum, the loss's
 ``beta`` and reductions, the normalization, the BPTT truncation, the evaluation and logging
-settings: the seeds of a grid cell, or a sweep of rates) go through each step together: their
+settings: the seeds of a grid cell, or a sweep of rates; and the glance count, 2 or more, where
+the grouping asks for it: :func:`shape_key`) go through each step together: their
 weights are stacked along a leading run axis, one glance of all N runs is one pass through the
 stacked layers (:class:`ham.learn.stacked_ham.StackedHam`, mirroring :mod:`ham.model` line by line:
 its products, deferred weight gradients and fused LSTM cell are described there), the hybrid loss
@@ -357,6 +358,7 @@ class BatchedRuns:
         n, batch = objects.shape
         own = [r.config.model.glances for r in runs]
         glances = max(own)  # a run's glances after its own last are left out of its loss
+        half = None
         q = torch.stack(
             [uniform_locations(batch, r.policy_generator, objects.device) for r in runs]
         )  # the first glance: random (the paper)
@@ -382,21 +384,20 @@ class BatchedRuns:
                 # each run's draws from its own generator (as TruncatedGaussian.sample draws
                 # them), the inverse-CDF transform once for all runs
                 shape = dist[0].shape[1:]
+                if half is None and not all(drawing):  # a stand-in for the draws not made
+                    half = torch.full(shape, 0.5, dtype=torch.float64, device=objects.device)
                 u = torch.stack([torch.rand(shape, generator=r.policy_generator,
                                             dtype=torch.float64, device=objects.device)
-                                 if d else torch.full(shape, 0.5, dtype=torch.float64,
-                                                      device=objects.device)
-                                 for r, d in zip(runs, drawing, strict=True)])  # fmt: skip
+                                 if d else half for r, d in zip(runs, drawing, strict=True)])  # fmt: skip
                 drawn = truncated_normal(dist[0], dist[1], uniform=u)
-            else:
-                drawn = torch.stack([Uniform((batch,), objects.device).sample(r.policy_generator)
-                                     if d else q[k]
-                                     for k, (r, d) in enumerate(zip(runs, drawing, strict=True))])  # fmt: skip
-            if all(drawing):
+                if not all(drawing):
+                    keep = torch.tensor(drawing, device=q.device).view(-1, 1, 1)
+                    drawn = torch.where(keep, drawn.to(q.dtype), q)
                 q = drawn
             else:
-                keep = torch.tensor(drawing, device=q.device).view(-1, 1, 1)
-                q = torch.where(keep, drawn.to(q.dtype), q)
+                q = torch.stack([Uniform((batch,), objects.device).sample(r.policy_generator)
+                                 if d else q[k]
+                                 for k, (r, d) in enumerate(zip(runs, drawing, strict=True))])  # fmt: skip
         mu = torch.stack(mus, 1) if mus else None
         sigma = torch.stack(sigmas, 1) if sigmas else None
         return (
