@@ -180,9 +180,10 @@ def test_the_portable_path_equals_single_runs(tmp_path, monkeypatch):
 )
 def test_runs_of_other_glance_counts_share_a_batch(tmp_path, policy, device):
     # a Table 1 column's runs in one model that steps 4 glances: each run's loss, draws and
-    # evaluations its own glances' (the others computed and left out), at other steps
+    # evaluations its own glances' (the others computed and left out); a 2-glance run goes on
+    # alone after the others finished (the model then steps 2 glances)
     counts = (2, 4, 3, 2)
-    configs = [tiny(s, steps=6 + 2 * (s == 1), device=device, eval_policy="sample",
+    configs = [tiny(s, steps=6 + 2 * (s == 0), device=device, eval_policy="sample",
                     model=HamConfig(glances=g, policy=policy)) for s, g in enumerate(counts)]  # fmt: skip
     assert len({batched.shape_key(c) for c in configs}) == 3
     assert len({batched.shape_key(c, glances=False) for c in configs}) == 1
