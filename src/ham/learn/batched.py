@@ -412,7 +412,8 @@ class BatchedRuns:
         """Each active run's hybrid loss (:func:`ham.learn.hybrid_loss.hybrid_loss`, mapped
         over the runs): ``(total, reward, classification, reinforce, baseline)``, each ``(N,
         ...)``. Runs of other loss reductions are mapped apart (a reduction is code, not a
-        number), each with its own beta."""
+        number), each with its own beta, and so are runs of other glance counts, each over its
+        own glances (:func:`_own_glances`)."""
         runs = [self.runs[i] for i in self.active]
         kinds = _grouped(range(len(runs)), lambda k: (runs[k].config.classification_reduction,
                                                       runs[k].config.reinforce_reduction,
