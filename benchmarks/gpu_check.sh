@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # The batched trainer on a lent GPU in one device run (a few minutes): the GPU's name, the
 # CUDA tests of tests/test_batched.py (CUDA batched runs equal single runs on the GPU, SGD and
-# Adam) with the CPU ones beside them, bench_batched.py --device cuda (steps, evaluations,
+# Adam) with the CPU ones beside them, bench_cuda_graph.py (the batched step captured as one CUDA
+# graph and replayed, vs eager: speed, and whether it keeps the numbers; not yet run on a GPU),
+# bench_batched.py --device cuda (steps, evaluations,
 # the paper grid's projected GPU-hours, one group after another) and bench_side_by_side.py
 # (1 and 15 groups sharing the GPU, as --executor batched --workers 15 runs them), then
 # bench_merge_glances.py --device cuda (a Table 1 column's 2-10-glance runs as six models or as
@@ -23,12 +25,14 @@ export PYTHONPATH=src PYTHONUNBUFFERED=1 MPLBACKEND=Agg
   "$PY" -m ham table build --grid 201 --out "$TABLE" >/dev/null && echo "table: $TABLE"
   "$PY" -m pytest -q -o addopts="" -p no:cacheprovider tests/test_batched.py -rs
   if "$PY" -c "import sys, torch; sys.exit(not torch.cuda.is_available())"; then
+    "$PY" benchmarks/bench_cuda_graph.py --device cuda --runs 10 --glances 3 10 --steps 30 \
+      --table "$TABLE"
     "$PY" benchmarks/bench_batched.py --device cuda --runs 10 --glances 3 10 --repeats 5 \
       --table "$TABLE"
     "$PY" benchmarks/bench_side_by_side.py --device cuda --groups 1 15 --glances 3 10 \
       --steps 20 --table "$TABLE"
     "$PY" benchmarks/bench_merge_glances.py --device cuda --runs 10 --repeats 5 --table "$TABLE"
   else
-    echo "no CUDA: bench_batched.py, bench_side_by_side.py and bench_merge_glances.py --device cuda skipped"
+    echo "no CUDA: bench_cuda_graph.py, bench_batched.py, bench_side_by_side.py and bench_merge_glances.py --device cuda skipped"
   fi
 } 2>&1 | tee "$LOG"

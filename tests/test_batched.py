@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from torch.utils._python_dispatch import TorchDispatchMode
 
 from ham.errors import HamError
 from ham.experiments.reproduce import PROFILES, Job, render_report, stopped_at_perfect
@@ -22,6 +23,8 @@ from ham.learn.batched import BatchedRuns, _open_runs, train_batched
 from ham.learn.evaluation import evaluate
 from ham.learn.train import TrainConfig, load_run, resume, stream_seed, train
 from ham.model.agent import HamConfig
+from ham.world.config import WorldConfig
+from ham.world.table import build_table
 
 
 def tiny(seed: int, **kw) -> TrainConfig:
@@ -396,6 +399,40 @@ def test_a_diverged_run_stops_alone(tmp_path):
         train(configs[s], tmp_path / f"single{s}", progress=False)
         assert results[s]["steps"] == 6
         assert_same_run(outs[s], tmp_path / f"single{s}")
+
+
+class _HostReads(TorchDispatchMode):
+    """The operators that read a tensor's value back to the host (``item``, ``bool``) or make a
+    tensor of Python values (``torch.tensor``): on a GPU each is a wait or a copy."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.seen: list[str] = []
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        if func.overloadpacket.__name__ in ("_local_scalar_dense", "lift_fresh", "nonzero"):
+            self.seen.append(func.overloadpacket.__name__)
+        return func(*args, **(kwargs or {}))
+
+
+def test_the_device_step_asks_the_host_nothing(tmp_path, monkeypatch):
+    # on a glance table (the online simulator iterates to each glance's contact), a group that
+    # takes every per-run path: other glance counts (a run past its last glance draws nothing),
+    # normalizations, betas, reductions, rates and BPTT truncations
+    table = str(build_table(WorldConfig(), 5, tmp_path / "t.h5", progress=False))
+    configs = [tiny(0, table=table),
+               tiny(1, table=table, model=HamConfig(glances=2, truncate_bptt=True)),
+               tiny(2, table=table, normalization="l1", beta=0.5, lr=0.01),
+               tiny(3, table=table, classification_reduction="sum", momentum=0.5)]  # fmt: skip
+    outs = [tmp_path / f"b{c.seed}" for c in configs]
+    group = BatchedRuns(_open_runs(configs, outs), outs)
+    group.step()  # the first step makes the group's constants
+    reads: list[str] = []
+    monkeypatch.setattr(torch.Tensor, "tolist", lambda t: reads.append("tolist") or [])
+    with _HostReads() as host:
+        flags = group._device_step([group.runs[i] for i in group.active])
+    assert host.seen + reads == []
+    assert flags.shape == (2, 4) and bool(flags.all())
 
 
 @pytest.mark.parametrize("compiled", [False, True], ids=["eager", "compiled-cell"])

@@ -205,17 +205,18 @@ def _own_glances(episode: list, glances: int) -> list:
     return [objects, locations[:, :glances], logits[:, :glances], baselines[:, :glances], *policy]
 
 
-def _pressure(runs: list[Run], flat_objects: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+def _pressure(runs: list[Run], flat_objects: torch.Tensor, q: torch.Tensor, const) -> torch.Tensor:
     """The glances ``(N, B, N^2)`` of ``runs`` at poses ``q (N, B, 2)`` on objects
     ``flat_objects (N * B,)``, as each run's :meth:`HapticEnv.glance` gives them: one lookup
-    for all runs of one normalization (their envs share the glance source)."""
+    for all runs of one normalization (their envs share the glance source). ``const``:
+    :meth:`BatchedRuns._const`."""
     n, rows = q.shape[0], q.shape[1]
     kinds = _grouped(range(n), lambda k: runs[k].env.normalization)
     if len(kinds) == 1:
         return runs[0].env.glance(flat_objects, q.reshape(-1, 2)).view(n, rows, -1)
     objects, out = flat_objects.view(n, rows), None
     for ks in kinds.values():
-        idx = torch.tensor(ks, device=q.device)
+        idx = const(ks)
         part = runs[ks[0]].env.glance(objects.index_select(0, idx).reshape(-1),
                                       q.index_select(0, idx).reshape(-1, 2))  # fmt: skip
         part = part.view(len(ks), rows, -1)
@@ -251,6 +252,11 @@ class BatchedRuns:
         self._sgd = self.runs[0].config.optimizer == "sgd"
         self._lr_scale = [_lr_scales(r, p) for r, p in zip(self.runs, self._params, strict=True)]
         self._checked = False
+        # the active runs' loss and reward summed since their last evaluation (their train
+        # loss and reward in the evaluation's record), and the last step's numbers (step())
+        self.sums = torch.zeros(2, len(self.active), device=self.runs[0].env.device)
+        self.numbers = self.sums.new_zeros(5, len(self.active))
+        self._consts: dict[tuple, torch.Tensor] = {}  # _const's tensors
         if self.active:
             self._stack()
 
@@ -283,6 +289,15 @@ class BatchedRuns:
             device = next(iter(self.stacked.values())).device
             self._net.truncate = torch.tensor(truncate, device=device).view(-1, 1, 1)
 
+    def _const(self, values: list, dtype: torch.dtype | None = None) -> torch.Tensor:
+        """``torch.tensor(values)`` on the group's device, made once: a step makes no tensor of
+        Python values (on a GPU each is a copy from the host, and none may be made in a
+        captured graph)."""
+        key = (tuple((type(v), v) for v in values), dtype)  # (True,) == (1,) but not its type
+        if key not in self._consts:
+            self._consts[key] = torch.tensor(values, dtype=dtype, device=self.sums.device)
+        return self._consts[key]
+
     def _new_buffer(self, name: str, bufs: list[torch.Tensor | None]) -> torch.Tensor:
         big = torch.stack([torch.zeros_like(self.stacked[name][0]) if b is None else b.detach()
                            for b in bufs])  # fmt: skip
@@ -294,7 +309,9 @@ class BatchedRuns:
 
     def _drop(self, gone: list[int]) -> None:
         """Take runs out of the group (finished, diverged, stopped); the others go on."""
-        self.active = [i for i in self.active if i not in gone]
+        keep = [k for k, i in enumerate(self.active) if i not in gone]
+        self.active = [self.active[k] for k in keep]
+        self.sums = self.sums[:, keep]
         for i in gone:  # its own compact copy of the weights and buffers, apart from the stack
             for p in self.runs[i].agent.parameters():
                 p.data = p.data.clone()
@@ -304,22 +321,23 @@ class BatchedRuns:
         if self.active:
             self._stack()
 
-    def _sgd_step(self, runs: list[Run], stepping: list[int], grads: dict) -> None:
+    def _sgd_step(self, runs: list[Run], grads: dict) -> None:
         """``torch.optim.SGD``'s update (momentum, Nesterov or not, no dampening or weight decay)
-        of every stepping run over the stacked tensors: one fused pass per learning rate and
+        of every active run over the stacked tensors: one fused pass per learning rate and
         momentum (PyTorch's ``_fused_sgd_``: the foreach optimizer's numbers to the last bit of
         the momentum buffer) instead of N optimizers looping over their parameters. Runs of one
         rate and momentum (the usual case: one schedule, one step) are updated as whole stacked
-        tensors; others, and a group some of whose runs diverged, run by run."""
+        tensors, others run by run. A run whose loss was not finite is updated too (no host
+        sync before the update); it leaves the group after the step, its update unused."""
         settings = {}  # each run at its own schedule's rate and momentum
-        for k in stepping:
-            c = runs[k].config
-            settings[k] = (c.learning_rate(runs[k].step), c.momentum, c.nesterov,
+        for k, r in enumerate(runs):
+            c = r.config
+            settings[k] = (c.learning_rate(r.step), c.momentum, c.nesterov,
                            self._lr_scale[self.active[k]])  # fmt: skip
-        if len(stepping) == len(runs) and all(v == settings[0] for v in settings.values()):
+        if all(v == settings[0] for v in settings.values()):
             parts = [(slice(None), 0)]
         else:
-            parts = [(k, k) for k in stepping]
+            parts = [(k, k) for k in range(len(runs))]
         if any(m != 0 for _, m, _, _ in settings.values()):
             for name in grads:
                 if name not in self.buffers:
@@ -367,7 +385,7 @@ class BatchedRuns:
         flat_objects = objects.reshape(-1)
         for s in range(glances):
             # one lookup of N * B glances: a glance depends only on its object and pose
-            pressure = _pressure(runs, flat_objects, q)
+            pressure = _pressure(runs, flat_objects, q, self._const)
             final = s == glances - 1
             state, lg, b, dist = self._net.glance(self.stacked, pressure, q, state, not final)
             locations.append(q)
@@ -391,7 +409,7 @@ class BatchedRuns:
                                  if d else half for r, d in zip(runs, drawing, strict=True)])  # fmt: skip
                 drawn = truncated_normal(dist[0], dist[1], uniform=u)
                 if not all(drawing):
-                    keep = torch.tensor(drawing, device=q.device).view(-1, 1, 1)
+                    keep = self._const(drawing).view(-1, 1, 1)
                     drawn = torch.where(keep, drawn.to(q.dtype), q)
                 q = drawn
             else:
@@ -424,7 +442,7 @@ class BatchedRuns:
             return self._mapped_loss(glances, reductions, [runs[k] for k in ks], *args)
         out = [None] * len(runs)
         for (*reductions, glances), ks in kinds.items():
-            idx = torch.tensor(ks, device=objects.device)
+            idx = self._const(ks)
             part = _own_glances([None if a is None else a.index_select(0, idx) for a in args],
                                 glances)  # fmt: skip
             parts = self._mapped_loss(glances, reductions, [runs[k] for k in ks], *part)
@@ -432,13 +450,12 @@ class BatchedRuns:
                 out[k] = [x[j] for x in parts]
         return tuple(torch.stack(xs) for xs in zip(*out, strict=True))
 
-    @staticmethod
-    def _mapped_loss(glances, reductions, runs, objects, locations, logits, baselines, mu,
+    def _mapped_loss(self, glances, reductions, runs, objects, locations, logits, baselines, mu,
                      sigma):  # fmt: skip
         """:func:`hybrid_loss` of ``runs`` (one pair of reductions), mapped over them."""
         # one beta for the runs: the number itself; else each run's, mapped with its episode
         betas = [r.config.beta for r in runs]
-        beta = torch.tensor(betas, dtype=logits.dtype, device=logits.device)
+        beta = self._const(betas, logits.dtype)
         one = len(set(betas)) == 1
 
         def loss(objects, locations, logits, baselines, mu, sigma, beta):
@@ -458,16 +475,43 @@ class BatchedRuns:
             )
         return torch.vmap(loss)(objects, locations, logits, baselines, mu, sigma, beta)
 
-    def step(self) -> list[tuple]:
+    def step(self) -> list[tuple[int, int]]:
         """One training step of every active run (:func:`ham.learn.train.train_step` for N).
 
-        Returns ``(run index, loss, mean reward, [classification, reinforce, baseline])`` of
-        the runs that stepped; a run whose loss or
-        weights are not finite leaves the group with its error recorded."""
+        Returns ``(run index, column)`` of the runs that stepped: column ``column`` of
+        :attr:`numbers` ``(5, N)`` holds the run's loss, mean reward and loss parts
+        (classification, reinforce, baseline), detached on the device, and its loss and mean
+        reward are added to its running sums since its last evaluation (:attr:`sums`). A run
+        whose loss or weights are not finite leaves the group with its error recorded."""
         runs = [self.runs[i] for i in self.active]
         for r in runs:  # as train_step: the run's optimizer (its checkpoint) holds its rates
             for group in r.optimizer.param_groups:
                 group["lr"] = r.config.learning_rate(r.step) * group.get("lr_scale", 1.0)
+        loss_ok, weights_ok = self._device_step(runs).tolist()  # the step's one sync
+        failed, out = [], []
+        for k, r in enumerate(runs):
+            i = self.active[k]
+            if loss_ok[k]:
+                r.step += 1
+            try:
+                if not loss_ok[k]:
+                    _check_loss(r, self.numbers[0, k])
+                if not weights_ok[k]:
+                    _check_weights(r)  # the message, with the first weight named
+            except HamError as exc:
+                self.results[i] = str(exc)
+                failed.append(i)
+                continue
+            out.append((i, k))
+        if failed:
+            self._drop(failed)
+        return out
+
+    def _device_step(self, runs: list[Run]) -> torch.Tensor:
+        """The step's work on the device, ``(2, N)`` flags back: each run's loss finite, its
+        weights finite after the update. With SGD it asks the host nothing (no sync, no tensor
+        made from Python values: the group's constants are made once, :meth:`_const`), so on a
+        GPU it could be captured as one graph; each run's own Adam needs the flags first."""
         objects = torch.stack([r.env.sample_objects() for r in runs])
         self._net.begin(self.stacked)
         totals, rewards, *parts = self._losses(objects, *self._forward(objects))
@@ -479,51 +523,27 @@ class BatchedRuns:
                 raise HamError(f"the batched layers do not read the weights {sorted(unused)}; "
                                "train this model with ham train or --executor local")  # fmt: skip
             self._checked = True
-        finite = torch.isfinite(totals).tolist()
-        failed = []
-        for k, ok in enumerate(finite):
-            if not ok:
-                try:
-                    _check_loss(runs[k], totals[k])
-                except HamError as exc:
-                    self.results[self.active[k]] = str(exc)
-                failed.append(self.active[k])
-        mask = torch.tensor(finite, device=totals.device)
-        torch.where(mask, totals, torch.zeros_like(totals)).sum().backward()
+        finite = torch.isfinite(totals)
+        # a run whose loss is not finite takes no part in the backward (its gradient is zeros)
+        torch.where(finite, totals, torch.zeros_like(totals)).sum().backward()
         grads = self._net.grads()  # None of a layer unused (one glance: the location heads)
-        stepping = [k for k in range(len(runs)) if finite[k]]
         if self._sgd:
-            self._sgd_step(runs, stepping, grads)
+            self._sgd_step(runs, grads)
         else:
-            for k in stepping:
-                r, params = runs[k], self._params[self.active[k]]
-                for name, p in params.items():
-                    p.grad = grads[name][k] if name in grads else None
-                r.optimizer.step()
-                for p in params.values():
-                    p.grad = None
-        for k in stepping:
-            runs[k].step += 1
-        # the weights of all runs in one reduction (one sync on a GPU), as _check_weights does
+            for k, ok in enumerate(finite.tolist()):
+                if ok:
+                    r, params = runs[k], self._params[self.active[k]]
+                    for name, p in params.items():
+                        p.grad = grads[name][k] if name in grads else None
+                    r.optimizer.step()
+                    for p in params.values():
+                        p.grad = None
         with torch.no_grad():
+            # the weights of all runs in one reduction, as _check_weights does
             sums = torch.stack([v.reshape(len(runs), -1).sum(1) for v in self.stacked.values()])
-            weights_ok = torch.isfinite(sums.sum(0)).tolist()
-        out = []
-        for k, r in enumerate(runs):
-            if not finite[k]:
-                continue
-            if not weights_ok[k]:
-                try:
-                    _check_weights(r)  # the message, with the first weight named
-                except HamError as exc:
-                    self.results[self.active[k]] = str(exc)
-                failed.append(self.active[k])
-                continue
-            out.append((self.active[k], totals[k].detach(), rewards[k].mean(),
-                        [x[k].detach() for x in parts]))  # fmt: skip
-        if failed:
-            self._drop(failed)
-        return out
+            self.numbers = torch.stack([totals, rewards.mean(-1), *parts]).detach()
+            self.sums += self.numbers[:2]
+            return torch.stack([finite, torch.isfinite(sums.sum(0))])
 
     # ------------------------------------------------------------------ evaluation
     @torch.no_grad()
@@ -587,7 +607,7 @@ class BatchedRuns:
             state = None  # the core's initial state
             locations, logits, mode = [], [], None
             for s in range(glances):
-                pressure = _pressure(runs, flat_objects, q)
+                pressure = _pressure(runs, flat_objects, q, self._const)
                 final = s == glances - 1
                 state, lg, _, dist = self._net.glance(p, pressure, q, state, not final, False)
                 locations.append(q)
@@ -640,7 +660,6 @@ class BatchedRuns:
             out.mkdir(parents=True, exist_ok=True)
             _write_json(out / CONFIG_FILE, r.config.to_dict())
         writers = {}
-        sums = {}
         for i, record in self._evaluate(
             [
                 (i, None, None)
@@ -656,11 +675,8 @@ class BatchedRuns:
             r, out = self.runs[i], self.outs[i]
             if i not in writers:
                 writers[i] = SummaryWriter(str(out / "tb"), purge_step=r.step or None)
-            sums[i] = [
-                torch.zeros((), device=r.env.device),
-                torch.zeros((), device=r.env.device),
-                0,
-            ]
+        self.sums.zero_()  # each run's loss and reward since its last evaluation, and count
+        counts = dict.fromkeys(self.active, 0)
         if self.stopped:
             self._drop([i for i in self.stopped if i in self.active])
         total = sum(self.runs[i].config.steps - self.runs[i].step for i in self.active)
@@ -676,22 +692,29 @@ class BatchedRuns:
                 n_train += 1
                 bar.update(len(stepped))
                 finished, due = [], []
-                for i, loss, reward, parts in stepped:
-                    r, c, w, acc = self.runs[i], self.runs[i].config, writers[i], sums[i]
-                    acc[0] += loss
-                    acc[1] += reward
-                    acc[2] += 1
-                    if r.step % c.log_every == 0:
-                        w.add_scalar("train/loss", loss.item(), r.step)
-                        for name, x in zip(_PARTS, parts, strict=True):
-                            w.add_scalar(f"train/{name}", x.item(), r.step)
-                        w.add_scalar("train/reward", reward.item(), r.step)
-                        w.add_scalar("train/lr", r.optimizer.param_groups[0]["lr"], r.step)
-                    if r.step % c.eval_every == 0 or r.step == c.steps:
-                        due.append((i, acc[0].item() / acc[2], acc[1].item() / acc[2]))
-                        acc[0].zero_()
-                        acc[1].zero_()
-                        acc[2] = 0
+                logged = [(i, k) for i, k in stepped
+                          if self.runs[i].step % self.runs[i].config.log_every == 0]  # fmt: skip
+                numbers = self.numbers.tolist() if logged else None  # one read for all
+                for i, k in logged:
+                    r, w = self.runs[i], writers[i]
+                    loss, reward, *parts = (row[k] for row in numbers)
+                    w.add_scalar("train/loss", loss, r.step)
+                    for name, x in zip(_PARTS, parts, strict=True):
+                        w.add_scalar(f"train/{name}", x, r.step)
+                    w.add_scalar("train/reward", reward, r.step)
+                    w.add_scalar("train/lr", r.optimizer.param_groups[0]["lr"], r.step)
+                columns = {i: k for k, i in enumerate(self.active)}  # after the step's drops
+                for i, _ in stepped:
+                    counts[i] += 1
+                    r = self.runs[i]
+                    if r.step % r.config.eval_every == 0 or r.step == r.config.steps:
+                        due.append(i)
+                if due:
+                    sums = self.sums.tolist()
+                    due = [(i, sums[0][columns[i]] / counts[i], sums[1][columns[i]] / counts[i])
+                           for i in due]  # fmt: skip
+                    self.sums[:, [columns[i] for i, _, _ in due]] = 0
+                    counts.update(dict.fromkeys([i for i, _, _ in due], 0))
                 for i, record in self._evaluate(due).items():  # the due runs at once
                     _log_eval(writers[i], record, self.runs[i].config.model.glances)
                     self._save(i)
