@@ -1,27 +1,24 @@
-"""The batched step captured once as a CUDA graph and replayed, beside the eager step.
+"""The batched step replayed as one CUDA graph, beside the eager step.
 
 On a GPU one batched group's step is bound by launching its ~1,400 kernels (10 glances) from
-Python, not by the GPU's arithmetic (docs/batched.md); a replayed graph launches them all at
-once. For each glance count: two groups of N runs of the paper's model (seeds 0..N-1) on one
-glance table, at a constant learning rate (``lr_decay`` 1: a graph replays the rate it was
-captured with; the paper's schedule needs the rate as a tensor on the device, not built yet).
-Group E steps eagerly (:meth:`BatchedRuns.step`). Group G takes the same warm-up steps eagerly
-(on a side stream, as capturing wants), then its device step (:meth:`BatchedRuns._device_step`:
-no sync and no tensor of Python values, which tests/test_batched.py checks) is captured as one
-``torch.cuda.CUDAGraph`` with both generators of every run registered, and replayed; each
-replayed step then reads the flags back (loss and weights finite), the step's one sync, as
-:meth:`BatchedRuns.step` does. The two groups' steps alternate. Prints ms per step eager and
-replayed (wall clock, the GPU synchronized) and their ratio; after the steps, how far G's
-weights are from E's (the graph is the eager step: equal but for the GPU's atomic sums) and
-whether their generators' states are equal; one evaluation of all N runs, per run; the paper
-grid's projected GPU-hours one group after another, eager and replayed (``bench_batched.py``'s
-projection, evaluations eager in both).
+Python, not by the GPU's arithmetic (docs/batched.md); a replayed graph launches them at once.
+For each glance count: two groups of N runs of the paper's model (seeds 0..N-1) on one glance
+table, one stepped eagerly (``BatchedRuns``), one with ``cuda_graph=True``
+(:meth:`BatchedRuns._graphed_step`: after two eager warm-up steps the device step is captured
+once, with both generators of every run registered and the learning rates read from the device,
+then replayed). Both take the warm-up and capture steps untimed, then alternate ``--steps``
+timed steps. Prints ms per step eager and replayed (wall clock, the GPU synchronized) and their
+ratio; after the steps, how far the graph group's weights are from the eager group's (the same
+step: equal but for the GPU's atomic sums and the rate's float32 rounding) and whether their
+generators' states are equal; the time to warm up and capture; one evaluation of all N runs,
+per run; and the paper grid's projected GPU-hours one group after another, eager and replayed
+(``bench_batched.py``'s projection; evaluations eager in both).
 
     PYTHONPATH=src python benchmarks/bench_cuda_graph.py --table TABLE [--glances 3 10]
-        [--runs 10] [--steps 30] [--warmup 3]
+        [--runs 10] [--steps 30]
 
-Without CUDA (``--device cpu``) the device step is called where it would be replayed: a check
-of the protocol (the weights and generators must then be equal to the bit), not of a graph.
+Without CUDA (``--device cpu``) the device step is called where a graph would be replayed: a
+check of the protocol (weights and generators then equal to the bit), not of a graph.
 """
 
 from __future__ import annotations
@@ -35,63 +32,29 @@ from pathlib import Path
 import torch
 from bench_batched import grid_hours
 
-from ham.learn.batched import BatchedRuns, _open_runs
+from ham.learn.batched import _GRAPH_WARMUP, BatchedRuns, _open_runs
 from ham.learn.train import TrainConfig
 from ham.model.agent import HamConfig
 
 
-def group(glances: int, runs: int, table: str, device: str, out: Path) -> BatchedRuns:
-    configs = [TrainConfig(model=HamConfig(glances=glances), seed=s, table=table, device=device,
-                           lr_decay=1.0) for s in range(runs)]  # fmt: skip
-    outs = [out / str(s) for s in range(runs)]
-    return BatchedRuns(_open_runs(configs, outs), outs)  # writes nothing until train()
-
-
-class Replayed:
-    """A group whose device step is one captured graph (CUDA), or is called (CPU)."""
-
-    def __init__(self, g: BatchedRuns, warmup: int) -> None:
-        self.g, self.runs = g, [g.runs[i] for i in g.active]
-        self.graph = None
-        if not self.runs[0].env.device.type == "cuda":
-            for _ in range(warmup):
-                g.step()
-            return
-        side = torch.cuda.Stream()
-        side.wait_stream(torch.cuda.current_stream())
-        with torch.cuda.stream(side):  # lazy initializations happen outside the capture
-            for _ in range(warmup):
-                g.step()
-        torch.cuda.current_stream().wait_stream(side)
-        self.graph = torch.cuda.CUDAGraph()
-        for r in self.runs:  # their draws advance them at every replay, as the eager step's
-            self.graph.register_generator_state(r.env.generator)
-            self.graph.register_generator_state(r.policy_generator)
-        with torch.cuda.graph(self.graph):
-            self.flags = g._device_step(self.runs)
-
-    def step(self) -> None:
-        if self.graph is None:
-            flags = self.g._device_step(self.runs)
-        else:
-            self.graph.replay()
-            flags = self.flags
-        loss_ok, weights_ok = flags.tolist()
-        if not (all(loss_ok) and all(weights_ok)):
-            raise RuntimeError("a run diverged in the replayed step")
-        for r in self.runs:
-            r.step += 1
+def group(glances: int, args, out: Path, cuda_graph: bool) -> BatchedRuns:
+    configs = [TrainConfig(model=HamConfig(glances=glances), seed=s, table=args.table,
+                           device=args.device) for s in range(args.runs)]  # fmt: skip
+    outs = [out / str(s) for s in range(args.runs)]
+    return BatchedRuns(_open_runs(configs, outs), outs, cuda_graph=cuda_graph)
 
 
 def measure(glances: int, args, tmp: Path) -> dict:
     cuda = args.device.startswith("cuda")
     sync = torch.cuda.synchronize if cuda else (lambda: None)
-    eager = group(glances, args.runs, args.table, args.device, tmp / f"e{glances}")
-    for _ in range(args.warmup):
+    eager = group(glances, args, tmp / f"e{glances}", False)
+    graphed = group(glances, args, tmp / f"g{glances}", True)
+    for _ in range(_GRAPH_WARMUP + 1):
         eager.step()
+    sync()
     t0 = time.perf_counter()
-    replayed = Replayed(group(glances, args.runs, args.table, args.device, tmp / f"g{glances}"),
-                        args.warmup)  # fmt: skip
+    for _ in range(_GRAPH_WARMUP + 1):  # the warm-up steps, then the capture (and its replay)
+        graphed.step()
     sync()
     capture_s = time.perf_counter() - t0
     t_eager, t_graph = [], []
@@ -101,16 +64,16 @@ def measure(glances: int, args, tmp: Path) -> dict:
         eager.step()
         sync()
         t1 = time.perf_counter()
-        replayed.step()
+        graphed.step()
         sync()
         t_eager.append(t1 - t0)
         t_graph.append(time.perf_counter() - t1)
-    drift = max((eager.stacked[n] - replayed.g.stacked[n]).abs().max().item()
+    drift = max((eager.stacked[n] - graphed.stacked[n]).abs().max().item()
                 for n in eager.stacked)  # fmt: skip
     same_generators = all(
         torch.equal(a.env.generator.get_state(), b.env.generator.get_state())
         and torch.equal(a.policy_generator.get_state(), b.policy_generator.get_state())
-        for a, b in zip(eager.runs, replayed.runs, strict=True)
+        for a, b in zip(eager.runs, graphed.runs, strict=True)
     )
     sync()
     t0 = time.perf_counter()
@@ -136,7 +99,6 @@ def main() -> None:
     p.add_argument("--glances", type=int, nargs="+", default=[3, 10])
     p.add_argument("--runs", type=int, default=10)
     p.add_argument("--steps", type=int, default=30, help="timed steps of each group")
-    p.add_argument("--warmup", type=int, default=3, help="eager steps before the capture")
     p.add_argument("--device", default="cuda", help="cuda, or cpu (a check of the protocol)")
     args = p.parse_args()
     if args.device.startswith("cuda") and not torch.cuda.is_available():
@@ -145,14 +107,14 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         rows = [measure(g, args, Path(tmp)) for g in args.glances]
     what = "replayed graph" if args.device.startswith("cuda") else "device step called (CPU)"
-    print(f"{args.runs} runs, batch 64, the paper's model, lr constant, on {args.device}; "
+    print(f"{args.runs} runs, batch 64, the paper's model, on {args.device}; "
           f"eager step vs {what}; median of {args.steps} alternating steps, wall clock")  # fmt: skip
     print("glances  eager ms/run-step  graph ms/run-step  ratio  weights apart  generators  "
-          "capture s  eval ms/run")  # fmt: skip
+          "warm-up and capture s  eval ms/run")  # fmt: skip
     for r in rows:
         print(f"{r['glances']:>7}  {r['eager_ms_per_run_step']:>17.2f}  "
               f"{r['graph_ms_per_run_step']:>17.2f}  {r['ratio']:>5.2f}  {r['drift']:>13.2e}  "
-              f"{'equal' if r['same_generators'] else 'APART':>10}  {r['capture_s']:>9.1f}  "
+              f"{'equal' if r['same_generators'] else 'APART':>10}  {r['capture_s']:>21.1f}  "
               f"{r['eval_ms']:>11.1f}")  # fmt: skip
     eager = grid_hours(rows, "eager_ms_per_run_step", "eval_ms")
     graph = grid_hours(rows, "graph_ms_per_run_step", "eval_ms")

@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The batched trainer on a lent GPU in one device run (a few minutes): the GPU's name, the
 # CUDA tests of tests/test_batched.py (CUDA batched runs equal single runs on the GPU, SGD and
-# Adam) with the CPU ones beside them, bench_cuda_graph.py (the batched step captured as one CUDA
-# graph and replayed, vs eager: speed, and whether it keeps the numbers; not yet run on a GPU),
+# Adam; and the step replayed as one CUDA graph equals the eager step) with the CPU ones beside
+# them, bench_cuda_graph.py (BatchedRuns(cuda_graph=True): the step replayed as one CUDA graph vs
+# eager, speed and numbers, and the grid's GPU-hours with it; not yet run on a GPU),
 # bench_batched.py --device cuda (steps, evaluations,
 # the paper grid's projected GPU-hours, one group after another) and bench_side_by_side.py
 # (1 and 15 groups sharing the GPU, as --executor batched --workers 15 runs them), then

@@ -666,3 +666,51 @@ def test_nan_weights_stop_their_run_alone(tmp_path):
     assert results[0] == "training diverged at step 1: NaN/inf in the weights location.mu.weight"
     train(configs[1], tmp_path / "single1", progress=False)
     assert_same_run(outs[1], tmp_path / "single1")
+
+
+def _graph_group(tmp_path: Path, tag: str, cuda_graph: bool, device: str = "cpu") -> list:
+    # runs at their own rates, momenta (one without) and location-network scales, one of
+    # fewer steps (the group's stack changes when it leaves: a new graph), one of 2 glances
+    own = ({}, {"lr": 0.01, "momentum": 0.5, "nesterov": False, "policy_lr_scale": 0.3},
+           {"momentum": 0.0, "nesterov": False, "steps": 5},
+           {"model": HamConfig(glances=2)})  # fmt: skip
+    configs = [tiny(s, device=device, **kw) for s, kw in enumerate(own)]
+    outs = [tmp_path / f"{tag}{s}" for s in range(len(configs))]
+    train_batched(configs, outs, cuda_graph=cuda_graph)
+    return outs
+
+
+def test_the_graphed_step_is_the_eager_step(tmp_path, monkeypatch):
+    # on a CPU the graph's replay is a call of the device step: the protocol (warm-up, the rates
+    # as a tensor filled before each replay, a new graph for each new stack) gives the eager
+    # step's numbers to the bit
+    calls = []
+    graphed = BatchedRuns._graphed_step
+    monkeypatch.setattr(BatchedRuns, "_graphed_step", lambda g, runs: calls.append(
+        "replay" in g._graph_state) or graphed(g, runs))  # fmt: skip
+    eager, graph = _graph_group(tmp_path, "e", False), _graph_group(tmp_path, "g", True)
+    # replays: steps 1-5 of all four runs, 6-8 without the 5-step run; two warm-up steps each
+    assert calls.count(True) == (5 - 2) + (3 - 2)
+    for a, b in zip(eager, graph, strict=True):
+        assert metrics(a) == metrics(b)
+        for p, q in zip(weights(a), weights(b), strict=True):
+            assert torch.equal(p, q)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_cuda_graphed_step_equals_the_eager_step(tmp_path):
+    eager, graph = (
+        _graph_group(tmp_path, "e", False, "cuda"),
+        _graph_group(tmp_path, "g", True, "cuda"),
+    )
+    for a, b in zip(eager, graph, strict=True):
+        ma, mb = metrics(a), metrics(b)
+        assert [h["accuracy"] for h in ma["history"]] == [h["accuracy"] for h in mb["history"]]
+        for p, q in zip(weights(a), weights(b), strict=True):
+            assert torch.allclose(p, q, rtol=1e-4, atol=1e-5)
+
+
+def test_a_graph_is_refused_with_adam(tmp_path):
+    configs = [tiny(s, optimizer="adam") for s in range(2)]
+    with pytest.raises(HamError, match="optimizer 'adam' with a CUDA graph; accepted: sgd"):
+        train_batched(configs, [tmp_path / f"b{s}" for s in range(2)], cuda_graph=True)

@@ -186,6 +186,12 @@ _MALLOPT_DONE = False
 # 580-640 ms, 2048 rows 710-810 ms)
 _EVAL_ROWS = 512
 _FUSED_SGD = getattr(torch, "_fused_sgd_", None)
+_GRAPH_WARMUP = 2  # eager steps of a new stack before its step is captured as a CUDA graph
+
+
+def _capturing() -> bool:
+    """Whether a CUDA graph is being captured (its kernels are recorded, not run)."""
+    return torch.cuda.is_available() and torch.cuda.is_current_stream_capturing()
 
 
 def _grouped(items, key) -> dict:
@@ -234,6 +240,7 @@ class BatchedRuns:
         outs: list[Path],
         stop_at_perfect: bool = False,
         stopped: dict[int, int] | None = None,
+        cuda_graph: bool = False,
     ) -> None:
         self.runs, self.outs = list(runs), [Path(o) for o in outs]
         self.stop_at_perfect = stop_at_perfect
@@ -250,6 +257,12 @@ class BatchedRuns:
         self._params = [dict(r.agent.named_parameters()) for r in self.runs]
         # SGD (the paper's) is stepped for all runs at once; Adam by each run's own optimizer
         self._sgd = self.runs[0].config.optimizer == "sgd"
+        if cuda_graph and not (self._sgd and _FUSED_SGD is not None):
+            raise HamError(f"optimizer {self.runs[0].config.optimizer!r} with a CUDA graph; "
+                           "accepted: sgd (each run's own Adam steps apart)")  # fmt: skip
+        # with a CUDA graph (_graphed_step): its state for the current stack, {} when new
+        self.cuda_graph = cuda_graph
+        self._graph_state: dict | None = None
         self._lr_scale = [_lr_scales(r, p) for r, p in zip(self.runs, self._params, strict=True)]
         self._checked = False
         # the active runs' loss and reward summed since their last evaluation (their train
@@ -282,6 +295,7 @@ class BatchedRuns:
                     # a run without one yet starts from zeros: 0 * m + g is exactly the
                     # optimizer's first buffer (a copy of g)
                     self._new_buffer(name, [st.get("momentum_buffer") for st in states])
+        self._graph_state = {} if self.cuda_graph else None  # a new stack: a new graph
         truncate = [self.runs[i].config.model.truncate_bptt for i in self.active]
         if all(t == self._template.config.truncate_bptt for t in truncate):
             self._net.truncate = None  # the stacked model's config says it for all
@@ -329,42 +343,85 @@ class BatchedRuns:
         rate and momentum (the usual case: one schedule, one step) are updated as whole stacked
         tensors, others run by run. A run whose loss was not finite is updated too (no host
         sync before the update); it leaves the group after the step, its update unused."""
-        settings = {}  # each run at its own schedule's rate and momentum
-        for k, r in enumerate(runs):
-            c = r.config
-            settings[k] = (c.learning_rate(r.step), c.momentum, c.nesterov,
-                           self._lr_scale[self.active[k]])  # fmt: skip
-        if all(v == settings[0] for v in settings.values()):
+        settings = self._settings(runs)
+        if self._whole(runs, settings):
             parts = [(slice(None), 0)]
         else:
             parts = [(k, k) for k in range(len(runs))]
-        if any(m != 0 for _, m, _, _ in settings.values()):
+        if any(m != 0 for _, m, _, _ in settings):
             for name in grads:
                 if name not in self.buffers:
                     self._new_buffer(name, [None] * len(runs))
+        calls = []  # (idx, run, scale, names): one update each
+        for idx, k in parts:
+            by_scale: dict[float, list[str]] = {}
+            for name in grads:
+                by_scale.setdefault(settings[k][3][name], []).append(name)
+            calls += [(idx, k, scale, names) for scale, names in by_scale.items()]
+        rates = self._rate_tensor(settings, [(k, scale) for _, k, scale, _ in calls])
         with torch.no_grad():
-            for idx, k in parts:
-                lr, m, nesterov, scales = settings[k]
-                by_scale: dict[float, list[str]] = {}
-                for name in grads:
-                    by_scale.setdefault(scales[name], []).append(name)
-                for scale, names in by_scale.items():
-                    ps = [self.stacked[n][idx] for n in names]
-                    gs = [grads[n][idx] for n in names]
-                    if m == 0:  # the optimizer keeps no buffers
-                        torch._foreach_add_(ps, gs, alpha=-(lr * scale))
-                    elif _FUSED_SGD is not None:
-                        # zero-initialized buffers: 0 * m + g is exactly the first buffer
-                        _FUSED_SGD(ps, gs, [self.buffers[n][idx] for n in names],
-                                   weight_decay=0.0, momentum=m, lr=lr * scale, dampening=0.0,
-                                   nesterov=nesterov, maximize=False,
-                                   is_first_step=False)  # fmt: skip
-                    else:  # torch.optim.SGD's foreach steps
-                        bs = [self.buffers[n][idx] for n in names]
-                        torch._foreach_mul_(bs, m)
-                        torch._foreach_add_(bs, gs)
-                        ds = torch._foreach_add(gs, bs, alpha=m) if nesterov else bs
-                        torch._foreach_add_(ps, ds, alpha=-(lr * scale))
+            for j, (idx, k, scale, names) in enumerate(calls):
+                lr, m, nesterov, _ = settings[k]
+                ps = [self.stacked[n][idx] for n in names]
+                gs = [grads[n][idx] for n in names]
+                if rates is not None:  # the rate read from the device (a graph's replays)
+                    bs = [] if m == 0 else [self.buffers[n][idx] for n in names]
+                    _FUSED_SGD(ps, gs, bs, weight_decay=0.0, momentum=m, lr=rates[j],
+                               dampening=0.0, nesterov=nesterov, maximize=False,
+                               is_first_step=False)  # fmt: skip
+                    continue
+                if m == 0:  # the optimizer keeps no buffers
+                    torch._foreach_add_(ps, gs, alpha=-(lr * scale))
+                elif _FUSED_SGD is not None:
+                    # zero-initialized buffers: 0 * m + g is exactly the first buffer
+                    _FUSED_SGD(ps, gs, [self.buffers[n][idx] for n in names],
+                               weight_decay=0.0, momentum=m, lr=lr * scale, dampening=0.0,
+                               nesterov=nesterov, maximize=False,
+                               is_first_step=False)  # fmt: skip
+                else:  # torch.optim.SGD's foreach steps
+                    bs = [self.buffers[n][idx] for n in names]
+                    torch._foreach_mul_(bs, m)
+                    torch._foreach_add_(bs, gs)
+                    ds = torch._foreach_add(gs, bs, alpha=m) if nesterov else bs
+                    torch._foreach_add_(ps, ds, alpha=-(lr * scale))
+
+    def _settings(self, runs: list[Run]) -> list[tuple]:
+        """Each run's SGD at this step: (rate, momentum, Nesterov, its weights' rate scales)."""
+        return [(r.config.learning_rate(r.step), r.config.momentum, r.config.nesterov,
+                 self._lr_scale[i]) for r, i in zip(runs, self.active, strict=True)]  # fmt: skip
+
+    def _whole(self, runs: list[Run], settings: list[tuple]) -> bool:
+        """Whether one update steps the whole stack: every run at one rate and momentum. A
+        graph replays one choice, so there it is made of the runs' schedules and steps
+        (equal schedules at equal steps give equal rates at every step)."""
+        if self._graph_state is None:
+            return all(v == settings[0] for v in settings)
+        schedule = [(r.step, r.config.lr, r.config.lr_decay, r.config.lr_step, r.config.lr_min,
+                     *v[1:3], tuple(v[3].items())) for r, v in zip(runs, settings, strict=True)]  # fmt: skip
+        return all(v == schedule[0] for v in schedule)
+
+    def _rate_tensor(self, settings: list[tuple], keys: list[tuple]) -> torch.Tensor | None:
+        """With a graph (:meth:`_graphed_step`): the updates' rates, one per (run, scale) of
+        ``keys``, as a tensor the step reads on the device; filled here, except while the
+        step is captured (each replay's rates are filled before it, :meth:`_fill_rates`).
+        ``None`` without a graph: the rates are numbers."""
+        state = self._graph_state
+        if state is None:
+            return None
+        if state.get("rate_keys") != keys:
+            # float32 on a GPU (the fused kernel reads it so), float64 on a CPU (read as a
+            # double there: the numbers of the rates given as numbers, to the bit)
+            dtype = torch.float64 if self.sums.device.type == "cpu" else torch.float32
+            state["rate_keys"] = keys
+            state["rates"] = torch.zeros(len(keys), dtype=dtype, device=self.sums.device)
+        if not _capturing():
+            self._fill_rates(settings)
+        return state["rates"]
+
+    def _fill_rates(self, settings: list[tuple]) -> None:
+        state = self._graph_state
+        values = [settings[k][0] * scale for k, scale in state["rate_keys"]]
+        state["rates"].copy_(torch.tensor(values, dtype=state["rates"].dtype))
 
     def _done(self, i: int) -> bool:
         return self.runs[i].step >= self.runs[i].config.steps
@@ -487,7 +544,8 @@ class BatchedRuns:
         for r in runs:  # as train_step: the run's optimizer (its checkpoint) holds its rates
             for group in r.optimizer.param_groups:
                 group["lr"] = r.config.learning_rate(r.step) * group.get("lr_scale", 1.0)
-        loss_ok, weights_ok = self._device_step(runs).tolist()  # the step's one sync
+        flags = self._graphed_step(runs) if self.cuda_graph else self._device_step(runs)
+        loss_ok, weights_ok = flags.tolist()  # the step's one sync
         failed, out = [], []
         for k, r in enumerate(runs):
             i = self.active[k]
@@ -506,6 +564,46 @@ class BatchedRuns:
         if failed:
             self._drop(failed)
         return out
+
+    def _graphed_step(self, runs: list[Run]) -> torch.Tensor:
+        """:meth:`_device_step` captured once per stack as a CUDA graph and replayed: each step
+        then launches its ~1,400 kernels (10 glances) as one graph instead of one by one from
+        Python. The first steps of a new stack run eagerly (warm-up, on a side stream); a run
+        leaving the group makes a new stack and so a new graph. Every run's two generators are
+        registered with the graph, so a replay draws what the eager step would. On a CPU
+        (no graphs) the device step is called where a graph would be replayed: the same
+        protocol, checked by the tests against the eager step, to the bit."""
+        state = self._graph_state
+        if "replay" in state:
+            self._fill_rates(self._settings(runs))
+            return state["replay"]()
+        cuda = self.sums.device.type == "cuda"
+        if state.get("warm", 0) < _GRAPH_WARMUP:
+            state["warm"] = state.get("warm", 0) + 1
+            if not cuda:
+                return self._device_step(runs)
+            side = torch.cuda.Stream()  # as torch.cuda.graphs' whole-network example warms up
+            side.wait_stream(torch.cuda.current_stream())
+            with torch.cuda.stream(side):
+                flags = self._device_step(runs)
+            torch.cuda.current_stream().wait_stream(side)
+            return flags
+        if not cuda:
+            state["replay"] = lambda: self._device_step(runs)
+        else:
+            graph = torch.cuda.CUDAGraph()
+            for r in runs:  # each replay advances them by the draws of one step
+                graph.register_generator_state(r.env.generator)
+                graph.register_generator_state(r.policy_generator)
+            with torch.cuda.graph(graph):  # records the step; runs nothing
+                flags = self._device_step(runs)
+
+            def replay() -> torch.Tensor:
+                graph.replay()
+                return flags
+
+            state["replay"] = replay
+        return self._graphed_step(runs)
 
     def _device_step(self, runs: list[Run]) -> torch.Tensor:
         """The step's work on the device, ``(2, N)`` flags back: each run's loss finite, its
@@ -805,10 +903,13 @@ def train_batched(
     *,
     stop_at_perfect: bool = False,
     progress: bool = False,
+    cuda_graph: bool = False,
 ) -> list[dict | str]:
     """Train fresh runs ``configs`` into ``outs`` as one batch, or continue those whose
     directory holds a checkpoint (to the config's ``steps``). Returns per run its metrics (also
-    in its metrics.json), or the one-line error that stopped it (NaN/inf)."""
+    in its metrics.json), or the one-line error that stopped it (NaN/inf). ``cuda_graph``: each
+    step replayed as one CUDA graph (:meth:`BatchedRuns._graphed_step`; not yet measured on a
+    GPU)."""
     outs = [Path(o) for o in outs]
     configs = list(configs)
     resumed = []
@@ -831,9 +932,8 @@ def train_batched(
             raise HamError(f"the run in {str(outs[k])!r} is at step {runs[k].step}, beyond "
                            f"steps {configs[k].steps}")  # fmt: skip
     stopped = {k: s for k, out in enumerate(outs) if (s := _stopped_at(out)) is not None}
-    group = BatchedRuns(runs, outs, stop_at_perfect, stopped)
     try:
-        return group.train(progress)
+        return BatchedRuns(runs, outs, stop_at_perfect, stopped, cuda_graph).train(progress)
     finally:
         for r in runs:
             r.close()
