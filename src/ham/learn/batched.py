@@ -10,8 +10,10 @@ weights are stacked along a leading run axis, one glance of all N runs is one pa
 stacked layers (:class:`ham.learn.stacked_ham.StackedHam`, mirroring :mod:`ham.model` line by line:
 its products, deferred weight gradients and fused LSTM cell are described there), the hybrid loss
 is :func:`torch.vmap` of :func:`ham.learn.hybrid_loss.hybrid_loss`, one backward yields every
-run's gradient (the runs' graphs are disjoint), and on the CPU one fused SGD call steps all runs
-(docs/batched.md has the measurements).
+run's gradient (the runs' graphs are disjoint), and one fused SGD call steps all runs
+(docs/batched.md has the measurements). The step's work on the device asks the host nothing
+(:meth:`BatchedRuns._device_step`): one read of the runs' flags is its only sync, and with
+``cuda_graph`` it is captured once as a CUDA graph and replayed.
 
 Everything else stays per run and is the single run's own code (:mod:`ham.learn.train`): each run
 is a :class:`ham.learn.train.Run` with its own environment generator (objects, stream 0), pose
