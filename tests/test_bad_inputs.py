@@ -150,6 +150,7 @@ def _snapshot(root: Path) -> dict[str, tuple[int, int]]:
 
 
 DECOYS = ("adir/", "notes.txt", "fake.png", "fake.h5")
+EXAMPLE_GRID = str(Path(__file__).resolve().parents[1] / "docs" / "grids" / "example.toml")
 
 
 @pytest.fixture
@@ -402,6 +403,10 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("reproduce-ray-address-form", ["reproduce", "table1", "--out", "rp", "--executor", "ray-batched", "--ray-address", "headnode"], "'headnode'"),
     ("reproduce-grid-ray-address-port", ["reproduce", "grid", "docs/grids/example.toml", "--out", "rp", "--executor", "ray", "--ray-address", "head:99999"], "'head:99999'"),
     ("reproduce-out-file", ["reproduce", "table1", "--out", "notes.txt"], "'notes.txt'"),
+    ("reproduce-batch-runs-0", ["reproduce", "table1", "--out", "rp", "--executor", "batched", "--batch-runs", "0"], "batch_runs = 0"),
+    ("reproduce-cuda-graph-local", ["reproduce", "table1", "--out", "rp", "--cuda-graph"], "--cuda-graph needs --executor batched"),
+    ("reproduce-cuda-graph-cpu", ["reproduce", "table1", "--out", "rp", "--executor", "batched", "--cuda-graph"], "--cuda-graph needs --device cuda"),
+    ("reproduce-grid-cuda-graph-cpu", ["reproduce", "grid", EXAMPLE_GRID, "--out", "rp", "--executor", "batched", "--cuda-graph"], "got 'cpu'"),
     # envs
     ("envs-check-glances-0", ["envs", "check", "--glances", "0"], "glances = 0"),
     ("envs-check-num-envs-0", ["envs", "check", "--num-envs", "0"], "--num-envs 0"),

@@ -714,3 +714,16 @@ def test_a_graph_is_refused_with_adam(tmp_path):
     configs = [tiny(s, optimizer="adam") for s in range(2)]
     with pytest.raises(HamError, match="optimizer 'adam' with a CUDA graph; accepted: sgd"):
         train_batched(configs, [tmp_path / f"b{s}" for s in range(2)], cuda_graph=True)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_cuda_graph_on_the_command_line(tmp_path, ham_cli):
+    # the small grid on CUDA, batched, eager and replayed as graphs: the same runs
+    common = [*SMALL_GRID, "--executor", "batched", "--workers", "1", "--device", "cuda"]
+    for name, extra in (("e", []), ("g", ["--cuda-graph"])):
+        r = ham_cli(*common, *extra, "--out", str(tmp_path / name))
+        assert r.returncode == 0, r.stderr
+    for key in SMALL_GRID_KEYS:
+        for p, q in zip(weights(tmp_path / "e/runs" / key), weights(tmp_path / "g/runs" / key),
+                        strict=True):  # fmt: skip
+            assert torch.allclose(p, q, rtol=1e-4, atol=1e-5)

@@ -7,6 +7,7 @@ import argparse
 import json
 import sys
 
+from ham.cli.config_args import add_config_options, overrides
 from ham.cli.options import (
     add_objects_file_option,
     add_world_preset_option,
@@ -15,7 +16,14 @@ from ham.cli.options import (
     preset_from_args,
 )
 from ham.errors import HamError
-from ham.experiments.reproduce import EXECUTORS, PROFILES, TARGETS, TRAINED_VARIANTS, reproduce
+from ham.experiments.reproduce import (
+    EXECUTORS,
+    PROFILES,
+    TARGETS,
+    TRAINED_VARIANTS,
+    BatchedOptions,
+    reproduce,
+)
 
 GRID = "grid"
 
@@ -90,27 +98,9 @@ def add_commands(subparsers) -> None:
         help="runs (or batched groups) at once: the local and batched executors' processes, "
         "the CPUs of a Ray started here (default: all cores)",
     )
-    p.add_argument(
-        "--batch-runs",
-        type=int,
-        default=None,
-        metavar="N",
-        help="batched executors: at most N runs of one shape per batched model "
-        "(default: a shape's runs in near-equal models of at most 10)",
-    )
-    p.add_argument(
-        "--stop-at-perfect",
-        action="store_true",
-        help="batched executors: stop a run whose best evaluation is 1.000 (its table entry "
-        "cannot change); its metrics.json says stopped_at_perfect",
-    )
-    p.add_argument(
-        "--merge-glances",
-        action="store_true",
-        help="batched executors: runs of other glance counts (2 or more) in one model, which "
-        "steps its longest run's glances; a shape's runs in one model unless --batch-runs N "
-        "(fewer models: for a GPU, where a step costs its kernel launches; on a CPU it costs "
-        "more)",
+    add_config_options(
+        p.add_argument_group("batched executors (--executor batched or ray-batched)"),
+        BatchedOptions,
     )
     p.add_argument("--device", default=None, help="cpu or cuda (default cpu; grid: the file's)")
     p.add_argument("--retries", type=int, default=1, help="re-runs of a failed run (default 1)")
@@ -161,9 +151,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         glances=args.glances,
         variants=args.variants,
         world=world,
-        batch_runs=args.batch_runs,
-        stop_at_perfect=args.stop_at_perfect,
-        merge_glances=args.merge_glances,
+        batched=BatchedOptions(**overrides(args, BatchedOptions)),
         eval_policy=preset["eval_policy"] if preset else None,
         table_cache=preset is not None,
         cache_dir=args.cache_dir,
@@ -210,9 +198,7 @@ def cmd_grid(args: argparse.Namespace) -> int:
         retries=args.retries,
         progress=not args.quiet,
         command=command_line(args),
-        batch_runs=args.batch_runs,
-        stop_at_perfect=args.stop_at_perfect,
-        merge_glances=args.merge_glances,
+        batched=BatchedOptions(**overrides(args, BatchedOptions)),
         cache_dir=args.cache_dir,
     )
     _print_summary(args, summary, ["results.json"])

@@ -23,6 +23,7 @@ from ham.errors import HamError
 from ham.experiments.grid import Grid, GridJob, load_grid, settings_text
 from ham.experiments.reproduce import (
     EXECUTORS,
+    BatchedOptions,
     _environment,
     _fmt,
     _write_json,
@@ -55,16 +56,14 @@ def run_grid(
     retries: int = 1,
     progress: bool = True,
     command: str | None = None,
-    batch_runs: int | None = None,
-    stop_at_perfect: bool = False,
-    merge_glances: bool = False,
+    batched: BatchedOptions | None = None,
     cache_dir: str | os.PathLike | None = None,
 ) -> dict:
     """Run what is not finished of ``grid`` (a :class:`Grid` or a grid file) into ``out``.
 
     ``seeds`` replaces every cell's seeds by ``0..seeds-1``; ``device`` sets every run's device.
-    ``batch_runs`` (runs per batch), ``stop_at_perfect`` and ``merge_glances`` (runs of other
-    glance counts in one model) go with ``executor="batched"`` and ``"ray-batched"``.
+    ``batched`` (:class:`ham.experiments.reproduce.BatchedOptions`) goes with
+    ``executor="batched"`` and ``"ray-batched"``.
     ``cache_dir``: the table cache of a grid with ``[table] cache = true`` (default
     ``$HAM_CACHE_DIR`` or ``~/.cache/ham``). Returns the summary (``results.json`` plus ``ran``, ``skipped`` and ``failures``).
     """
@@ -74,7 +73,8 @@ def run_grid(
 
     if executor not in EXECUTORS:
         raise HamError(f"executor {executor!r}; accepted: {', '.join(EXECUTORS)}")
-    check_batched_options(executor, batch_runs, stop_at_perfect, merge_glances)
+    batched = batched or BatchedOptions()
+    check_batched_options(executor, batched)
     check_ray_address(executor, ray_address)
     if not isinstance(grid, Grid):
         grid = load_grid(grid)
@@ -91,9 +91,10 @@ def run_grid(
     if not (isinstance(retries, int) and retries >= 0):
         raise HamError(f"retries = {retries!r}; accepted: an integer >= 0")
     root = Path(out).resolve()
-    root.mkdir(parents=True, exist_ok=True)
     tables = grid.table_paths(root, cache_dir)
     jobs = grid.jobs(tables)
+    check_batched_options(executor, batched, [j.config.get("device", "cpu") for j in jobs])
+    root.mkdir(parents=True, exist_ok=True)
     _check_existing_runs(root, jobs)
     for world, table in (tables or {}).items():  # one table per world, built before any run
         if not Path(table).exists():
@@ -111,8 +112,7 @@ def run_grid(
     results, failures = execute(
         jobs, todo, root, grid.world, grid.table_grid,
         executor=executor, workers=workers, ray_address=ray_address, retries=retries,
-        progress=progress, desc=f"grid {grid.name}",
-        batch_runs=batch_runs, stop_at_perfect=stop_at_perfect, merge_glances=merge_glances,
+        progress=progress, desc=f"grid {grid.name}", batched=batched,
     )  # fmt: skip
     summary = write_report(root, grid, jobs, failures, command=command, executor=executor)
     summary["skipped"] = len(jobs) - len(todo)

@@ -449,41 +449,76 @@ def execute_ray_batched(
     grid: int,
     address: str | None,
     on_result: Callable[[dict], None],
-    batch_runs: int | None = None,
-    stop_at_perfect: bool = False,
+    options: BatchedOptions | None = None,
     workers: int | None = None,
-    merge_glances: bool = False,
 ) -> None:
     """The batched executor's groups (:func:`group_jobs`) as Ray tasks, one CPU each (a Ray
     started here gets ``workers`` CPUs, default all): Ray hands each node whole batched models,
     as many at once as the node has CPUs; groups on CUDA each take a share of a GPU
     (:func:`gpu_share`), so that they spread evenly over a node's GPUs."""
 
+    options = options or BatchedOptions()
+
     def submit(ray):
         remote = ray.remote(**_ray_options(ray, jobs))(_safe_batch)
-        groups = [[j.to_dict() for j in g] for g in group_jobs(jobs, batch_runs, merge_glances)]
-        return {remote.remote(g, str(root), world, grid, stop_at_perfect): [j["key"] for j in g]
+        groups = [[j.to_dict() for j in g] for g in _groups(jobs, options)]
+        return {remote.remote(g, str(root), world, grid, options): [j["key"] for j in g]
                 for g in groups}  # fmt: skip
 
     _on_ray(address, submit, on_result, workers)
 
 
+@dataclass(frozen=True)
+class BatchedOptions:
+    """How the batched executors (``--executor batched`` or ``ray-batched``) group runs into
+    batched models and train them (:mod:`ham.learn.batched`, docs/batched.md).
+
+    Attributes:
+        batch_runs: at most this many runs of one shape per batched model (default: a shape's
+            runs in near-equal models of at most 10)
+        stop_at_perfect: stop a run whose best evaluation is 1.000 (its table entry cannot
+            change); its metrics.json says stopped_at_perfect
+        merge_glances: runs of other glance counts (2 or more) in one model, which steps its
+            longest run's glances; a shape's runs in one model unless batch_runs caps it (fewer
+            models: for a GPU, where a step costs its kernel launches; on a CPU it costs more)
+        cuda_graph: each batched step replayed as one CUDA graph (needs the device cuda and
+            SGD; not yet measured on a GPU)
+    """
+
+    batch_runs: int | None = None
+    stop_at_perfect: bool = False
+    merge_glances: bool = False
+    cuda_graph: bool = False
+
+    def __post_init__(self) -> None:
+        b = self.batch_runs
+        if b is not None and not (isinstance(b, int) and not isinstance(b, bool) and b >= 1):
+            raise HamError(f"batch_runs = {b!r}; accepted: an integer >= 1")
+        for name in ("stop_at_perfect", "merge_glances", "cuda_graph"):
+            if not isinstance(getattr(self, name), bool):
+                raise HamError(f"{name} = {getattr(self, name)!r}; accepted: true or false")
+
+    def given(self) -> list[str]:
+        """The options set, as their flags."""
+        return [f"--{name.replace('_', '-')}" for name, v in asdict(self).items()
+                if v not in (None, False)]  # fmt: skip
+
+
 def check_batched_options(
-    executor: str, batch_runs: int | None, stop_at_perfect: bool, merge_glances: bool = False
+    executor: str, options: BatchedOptions, devices: Iterable[str] = ()
 ) -> None:
-    """``batch_runs``, ``stop_at_perfect`` and ``merge_glances`` need a batched executor;
-    ``batch_runs`` >= 1."""
+    """``options`` need a batched executor, and a CUDA graph the runs' ``devices`` all CUDA."""
     if executor not in BATCHED_EXECUTORS:
-        given = [n for n, v in (("--batch-runs", batch_runs), ("--stop-at-perfect", stop_at_perfect),
-                                ("--merge-glances", merge_glances)) if v]  # fmt: skip
+        given = options.given()
         if given:
             verb = "needs" if len(given) == 1 else "need"
             raise HamError(f"{', '.join(given)} {verb} --executor batched or ray-batched "
                            f"(got {executor!r})")  # fmt: skip
-    if batch_runs is not None and not (
-        isinstance(batch_runs, int) and not isinstance(batch_runs, bool) and batch_runs >= 1
-    ):
-        raise HamError(f"batch_runs = {batch_runs!r}; accepted: an integer >= 1")
+    if options.cuda_graph:
+        other = sorted({d for d in devices if not str(d).startswith("cuda")})
+        if other:
+            raise HamError(f"--cuda-graph needs --device cuda (a CPU has no CUDA graphs); got "
+                           f"{other[0]!r}")  # fmt: skip
 
 
 _RAY_ADDRESSES = "auto, HOST:PORT or ray://HOST:PORT of a running Ray head (ray start --head)"
@@ -553,8 +588,16 @@ def group_jobs(
     return groups
 
 
+def _groups(jobs: list, options: BatchedOptions) -> list[list]:
+    return group_jobs(jobs, options.batch_runs, options.merge_glances)
+
+
 def run_batch(
-    jobs: list[dict], root: str, world: dict, grid: int | None, stop_at_perfect: bool = False
+    jobs: list[dict],
+    root: str,
+    world: dict,
+    grid: int | None,
+    options: BatchedOptions | None = None,
 ) -> list[dict]:
     """Train the jobs of one shape as one batched model (:mod:`ham.learn.batched`); each run
     resumes from its checkpoint if it has one. Returns one result per job, as :func:`run_job`:
@@ -576,7 +619,9 @@ def run_batch(
         if configs[0].table is not None:
             _ensure_table(Path(configs[0].table), todo[0].get("world", world), grid)
         outs = [run_dir(Path(root), j["key"]) for j in todo]
-        results = train_batched(configs, outs, stop_at_perfect=stop_at_perfect)
+        options = options or BatchedOptions()
+        results = train_batched(configs, outs, stop_at_perfect=options.stop_at_perfect,
+                                cuda_graph=options.cuda_graph)  # fmt: skip
         errors = {j["key"]: r for j, r in zip(todo, results, strict=True) if isinstance(r, str)}
     seconds = (time.perf_counter() - started) / len(jobs)
     out = []
@@ -594,9 +639,11 @@ def run_batch(
     return out
 
 
-def _safe_batch(jobs: list[dict], root: str, world: dict, grid: int, stop: bool) -> list[dict]:
+def _safe_batch(
+    jobs: list[dict], root: str, world: dict, grid: int, options: BatchedOptions
+) -> list[dict]:
     try:
-        return run_batch(jobs, root, world, grid, stop)
+        return run_batch(jobs, root, world, grid, options)
     except BaseException as exc:  # noqa: BLE001 - a worker must report, not die silently
         if isinstance(exc, KeyboardInterrupt):
             raise
@@ -614,9 +661,7 @@ def execute_batched(
     grid: int,
     workers: int,
     on_result: Callable[[dict], None],
-    batch_runs: int | None = None,
-    stop_at_perfect: bool = False,
-    merge_glances: bool = False,
+    options: BatchedOptions | None = None,
 ) -> None:
     """Jobs of one shape trained as one batched model each (:func:`group_jobs`); the
     groups on a process pool of ``workers`` (one torch thread each), or in this process when
@@ -624,16 +669,17 @@ def execute_batched(
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    groups = [[j.to_dict() for j in g] for g in group_jobs(jobs, batch_runs, merge_glances)]
+    options = options or BatchedOptions()
+    groups = [[j.to_dict() for j in g] for g in _groups(jobs, options)]
     workers = min(workers, len(groups))
     if workers <= 1:
         for g in groups:
-            for r in _safe_batch(g, str(root), world, grid, stop_at_perfect):
+            for r in _safe_batch(g, str(root), world, grid, options):
                 on_result(r)
         return
     ctx = mp.get_context("spawn")
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init) as pool:
-        futures = {pool.submit(_safe_batch, g, str(root), world, grid, stop_at_perfect):
+        futures = {pool.submit(_safe_batch, g, str(root), world, grid, options):
                    [j["key"] for j in g] for g in groups}  # fmt: skip
         for fut in as_completed(futures):
             for r in _results(fut.result, futures[fut]):
@@ -653,13 +699,11 @@ def execute(
     retries: int,
     progress: bool,
     desc: str,
-    batch_runs: int | None = None,
-    stop_at_perfect: bool = False,
-    merge_glances: bool = False,
+    batched: BatchedOptions | None = None,
 ) -> tuple[dict[str, dict], list[dict]]:
     """Run ``todo`` (a part of ``jobs``) on ``executor``, re-running failed runs ``retries`` times.
 
-    ``batch_runs``, ``stop_at_perfect`` and ``merge_glances`` go with the batched executors only.
+    ``batched`` goes with the batched executors only.
 
     Returns every run's last result by key and the results of the runs that failed every try.
     """
@@ -675,8 +719,9 @@ def execute(
             bar.update(1)
         bar.set_postfix(failed=sum(x["status"] == "failed" for x in results.values()))
 
+    batched = batched or BatchedOptions()
     if progress and executor == "batched" and todo:
-        models = group_jobs(todo, batch_runs, merge_glances)
+        models = _groups(todo, batched)
         if len(models) < workers and max(len(g) for g in models) > 1:
             # the grouping does not follow --workers: the same command gives the same numbers
             # on any machine (a run's last bits depend on its batch's size)
@@ -690,11 +735,10 @@ def execute(
         if executor == "ray":
             execute_ray(todo, root, world, grid, ray_address, on_result, workers)
         elif executor == "ray-batched":
-            execute_ray_batched(todo, root, world, grid, ray_address, on_result, batch_runs,
-                                stop_at_perfect, workers, merge_glances)  # fmt: skip
+            execute_ray_batched(todo, root, world, grid, ray_address, on_result, batched,
+                                workers)  # fmt: skip
         elif executor == "batched":
-            execute_batched(todo, root, world, grid, workers, on_result, batch_runs,
-                            stop_at_perfect, merge_glances)  # fmt: skip
+            execute_batched(todo, root, world, grid, workers, on_result, batched)
         else:
             execute_local(todo, root, world, grid, workers, on_result)
         todo = [j for j in todo if results.get(j.key, {}).get("status") == "failed"]
@@ -803,9 +847,7 @@ def reproduce(
     glances: Iterable[int] | None = None,
     variants: Iterable[str] | None = None,
     world: WorldConfig | None = None,
-    batch_runs: int | None = None,
-    stop_at_perfect: bool = False,
-    merge_glances: bool = False,
+    batched: BatchedOptions | None = None,
     eval_policy: str | None = None,
     table_cache: bool = False,
     cache_dir: str | os.PathLike | None = None,
@@ -818,8 +860,7 @@ def reproduce(
     the report names the change), e.g. as many steps as a GPU lease holds.
     ``world``: the world of the glance table (default: the paper's); with an objects file, every
     worker registers the file's objects from the record in the table and the world.
-    ``batch_runs`` (runs per batch), ``stop_at_perfect`` and ``merge_glances`` (runs of other
-    glance counts in one model) go with ``executor="batched"`` and ``"ray-batched"``.
+    ``batched`` (:class:`BatchedOptions`) goes with ``executor="batched"`` and ``"ray-batched"``.
     ``eval_policy``: the evaluation during training (a world preset's; default TrainConfig's).
     ``table_cache``: take the glance table from the table cache (:mod:`ham.world.cache`, in
     ``cache_dir``), built there once, instead of ``OUT/table_<N>.h5`` (a preset's slow world).
@@ -836,7 +877,8 @@ def reproduce(
         raise HamError(f"profile {profile_name!r}; accepted: {', '.join(PROFILES)}")
     if executor not in EXECUTORS:
         raise HamError(f"executor {executor!r}; accepted: {', '.join(EXECUTORS)}")
-    check_batched_options(executor, batch_runs, stop_at_perfect, merge_glances)
+    batched = batched or BatchedOptions()
+    check_batched_options(executor, batched, [device])
     profile = PROFILES[profile_name]
     if seeds is not None:
         if not (isinstance(seeds, int) and seeds >= 1):
@@ -874,8 +916,7 @@ def reproduce(
     results, failures = execute(
         jobs, todo, root, world.to_dict(), profile.table_grid,
         executor=executor, workers=workers, ray_address=ray_address, retries=retries,
-        progress=progress, desc=f"reproduce {target} ({profile.name})",
-        batch_runs=batch_runs, stop_at_perfect=stop_at_perfect, merge_glances=merge_glances,
+        progress=progress, desc=f"reproduce {target} ({profile.name})", batched=batched,
     )  # fmt: skip
     skipped = len(jobs) - len(todo)
     summary = write_outputs(
