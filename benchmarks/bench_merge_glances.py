@@ -10,9 +10,11 @@ torch thread. Prints the ms per step of all the runs each way, their ratio, each
 and the operators each way dispatches a step that are not views (a GPU's kernel launches).
 
     PYTHONPATH=src python benchmarks/bench_merge_glances.py [--table TABLE] [--runs 10]
-        [--glances 2 3 4 6 8 10] [--repeats 4] [--device cuda] [--json]
+        [--glances 2 3 4 6 8 10] [--repeats 4] [--device cuda] [--cuda-graph] [--json]
 
 On CUDA the times are wall-clock with the GPU synchronized; on a CPU the process's CPU time.
+With ``--cuda-graph`` every group's step is replayed as one CUDA graph (``BatchedRuns(...,
+cuda_graph=True)``; the kernels are counted in an eager warm-up step before the capture).
 """
 
 from __future__ import annotations
@@ -27,14 +29,15 @@ from pathlib import Path
 import torch
 from profile_batched import _Count  # this folder: the dispatcher's count of a step
 
-from ham.learn.batched import BatchedRuns, _open_runs
+from ham.learn.batched import _GRAPH_WARMUP, BatchedRuns, _open_runs
 from ham.learn.train import TrainConfig
 from ham.model.agent import HamConfig
 
 
-def _group(configs: list[TrainConfig], tmp: str, name: str) -> BatchedRuns:
+def _group(configs: list[TrainConfig], tmp: str, name: str, cuda_graph: bool) -> BatchedRuns:
     outs = [Path(tmp) / f"{name}-{k}" for k in range(len(configs))]
-    return BatchedRuns(_open_runs(configs, outs), outs)  # writes nothing until train()
+    # writes nothing until train()
+    return BatchedRuns(_open_runs(configs, outs), outs, cuda_graph=cuda_graph)
 
 
 def main() -> None:
@@ -44,6 +47,7 @@ def main() -> None:
     p.add_argument("--glances", type=int, nargs="+", default=[2, 3, 4, 6, 8, 10])
     p.add_argument("--repeats", type=int, default=4)
     p.add_argument("--device", default="cpu")
+    p.add_argument("--cuda-graph", action="store_true", help="each step replayed as a graph")
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
     torch.set_num_threads(1)
@@ -54,21 +58,25 @@ def main() -> None:
                                device=args.device) for s in range(args.runs)]
                for g in args.glances}  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
-        apart = [_group(c, tmp, f"g{g}") for g, c in configs.items()]
-        merged = _group([c for cs in configs.values() for c in cs], tmp, "merged")
+        apart = [_group(c, tmp, f"g{g}", args.cuda_graph) for g, c in configs.items()]
+        merged = _group([c for cs in configs.values() for c in cs], tmp, "merged",
+                        args.cuda_graph)  # fmt: skip
 
         def step_apart() -> None:
             for group in apart:
                 group.step()
 
-        for _ in range(2):  # warm up both (buffers, compiled kernels)
-            step_apart()
-            merged.step()
         kernels = []
-        for step in (step_apart, merged.step):
-            with _Count() as count:
-                step()
-            kernels.append(count.kernels)
+        # warm up both (buffers, compiled kernels; with graphs: the eager steps and the
+        # capture); the kernels counted in the second step (eager either way)
+        for w in range(_GRAPH_WARMUP + 1 if args.cuda_graph else 2):
+            for step in (step_apart, merged.step):
+                if w != 1:
+                    step()
+                    continue
+                with _Count() as count:
+                    step()
+                kernels.append(count.kernels)
         t_apart, t_merged = [], []
         for _ in range(args.repeats):  # interleaved: both see the same machine load
             sync()
@@ -84,6 +92,7 @@ def main() -> None:
     a, m = statistics.median(t_apart), statistics.median(t_merged)
     out = {
         "device": args.device,
+        "cuda_graph": args.cuda_graph,
         "glances": args.glances,
         "runs_per_glance_count": args.runs,
         "ms_per_step_apart": 1000 * a,
@@ -97,8 +106,9 @@ def main() -> None:
         print(json.dumps(out, indent=1))
         return
     what = "wall-clock (GPU synchronized)" if cuda else "CPU time of the process"
-    print(f"glances {args.glances}, {args.runs} runs each, on {args.device}, {what}, median of "
-          f"{args.repeats} interleaved repeats")  # fmt: skip
+    graphs = ", each step replayed as a CUDA graph" if args.cuda_graph else ""
+    print(f"glances {args.glances}, {args.runs} runs each, on {args.device}{graphs}, {what}, "
+          f"median of {args.repeats} interleaved repeats")  # fmt: skip
     print(f"a step of all {args.runs * len(args.glances)} runs: {out['ms_per_step_apart']:.1f} ms "
           f"as {len(args.glances)} models, {out['ms_per_step_merged']:.1f} ms as one "
           f"(apart / merged {out['ratio']:.2f}; each repeat "
