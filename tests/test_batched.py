@@ -551,7 +551,7 @@ def test_reproduce_batched_executor_matches_local(batched_grid, tmp_path, ham_cl
 def test_groups_are_shapes_in_plan_order_in_near_equal_batches():
     from types import SimpleNamespace
 
-    from ham.experiments.reproduce import group_jobs
+    from ham.experiments.executors import group_jobs
 
     def job(seed, **kw):
         return SimpleNamespace(config=tiny(seed, **kw).to_dict(), seed=seed)

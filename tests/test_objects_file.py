@@ -139,7 +139,8 @@ def test_reproduce_workers_use_the_recorded_objects(own, tmp_path):
 
 def test_a_worker_builds_a_missing_table_from_the_record(own, tmp_path):
     """A fresh worker process (no table on its node) registers the file's objects from the world."""
-    from ham.experiments.reproduce import PROFILES, execute_local, plan
+    from ham.experiments.executors import execute_local
+    from ham.experiments.reproduce import PROFILES, plan
     from ham.world.config import WorldConfig
     from ham.world.objects import names, read_objects_file
 

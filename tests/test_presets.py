@@ -325,7 +325,7 @@ def test_the_factor_table_reports_each_factor_against_the_preset(ham_cli, tmp_pa
 
 def test_a_worker_builds_a_missing_cell_table_from_the_cells_world(tmp_path):
     """On a node without the tables, a run of a cell with its own world builds that world's."""
-    from ham.experiments.reproduce import execute_local
+    from ham.experiments.executors import execute_local
 
     text = """\
 name = "w"

@@ -221,7 +221,7 @@ def test_ray_tasks_on_cuda_take_a_share_of_a_gpu():
     """Runs on CUDA ask Ray for the cluster's GPUs over its CPUs (as many tasks as CPUs, spread
     over the GPUs); a cluster without GPUs is refused in one line. A GPU cluster cannot exist
     here: its resources stand in as Ray's ``cluster_resources()`` reports them."""
-    from ham.experiments.reproduce import _ray_options, gpu_share
+    from ham.experiments.executors import _ray_options, gpu_share
 
     assert gpu_share({"CPU": 16.0, "GPU": 1.0}) == 0.0625  # the H200 machine: 16 groups
     assert gpu_share({"CPU": 64.0, "GPU": 8.0}) == 0.125  # 8 tasks on each of 8 GPUs
@@ -246,7 +246,7 @@ def test_ray_schedules_cuda_runs_on_the_gpus_it_is_told_of(tmp_path):
     ray = pytest.importorskip("ray")
     import torch
 
-    from ham.experiments.reproduce import execute_ray_batched
+    from ham.experiments.executors import execute_ray_batched
 
     if torch.cuda.is_available():
         pytest.skip("this machine has CUDA: the runs would train")

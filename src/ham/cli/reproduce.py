@@ -16,14 +16,8 @@ from ham.cli.options import (
     preset_from_args,
 )
 from ham.errors import HamError
-from ham.experiments.reproduce import (
-    EXECUTORS,
-    PROFILES,
-    TARGETS,
-    TRAINED_VARIANTS,
-    BatchedOptions,
-    reproduce,
-)
+from ham.experiments.executors import EXECUTORS, BatchedOptions
+from ham.experiments.reproduce import PROFILES, TARGETS, TRAINED_VARIANTS, reproduce
 
 GRID = "grid"
 

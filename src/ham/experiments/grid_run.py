@@ -20,18 +20,15 @@ from pathlib import Path
 import numpy as np
 
 from ham.errors import HamError
-from ham.experiments.grid import Grid, GridJob, load_grid, settings_text
-from ham.experiments.reproduce import (
+from ham.experiments.executors import (
     EXECUTORS,
     BatchedOptions,
-    _environment,
-    _fmt,
-    _write_json,
     check_batched_options,
     check_ray_address,
     execute,
-    mean_sem,
 )
+from ham.experiments.grid import Grid, GridJob, load_grid, settings_text
+from ham.experiments.reproduce import _environment, _fmt, _write_json, mean_sem
 from ham.experiments.runs import (
     evaluation_path,
     has_evaluation,
@@ -62,7 +59,7 @@ def run_grid(
     """Run what is not finished of ``grid`` (a :class:`Grid` or a grid file) into ``out``.
 
     ``seeds`` replaces every cell's seeds by ``0..seeds-1``; ``device`` sets every run's device.
-    ``batched`` (:class:`ham.experiments.reproduce.BatchedOptions`) goes with
+    ``batched`` (:class:`ham.experiments.executors.BatchedOptions`) goes with
     ``executor="batched"`` and ``"ray-batched"``.
     ``cache_dir``: the table cache of a grid with ``[table] cache = true`` (default
     ``$HAM_CACHE_DIR`` or ``~/.cache/ham``). Returns the summary (``results.json`` plus ``ran``, ``skipped`` and ``failures``).

@@ -1,0 +1,537 @@
+"""Executors: how a list of runs is trained (``--executor local|ray|batched|ray-batched``).
+
+A run is a job: its key (its directory ``ROOT/runs/<key>``), its config, and evaluations of its
+final checkpoint (grids). :func:`execute` trains the jobs not yet finished on one executor and
+retries the failed ones; every executor reports each run's result the same way, a worker that
+died included, so that the others go on:
+
+* ``local``: single runs on a process pool (:func:`run_job`);
+* ``ray``: single runs as Ray tasks, on a cluster or a Ray started here;
+* ``batched``: runs of one shape trained as one batched model each (:func:`run_batch`,
+  :mod:`ham.learn.batched`; grouped by :func:`group_jobs`, :class:`BatchedOptions`), the models
+  on a process pool, or one after another in this process (the way to use one GPU);
+* ``ray-batched``: those batched models as Ray tasks.
+
+Used by ``ham reproduce`` (:mod:`ham.experiments.reproduce`) and ``ham reproduce grid``
+(:mod:`ham.experiments.grid_run`).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+import traceback
+from collections.abc import Callable, Iterable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Protocol
+
+from ham.errors import HamError
+from ham.experiments.runs import is_finished, run_dir
+
+EXECUTORS = ("local", "ray", "batched", "ray-batched")
+#: the executors that train runs of one shape as one batched model (:mod:`ham.learn.batched`)
+BATCHED_EXECUTORS = ("batched", "ray-batched")
+#: the executors that run on Ray (``--ray-address``)
+RAY_EXECUTORS = ("ray", "ray-batched")
+
+
+class Job(Protocol):
+    """What an executor reads of a job: ``ham reproduce``'s
+    :class:`ham.experiments.reproduce.Job` and a grid's :class:`ham.experiments.grid.GridJob`."""
+
+    key: str
+    config: dict  # a TrainConfig's dict
+
+    def to_dict(self) -> dict: ...
+
+
+# --------------------------------------------------------------------------- run one job
+def run_job(job: dict, root: str, world: dict, grid: int | None) -> dict:
+    """Train one run to completion (resuming it if it was interrupted); runs in a worker.
+
+    The worker builds the glance table itself when it is missing (on a cluster node without the
+    shared file): the build is deterministic, so every node trains on identical glances. A run
+    without a table (``config.table`` is ``None``) glances online. The job's ``evaluate`` specs
+    (grids) re-evaluate the final checkpoint, once each.
+    """
+    import torch
+
+    from ham.experiments.runs import evaluate_final, has_evaluation
+    from ham.learn.train import TrainConfig, resume, train
+
+    torch.set_num_threads(1)
+    started = time.perf_counter()
+    out = run_dir(Path(root), job["key"])
+    config = TrainConfig.from_dict(job["config"])
+    status = "skipped"
+    if not is_finished(out, config.steps):
+        if config.table is not None:
+            # a grid cell's own world (docs/grids.md), else the grid's
+            _ensure_table(Path(config.table), job.get("world", world), grid)
+        if (out / "checkpoint.pt").exists():
+            resume(out, progress=False)
+        else:
+            train(config, out, progress=False)
+        status = "done"
+    for spec in job.get("evaluate", ()):
+        if not has_evaluation(out, spec, config.steps):
+            evaluate_final(out, spec)
+            status = "done"
+    return {"key": job["key"], "status": status, "seconds": time.perf_counter() - started}
+
+
+def _ensure_table(path: Path, world: dict, grid: int) -> None:
+    if path.exists():
+        return
+    from ham.world.config import WorldConfig
+    from ham.world.table import build_table
+
+    build_table(WorldConfig.from_dict(world), grid, path, progress=False, command="ham reproduce")
+
+
+def _safe_run(job: dict, root: str, world: dict, grid: int) -> dict:
+    try:
+        return run_job(job, root, world, grid)
+    except BaseException as exc:  # noqa: BLE001 - a worker must report, not die silently
+        if isinstance(exc, KeyboardInterrupt):
+            raise
+        return {
+            "key": job["key"],
+            "status": "failed",
+            "error": f"{type(exc).__name__}: {exc}",
+            "traceback": traceback.format_exc(limit=6),
+        }
+
+
+# --------------------------------------------------------------------------- executors
+def _worker_init() -> None:
+    import torch
+
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    torch.set_num_threads(1)
+
+
+def _results(get: Callable[[], dict | list[dict]], keys: list[str]) -> list[dict]:
+    """A worker's results (one run's or a batch's), or, where the worker itself died (killed,
+    out of memory: its pool or Ray says so), each of its runs as failed with that reason, so the
+    other runs go on and the retries re-run these from their checkpoints."""
+    try:
+        r = get()
+    except Exception as exc:  # noqa: BLE001 - any way a worker can be lost
+        lines = str(exc).strip().splitlines()
+        reason = f"{type(exc).__name__}: {lines[0]}" if lines else type(exc).__name__
+        return [{"key": k, "status": "failed", "error": f"the worker died ({reason})"}
+                for k in keys]  # fmt: skip
+    return r if isinstance(r, list) else [r]
+
+
+def execute_local(
+    jobs: list[Job],
+    root: Path,
+    world: dict,
+    grid: int,
+    workers: int,
+    on_result: Callable[[dict], None],
+) -> None:
+    """A process pool over the cores, one torch thread per worker (no more workers than jobs;
+    one job, or one worker, runs in this process)."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    workers = min(workers, len(jobs))
+    if workers <= 1:
+        for job in jobs:
+            on_result(_safe_run(job.to_dict(), str(root), world, grid))
+        return
+    ctx = mp.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init) as pool:
+        futures = {pool.submit(_safe_run, j.to_dict(), str(root), world, grid): [j.key]
+                   for j in jobs}  # fmt: skip
+        for fut in as_completed(futures):
+            for r in _results(fut.result, futures[fut]):
+                on_result(r)
+
+
+def gpu_share(resources: dict) -> float:
+    """The share of a GPU a Ray task of one CPU asks for when its runs are on CUDA: the
+    cluster's GPUs over its CPUs, so that as many tasks run at once as there are CPUs, spread
+    evenly over the GPUs (1 GPU and 16 CPUs: 16 tasks on the GPU; 8 GPUs and 64 CPUs: 8 on
+    each), at most one GPU; rounded down to Ray's 1e-4 resolution."""
+    gpus, cpus = float(resources.get("GPU", 0)), float(resources.get("CPU", 0))
+    if gpus <= 0:
+        raise HamError(
+            "runs on cuda, but the Ray cluster has no GPU; accepted: --device cpu, or a cluster "
+            "whose nodes have GPUs (ray start --num-gpus N)"
+        )
+    return max(min(1.0, math.floor(gpus / max(cpus, 1.0) * 1e4) / 1e4), 1e-4)
+
+
+def _ray_options(ray, jobs: list[Job]) -> dict:
+    """One CPU per task, and its share of a GPU (:func:`gpu_share`) when the runs are on CUDA:
+    Ray then points each task's ``CUDA_VISIBLE_DEVICES`` at the GPU it was given."""
+    options = {"num_cpus": 1, "max_retries": 0}
+    if any(str(j.config.get("device", "cpu")).startswith("cuda") for j in jobs):
+        options["num_gpus"] = gpu_share(ray.cluster_resources())
+    return options
+
+
+def _on_ray(
+    address: str | None, submit: Callable, on_result: Callable[[dict], None], cpus: int | None
+) -> None:
+    """Start Ray with ``cpus`` CPUs (default: all; tasks take one each), or join the cluster at
+    ``address``; submit the tasks ``submit(ray)`` returns (each task's reference -> the keys of
+    its runs), hand each result to ``on_result`` as it arrives, and shut down the Ray started
+    here."""
+    try:
+        import ray
+    except ImportError:
+        raise HamError("the ray executors need Ray: pip install 'ham[cluster]'") from None
+    started_here = not ray.is_initialized()
+    if started_here:
+        kwargs = {"address": address} if address else {"num_cpus": cpus or os.cpu_count() or 1}
+        try:
+            ray.init(**kwargs, include_dashboard=False, log_to_driver=False,
+                     logging_level="ERROR")  # fmt: skip
+        except ConnectionError as exc:  # --ray-address auto with no cluster running
+            reason = str(exc).split(". ")[0]
+            raise HamError(
+                f"--ray-address {address!r}: {reason}; accepted: {_RAY_ADDRESSES}"
+            ) from None
+    try:
+        keys = submit(ray)
+        pending = list(keys)
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            for ref in done:
+                for r in _results(lambda ref=ref: ray.get(ref), keys[ref]):
+                    on_result(r)
+    finally:
+        if started_here:
+            ray.shutdown()
+
+
+def execute_ray(
+    jobs: list[Job],
+    root: Path,
+    world: dict,
+    grid: int,
+    address: str | None,
+    on_result: Callable[[dict], None],
+    workers: int | None = None,
+) -> None:
+    """The same grid as Ray tasks, one CPU each (and a share of a GPU for runs on CUDA,
+    :func:`gpu_share`; ``pip install ham[cluster]``); a Ray started here gets ``workers`` CPUs
+    (default: all)."""
+
+    def submit(ray):
+        remote = ray.remote(**_ray_options(ray, jobs))(_safe_run)
+        return {remote.remote(j.to_dict(), str(root), world, grid): [j.key] for j in jobs}
+
+    _on_ray(address, submit, on_result, workers)
+
+
+def execute_ray_batched(
+    jobs: list[Job],
+    root: Path,
+    world: dict,
+    grid: int,
+    address: str | None,
+    on_result: Callable[[dict], None],
+    options: BatchedOptions | None = None,
+    workers: int | None = None,
+) -> None:
+    """The batched executor's groups (:func:`group_jobs`) as Ray tasks, one CPU each (a Ray
+    started here gets ``workers`` CPUs, default all): Ray hands each node whole batched models,
+    as many at once as the node has CPUs; groups on CUDA each take a share of a GPU
+    (:func:`gpu_share`), so that they spread evenly over a node's GPUs."""
+
+    options = options or BatchedOptions()
+
+    def submit(ray):
+        remote = ray.remote(**_ray_options(ray, jobs))(_safe_batch)
+        groups = [[j.to_dict() for j in g] for g in _groups(jobs, options)]
+        return {remote.remote(g, str(root), world, grid, options): [j["key"] for j in g]
+                for g in groups}  # fmt: skip
+
+    _on_ray(address, submit, on_result, workers)
+
+
+@dataclass(frozen=True)
+class BatchedOptions:
+    """How the batched executors (``--executor batched`` or ``ray-batched``) group runs into
+    batched models and train them (:mod:`ham.learn.batched`, docs/batched.md).
+
+    Attributes:
+        batch_runs: at most this many runs of one shape per batched model (default: a shape's
+            runs in near-equal models of at most 10)
+        stop_at_perfect: stop a run whose best evaluation is 1.000 (its table entry cannot
+            change); its metrics.json says stopped_at_perfect
+        merge_glances: runs of other glance counts (2 or more) in one model, which steps its
+            longest run's glances; a shape's runs in one model unless batch_runs caps it (fewer
+            models: for a GPU, where a step costs its kernel launches; on a CPU it costs more)
+        cuda_graph: each batched step replayed as one CUDA graph (needs the device cuda and
+            SGD; not yet measured on a GPU)
+    """
+
+    batch_runs: int | None = None
+    stop_at_perfect: bool = False
+    merge_glances: bool = False
+    cuda_graph: bool = False
+
+    def __post_init__(self) -> None:
+        b = self.batch_runs
+        if b is not None and not (isinstance(b, int) and not isinstance(b, bool) and b >= 1):
+            raise HamError(f"batch_runs = {b!r}; accepted: an integer >= 1")
+        for name in ("stop_at_perfect", "merge_glances", "cuda_graph"):
+            if not isinstance(getattr(self, name), bool):
+                raise HamError(f"{name} = {getattr(self, name)!r}; accepted: true or false")
+
+    def given(self) -> list[str]:
+        """The options set, as their flags."""
+        return [f"--{name.replace('_', '-')}" for name, v in asdict(self).items()
+                if v not in (None, False)]  # fmt: skip
+
+
+def check_batched_options(
+    executor: str, options: BatchedOptions, devices: Iterable[str] = ()
+) -> None:
+    """``options`` need a batched executor, and a CUDA graph the runs' ``devices`` all CUDA."""
+    if executor not in BATCHED_EXECUTORS:
+        given = options.given()
+        if given:
+            verb = "needs" if len(given) == 1 else "need"
+            raise HamError(f"{', '.join(given)} {verb} --executor batched or ray-batched "
+                           f"(got {executor!r})")  # fmt: skip
+    if options.cuda_graph:
+        other = sorted({d for d in devices if not str(d).startswith("cuda")})
+        if other:
+            raise HamError(f"--cuda-graph needs --device cuda (a CPU has no CUDA graphs); got "
+                           f"{other[0]!r}")  # fmt: skip
+
+
+_RAY_ADDRESSES = "auto, HOST:PORT or ray://HOST:PORT of a running Ray head (ray start --head)"
+
+
+def check_ray_address(executor: str, ray_address: str | None) -> None:
+    """``ray_address`` goes with the Ray executors only, and a ``HOST:PORT`` must answer: Ray
+    itself would retry an address where nothing listens for minutes, logging each try."""
+    if ray_address is None:
+        return
+    if executor not in RAY_EXECUTORS:
+        raise HamError(f"--ray-address {ray_address!r}: accepted only with --executor "
+                       f"{' or '.join(RAY_EXECUTORS)}")  # fmt: skip
+    if ray_address == "auto":
+        return
+    host, _, port = ray_address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise HamError(f"--ray-address {ray_address!r}; accepted: {_RAY_ADDRESSES}")
+    import socket
+
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=5).close()
+    except OSError as exc:
+        raise HamError(
+            f"--ray-address {ray_address!r}: nothing answers there ({exc.strerror or exc}); "
+            f"accepted: {_RAY_ADDRESSES}"
+        ) from None
+
+
+# Runs per batched model by default: the paper's seeds of a cell, and the N the batched step was
+# measured at (docs/batched.md); a larger shape (a sweep) is cut into near-equal models
+# of at most this many, so that it still spreads over the workers
+BATCH_RUNS = 10
+
+
+def group_jobs(
+    jobs: list, batch_runs: int | None = None, merge_glances: bool = False
+) -> list[list]:
+    """Jobs of one shape (the same config but the fields each run of a batched model keeps
+    its own, :data:`ham.learn.batched.PER_RUN`: the seed, the learning-rate schedule, the
+    momentum, the loss, the normalization, the evaluation settings, the BPTT truncation; with
+    ``merge_glances`` the glance count too, from 2 glances on) together, in plan order: at most
+    ``batch_runs`` per group, or by default near-equal groups of at most :data:`BATCH_RUNS`
+    (with ``merge_glances`` one group per shape: a Table 1 column's 2-10-glance runs in one).
+    Not by the number of workers: a run's last bits depend on the size of its batch, and the
+    same command gives the same numbers anywhere."""
+    from ham.learn.batched import shape_key
+    from ham.learn.train import TrainConfig
+
+    shapes: dict[str, list] = {}
+    for j in jobs:
+        config = TrainConfig.from_dict(j.config)
+        key = shape_key(config, glances=not merge_glances)
+        shapes.setdefault(key + f"|{config.steps}", []).append(j)
+    if batch_runs:
+        return [
+            g[k : k + batch_runs] for g in shapes.values() for k in range(0, len(g), batch_runs)
+        ]
+    if merge_glances:  # fewer models is the point: a shape's runs all in one
+        return list(shapes.values())
+    groups = []
+    for g in shapes.values():  # -(-n // m): the fewest groups of at most BATCH_RUNS
+        parts = -(-len(g) // BATCH_RUNS)
+        q, r = divmod(len(g), parts)
+        starts = [k * q + min(k, r) for k in range(parts + 1)]
+        groups += [g[a:b] for a, b in zip(starts, starts[1:], strict=False)]
+    return groups
+
+
+def _groups(jobs: list, options: BatchedOptions) -> list[list]:
+    return group_jobs(jobs, options.batch_runs, options.merge_glances)
+
+
+def run_batch(
+    jobs: list[dict],
+    root: str,
+    world: dict,
+    grid: int | None,
+    options: BatchedOptions | None = None,
+) -> list[dict]:
+    """Train the jobs of one shape as one batched model (:mod:`ham.learn.batched`); each run
+    resumes from its checkpoint if it has one. Returns one result per job, as :func:`run_job`:
+    a run that diverged fails alone; then each finished run's ``evaluate`` specs."""
+    import torch
+
+    from ham.learn.batched import train_batched
+    from ham.learn.train import TrainConfig
+
+    # one torch thread, as run_job and the pool's workers: in this process (one worker or one
+    # group) the default thread count made only the first group use every core, and on a loaded
+    # machine two spinning threads per process slowed its step many times over
+    torch.set_num_threads(1)
+    started = time.perf_counter()
+    todo = [j for j in jobs if not is_finished(run_dir(Path(root), j["key"]), j["config"]["steps"])]
+    errors: dict[str, str] = {}
+    if todo:
+        configs = [TrainConfig.from_dict(j["config"]) for j in todo]
+        if configs[0].table is not None:
+            _ensure_table(Path(configs[0].table), todo[0].get("world", world), grid)
+        outs = [run_dir(Path(root), j["key"]) for j in todo]
+        options = options or BatchedOptions()
+        results = train_batched(configs, outs, stop_at_perfect=options.stop_at_perfect,
+                                cuda_graph=options.cuda_graph)  # fmt: skip
+        errors = {j["key"]: r for j, r in zip(todo, results, strict=True) if isinstance(r, str)}
+    seconds = (time.perf_counter() - started) / len(jobs)
+    out = []
+    for j in jobs:
+        if j["key"] in errors:
+            out.append(
+                {"key": j["key"], "status": "failed", "error": f"HamError: {errors[j['key']]}"}
+            )
+            continue
+        r = _safe_run(j, root, world, grid)  # finished: only its evaluations, if any
+        if r["status"] != "failed":
+            r["status"] = "done" if j in todo else r["status"]
+            r["seconds"] = seconds + r["seconds"]
+        out.append(r)
+    return out
+
+
+def _safe_batch(
+    jobs: list[dict], root: str, world: dict, grid: int, options: BatchedOptions
+) -> list[dict]:
+    try:
+        return run_batch(jobs, root, world, grid, options)
+    except BaseException as exc:  # noqa: BLE001 - a worker must report, not die silently
+        if isinstance(exc, KeyboardInterrupt):
+            raise
+        error = f"{type(exc).__name__}: {exc}"
+        tb = traceback.format_exc(limit=6)
+        return [
+            {"key": j["key"], "status": "failed", "error": error, "traceback": tb} for j in jobs
+        ]
+
+
+def execute_batched(
+    jobs: list[Job],
+    root: Path,
+    world: dict,
+    grid: int,
+    workers: int,
+    on_result: Callable[[dict], None],
+    options: BatchedOptions | None = None,
+) -> None:
+    """Jobs of one shape trained as one batched model each (:func:`group_jobs`); the
+    groups on a process pool of ``workers`` (one torch thread each), or in this process when
+    there is one group or one worker (the way to use one GPU)."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    options = options or BatchedOptions()
+    groups = [[j.to_dict() for j in g] for g in _groups(jobs, options)]
+    workers = min(workers, len(groups))
+    if workers <= 1:
+        for g in groups:
+            for r in _safe_batch(g, str(root), world, grid, options):
+                on_result(r)
+        return
+    ctx = mp.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init) as pool:
+        futures = {pool.submit(_safe_batch, g, str(root), world, grid, options):
+                   [j["key"] for j in g] for g in groups}  # fmt: skip
+        for fut in as_completed(futures):
+            for r in _results(fut.result, futures[fut]):
+                on_result(r)
+
+
+def execute(
+    jobs: list,
+    todo: list,
+    root: Path,
+    world: dict,
+    grid: int | None,
+    *,
+    executor: str,
+    workers: int,
+    ray_address: str | None,
+    retries: int,
+    progress: bool,
+    desc: str,
+    batched: BatchedOptions | None = None,
+) -> tuple[dict[str, dict], list[dict]]:
+    """Run ``todo`` (a part of ``jobs``) on ``executor``, re-running failed runs ``retries`` times.
+
+    ``batched`` goes with the batched executors only.
+
+    Returns every run's last result by key and the results of the runs that failed every try.
+    """
+    from tqdm.auto import tqdm
+
+    results: dict[str, dict] = {}
+    bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc=desc, unit="run",
+               disable=not progress, file=sys.stderr)  # fmt: skip
+
+    def on_result(r: dict) -> None:
+        results[r["key"]] = r
+        if r["status"] != "failed":
+            bar.update(1)
+        bar.set_postfix(failed=sum(x["status"] == "failed" for x in results.values()))
+
+    batched = batched or BatchedOptions()
+    if progress and executor == "batched" and todo:
+        models = _groups(todo, batched)
+        if len(models) < workers and max(len(g) for g in models) > 1:
+            # the grouping does not follow --workers: the same command gives the same numbers
+            # on any machine (a run's last bits depend on its batch's size)
+            print(f"{len(models)} batched model(s) for {workers} workers: --batch-runs N spreads "
+                  "one shape's runs over more models", file=sys.stderr)  # fmt: skip
+    for attempt in range(retries + 1):
+        if not todo:
+            break
+        if attempt:
+            print(f"retrying {len(todo)} failed run(s) (attempt {attempt + 1})", file=sys.stderr)
+        if executor == "ray":
+            execute_ray(todo, root, world, grid, ray_address, on_result, workers)
+        elif executor == "ray-batched":
+            execute_ray_batched(todo, root, world, grid, ray_address, on_result, batched,
+                                workers)  # fmt: skip
+        elif executor == "batched":
+            execute_batched(todo, root, world, grid, workers, on_result, batched)
+        else:
+            execute_local(todo, root, world, grid, workers, on_result)
+        todo = [j for j in todo if results.get(j.key, {}).get("status") == "failed"]
+    bar.close()
+    return results, [results[j.key] for j in todo]
