@@ -697,6 +697,47 @@ def test_the_graphed_step_is_the_eager_step(tmp_path, monkeypatch):
             assert torch.equal(p, q)
 
 
+class _Calls(TorchDispatchMode):
+    """Each operator dispatched, with its arguments as a graph would freeze them: a tensor by
+    its shape and dtype (its values are read at every replay), anything else by value."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.calls: list[tuple] = []
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        def frozen(a):
+            if isinstance(a, torch.Tensor):
+                return ("tensor", tuple(a.shape), a.dtype)
+            if isinstance(a, list | tuple):
+                return tuple(frozen(x) for x in a)
+            return a if isinstance(a, int | float | bool | str | type(None)) else type(a)
+
+        kwargs = kwargs or {}
+        self.calls.append((str(func), frozen(args), frozen(sorted(kwargs.items()))))
+        return func(*args, **kwargs)
+
+
+@pytest.mark.parametrize("cuda_graph", [True, False], ids=["graphed", "eager"])
+def test_a_graph_would_replay_the_steps_own_numbers(tmp_path, cuda_graph):
+    # a graph replays the operators of the step it captured, numbers included: two later steps
+    # must dispatch the same operators with the same arguments but for tensors' values (a rate
+    # passed as a number, as the eager step passes it, would be frozen at the captured step)
+    table = str(build_table(WorldConfig(), 5, tmp_path / "t.h5", progress=False))
+    configs = [tiny(s, table=table, **kw) for s, kw in enumerate(
+        ({}, {"lr": 0.01, "policy_lr_scale": 0.3}, {"model": HamConfig(glances=2)}))]  # fmt: skip
+    outs = [tmp_path / f"b{c.seed}" for c in configs]
+    group = BatchedRuns(_open_runs(configs, outs), outs, cuda_graph=cuda_graph)
+    steps = []
+    for _ in range(batched._GRAPH_WARMUP + 3):
+        with _Calls() as calls:
+            group._device_step([group.runs[i] for i in group.active])
+        steps.append(calls.calls)
+        for i in group.active:  # as step(): the next step's rates
+            group.runs[i].step += 1
+    assert (steps[-1] == steps[-2]) is cuda_graph
+
+
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
 def test_cuda_graphed_step_equals_the_eager_step(tmp_path):
     eager, graph = (
