@@ -422,8 +422,19 @@ class BatchedRuns:
 
     def _fill_rates(self, settings: list[tuple]) -> None:
         state = self._graph_state
-        values = [settings[k][0] * scale for k, scale in state["rate_keys"]]
-        state["rates"].copy_(torch.tensor(values, dtype=state["rates"].dtype))
+        rates = state["rates"]
+        values = torch.tensor([settings[k][0] * scale for k, scale in state["rate_keys"]],
+                              dtype=rates.dtype)  # fmt: skip
+        if rates.device.type != "cuda":
+            rates.copy_(values)
+            return
+        # through pinned memory: a copy from pageable memory would wait for the GPU to idle
+        # (the step's flags were read, so the last copy from this buffer is done)
+        pinned = state.get("pinned")
+        if pinned is None or pinned.shape != rates.shape:
+            pinned = state["pinned"] = torch.empty_like(values).pin_memory()
+        pinned.copy_(values)
+        rates.copy_(pinned, non_blocking=True)
 
     def _done(self, i: int) -> bool:
         return self.runs[i].step >= self.runs[i].config.steps
