@@ -446,10 +446,19 @@ class BatchedRuns:
         n, batch = objects.shape
         own = [r.config.model.glances for r in runs]
         glances = max(own)  # a run's glances after its own last are left out of its loss
-        half = None
-        q = torch.stack(
-            [uniform_locations(batch, r.policy_generator, objects.device) for r in runs]
-        )  # the first glance: random (the paper)
+        half = None  # a stand-in for the draws not made (a run past its last glance)
+
+        def uniform(drawing: list[bool]) -> torch.Tensor:
+            """Each drawing run's ``U[0, 1)`` draws of uniform poses from its own generator
+            (as :func:`uniform_locations` and ``Uniform.sample`` draw them), a stand-in for
+            the others (never kept)."""
+            stand_in = None if all(drawing) else torch.zeros(batch, 2, device=objects.device)
+            return torch.stack([torch.rand(batch, 2, generator=r.policy_generator,
+                                           device=objects.device) if d else stand_in
+                                for r, d in zip(runs, drawing, strict=True)])  # fmt: skip
+
+        # the first glance: random (the paper), transformed once for all runs
+        q = uniform_locations(batch, None, uniform=uniform([True] * n))
         state = None  # the core's initial state (LSTMCore's zeros)
         locations, logits, baselines, mus, sigmas = [], [], [], [], []
         flat_objects = objects.reshape(-1)
@@ -482,10 +491,11 @@ class BatchedRuns:
                     keep = self._const(drawing).view(-1, 1, 1)
                     drawn = torch.where(keep, drawn.to(q.dtype), q)
                 q = drawn
-            else:
-                q = torch.stack([Uniform((batch,), objects.device).sample(r.policy_generator)
-                                 if d else q[k]
-                                 for k, (r, d) in enumerate(zip(runs, drawing, strict=True))])  # fmt: skip
+            else:  # the random policy
+                drawn = uniform_locations(batch, None, uniform=uniform(drawing))
+                if not all(drawing):
+                    drawn = torch.where(self._const(drawing).view(-1, 1, 1), drawn, q)
+                q = drawn
         mu = torch.stack(mus, 1) if mus else None
         sigma = torch.stack(sigmas, 1) if sigmas else None
         return (

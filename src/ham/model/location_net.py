@@ -107,10 +107,15 @@ def uniform_locations(
     generator: torch.Generator | None,
     device: torch.device | str = "cpu",
     dims: int = 2,
+    uniform: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Uniform poses ``q ~ U[-1, 1]^k``, shape (B, k) (k = 2 in the paper): the first glance, and
-    the random policy."""
-    return torch.rand(batch, dims, generator=generator, device=device) * 2 - 1
+    the random policy. ``uniform``: the ``U[0, 1)`` draws (any leading shape) instead of drawing
+    them from ``generator`` (batched runs draw each run's from its own generator and transform
+    all at once)."""
+    if uniform is None:
+        uniform = torch.rand(batch, dims, generator=generator, device=device)
+    return uniform * 2 - 1
 
 
 def gaussian_log_prob(q: torch.Tensor, mu: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
