@@ -60,6 +60,21 @@ def test_lookup_picks_the_nearest_grid_point(table_path):
         table.lookup([4], [0.0], [0.0])
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_the_pose_index_of_all_dims_at_once_is_the_per_dim_one(table_path, dtype):
+    # the paper's tables index both pose dims in one pass; the per-dim loop (tables whose dims
+    # lie on other grids) gives the same indices: on grid points, midpoints and the bounds
+    table = GlanceTable.load(table_path)
+    q = torch.cat([torch.rand(500, 2, generator=torch.Generator().manual_seed(0)) * 2 - 1,
+                   torch.tensor(grid_values(GRID)).repeat(2, 1).T,
+                   torch.tensor(grid_values(2 * GRID - 1)).repeat(2, 1).T]).to(dtype)  # fmt: skip
+    ids = torch.arange(len(q)) % 4
+    at_once = table.pose_index(ids, q, check=False)
+    table._stride_t = None
+    assert torch.equal(at_once, table.pose_index(ids, q, check=False))
+    assert at_once.unique().numel() > 100
+
+
 def test_interrupted_build_resumes_to_the_same_table(tmp_path, monkeypatch, table_path):
     out = tmp_path / "resumed.h5"
     calls = {"n": 0}
