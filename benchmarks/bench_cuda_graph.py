@@ -12,10 +12,13 @@ ratio; after the steps, how far the graph group's weights are from the eager gro
 step: equal but for the GPU's atomic sums and the rate's float32 rounding) and whether their
 generators' states are equal; the time to warm up and capture; one evaluation of all N runs,
 per run; and the paper grid's projected GPU-hours one group after another, eager and replayed
-(``bench_batched.py``'s projection; evaluations eager in both).
+(``bench_batched.py``'s projection; evaluations eager in both). Then ``--together K`` groups of
+the last glance count, replayed, each on its own CUDA stream, stepped as ``train_groups`` steps
+them (every group launched before any is read back): ms per run-step against one replayed group,
+the overlap that one process can get from one GPU.
 
     PYTHONPATH=src python benchmarks/bench_cuda_graph.py --table TABLE [--glances 3 10]
-        [--runs 10] [--steps 30]
+        [--runs 10] [--steps 30] [--together 8]
 
 Without CUDA (``--device cpu``) the device step is called where a graph would be replayed: a
 check of the protocol (weights and generators then equal to the bit), not of a graph.
@@ -93,6 +96,34 @@ def measure(glances: int, args, tmp: Path) -> dict:
     }
 
 
+def together(args, tmp: Path) -> tuple[float, float]:
+    """ms per run-step of one replayed group and of ``--together`` groups stepped together."""
+    cuda = args.device.startswith("cuda")
+    sync = torch.cuda.synchronize if cuda else (lambda: None)
+    g = args.glances[-1]
+    groups = [group(g, args, tmp / f"k{k}", True) for k in range(args.together)]
+    for k, grp in enumerate(groups):  # other seeds in each group
+        for r in grp.runs:
+            r.env.generator.manual_seed(1000 * k + r.config.seed)
+        if cuda:
+            grp.stream = torch.cuda.Stream()
+    out = []
+    for live in (groups[:1], groups):
+        for _ in range(_GRAPH_WARMUP + 1):  # warm-up and capture
+            for grp in live:
+                grp.step()
+        sync()
+        t0 = time.perf_counter()
+        for _ in range(args.steps):
+            for grp in live:
+                grp.launch()
+            for grp in live:
+                grp.land()
+        sync()
+        out.append(1000 * (time.perf_counter() - t0) / (args.steps * args.runs * len(live)))
+    return out[0], out[1]
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--table", required=True, help="a glance table (ham table build)")
@@ -100,12 +131,14 @@ def main() -> None:
     p.add_argument("--runs", type=int, default=10)
     p.add_argument("--steps", type=int, default=30, help="timed steps of each group")
     p.add_argument("--device", default="cuda", help="cuda, or cpu (a check of the protocol)")
+    p.add_argument("--together", type=int, default=8, help="groups stepped together (0: none)")
     args = p.parse_args()
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         raise SystemExit("no CUDA here; accepted: --device cpu (a check of the protocol)")
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as tmp:
         rows = [measure(g, args, Path(tmp)) for g in args.glances]
+        overlap = together(args, Path(tmp)) if args.together > 1 else None
     what = "replayed graph" if args.device.startswith("cuda") else "device step called (CPU)"
     print(f"{args.runs} runs, batch 64, the paper's model, on {args.device}; "
           f"eager step vs {what}; median of {args.steps} alternating steps, wall clock")  # fmt: skip
@@ -122,6 +155,11 @@ def main() -> None:
     print(f"paper grid, one group after another (ms/step linear in G from G = "
           f"{', '.join(map(str, args.glances))}; evaluations eager): {eager:,.2f} {unit} eager, "
           f"{graph:,.2f} replayed ({eager / graph:.2f}x)")  # fmt: skip
+    if overlap is not None:
+        one, many = overlap
+        print(f"{args.together} groups of {args.runs} runs at {args.glances[-1]} glances, "
+              f"replayed on their own streams, stepped together: {many:.3f} ms per run-step "
+              f"against {one:.3f} for one group alone ({one / many:.2f}x its throughput)")  # fmt: skip
     if args.device == "cpu" and not all(r["drift"] == 0 and r["same_generators"] for r in rows):
         raise SystemExit("the called device step is not the eager step: the protocol is broken")
 

@@ -738,6 +738,34 @@ def test_a_graph_would_replay_the_steps_own_numbers(tmp_path, cuda_graph):
     assert (steps[-1] == steps[-2]) is cuda_graph
 
 
+def _two_groups(tmp_path: Path, tag: str, device: str = "cpu", cuda_graph: bool = False):
+    # two shapes (3 and 2 glances), one with a run of fewer steps (it leaves its group early)
+    shapes = [[tiny(0, device=device), tiny(1, device=device, steps=5)],
+              [tiny(2, device=device, model=HamConfig(glances=2, policy="random"))]]  # fmt: skip
+    outs = [[tmp_path / f"{tag}{c.seed}" for c in cs] for cs in shapes]
+    return [BatchedRuns(_open_runs(cs, os_), os_, cuda_graph=cuda_graph)
+            for cs, os_ in zip(shapes, outs, strict=True)], [o for os_ in outs for o in os_]  # fmt: skip
+
+
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not torch.cuda.is_available(), reason="needs CUDA"))])  # fmt: skip
+def test_groups_trained_together_are_each_trained_alone(tmp_path, device):
+    # every round launches each group's step before reading any back (on a GPU each group on its
+    # own stream): each group's numbers are its own
+    alone, outs_alone = _two_groups(tmp_path, "a", device)
+    results_alone = [g.train() for g in alone]
+    together, outs = _two_groups(tmp_path, "t", device, cuda_graph=device == "cuda")
+    results = batched.train_groups(together)
+    assert [[r["steps"] for r in rs] for rs in results] == [[8, 5], [8]]
+    assert [[r["steps"] for r in rs] for rs in results_alone] == [[8, 5], [8]]
+    for a, b in zip(outs_alone, outs, strict=True):
+        if device == "cpu":
+            assert metrics(a)["history"] == metrics(b)["history"]
+            assert all(torch.equal(p, q) for p, q in zip(weights(a), weights(b), strict=True))
+        else:
+            assert_same_run(b, a, 1e-5)
+
+
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
 def test_cuda_graphed_step_equals_the_eager_step(tmp_path):
     eager, graph = (

@@ -35,6 +35,7 @@ refused with one line (train it with ``ham train`` or ``--executor local``).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import time
@@ -272,6 +273,8 @@ class BatchedRuns:
         self.sums = torch.zeros(2, len(self.active), device=self.runs[0].env.device)
         self.numbers = self.sums.new_zeros(5, len(self.active))
         self._consts: dict[tuple, torch.Tensor] = {}  # _const's tensors
+        self.stream: torch.cuda.Stream | None = None  # its own CUDA stream (train_groups)
+        self._t_train, self._n_train = 0.0, 0  # the time in launch and land, the steps
         if self.active:
             self._stack()
 
@@ -563,12 +566,28 @@ class BatchedRuns:
         (classification, reinforce, baseline), detached on the device, and its loss and mean
         reward are added to its running sums since its last evaluation (:attr:`sums`). A run
         whose loss or weights are not finite leaves the group with its error recorded."""
+        self.launch()
+        return self.land()
+
+    def launch(self) -> None:
+        """A step of every active run sent to the device; nothing is read back until
+        :meth:`land` (so that several groups' steps can overlap on a GPU: :func:`train_groups`)."""
+        t0 = time.perf_counter()
         runs = [self.runs[i] for i in self.active]
         for r in runs:  # as train_step: the run's optimizer (its checkpoint) holds its rates
             for group in r.optimizer.param_groups:
                 group["lr"] = r.config.learning_rate(r.step) * group.get("lr_scale", 1.0)
-        flags = self._graphed_step(runs) if self.cuda_graph else self._device_step(runs)
-        loss_ok, weights_ok = flags.tolist()  # the step's one sync
+        with self._on_stream():
+            flags = self._graphed_step(runs) if self.cuda_graph else self._device_step(runs)
+        self._launched = (runs, flags)
+        self._t_train += time.perf_counter() - t0
+
+    def land(self) -> list[tuple[int, int]]:
+        """The launched step's flags read back (its one sync) and its runs' steps counted; a run
+        whose loss or weights are not finite leaves the group. Returns :meth:`step`'s value."""
+        runs, flags = self._launched
+        with self._on_stream():
+            loss_ok, weights_ok = flags.tolist()
         failed, out = [], []
         for k, r in enumerate(runs):
             i = self.active[k]
@@ -774,20 +793,22 @@ class BatchedRuns:
         """Train every run to its ``steps`` (:func:`ham.learn.train.train_loop` for N).
 
         Returns per run its metrics, or the one-line error that stopped it."""
+        return train_groups([self], progress)[0]
+
+    def start(self, progress: bool = False) -> None:
+        """Before the first step: each run's directory and config, the first evaluation of the
+        fresh runs, TensorBoard writers, the progress bar."""
         from torch.utils.tensorboard import SummaryWriter
         from tqdm.auto import tqdm
 
         for r, out in zip(self.runs, self.outs, strict=True):
             out.mkdir(parents=True, exist_ok=True)
             _write_json(out / CONFIG_FILE, r.config.to_dict())
-        writers = {}
-        for i, record in self._evaluate(
-            [
-                (i, None, None)
-                for i in self.active
-                if self.runs[i].step == 0 and not self.runs[i].history
-            ]  # fmt: skip
-        ).items():
+        self._writers = writers = {}
+        with self._on_stream():
+            fresh = self._evaluate([(i, None, None) for i in self.active
+                                    if self.runs[i].step == 0 and not self.runs[i].history])  # fmt: skip
+        for i, record in fresh.items():
             writers[i] = SummaryWriter(str(self.outs[i] / "tb"))
             _log_eval(writers[i], record, self.runs[i].config.model.glances)
             self._save(i)
@@ -797,68 +818,81 @@ class BatchedRuns:
             if i not in writers:
                 writers[i] = SummaryWriter(str(out / "tb"), purge_step=r.step or None)
         self.sums.zero_()  # each run's loss and reward since its last evaluation, and count
-        counts = dict.fromkeys(self.active, 0)
+        self._counts = dict.fromkeys(self.active, 0)
         if self.stopped:
             self._drop([i for i in self.stopped if i in self.active])
         total = sum(self.runs[i].config.steps - self.runs[i].step for i in self.active)
-        bar = tqdm(
-            total=total, disable=not progress, unit="step", desc=f"train x{len(self.active)}"
-        )
-        t_train, n_train = 0.0, 0
-        try:
-            while self.active:
-                t0 = time.perf_counter()
-                stepped = self.step()
-                t_train += time.perf_counter() - t0
-                n_train += 1
-                bar.update(len(stepped))
-                finished, due = [], []
-                logged = [(i, k) for i, k in stepped
-                          if self.runs[i].step % self.runs[i].config.log_every == 0]  # fmt: skip
-                numbers = self.numbers.tolist() if logged else None  # one read for all
-                for i, k in logged:
-                    r, w = self.runs[i], writers[i]
-                    loss, reward, *parts = (row[k] for row in numbers)
-                    w.add_scalar("train/loss", loss, r.step)
-                    for name, x in zip(_PARTS, parts, strict=True):
-                        w.add_scalar(f"train/{name}", x, r.step)
-                    w.add_scalar("train/reward", reward, r.step)
-                    w.add_scalar("train/lr", r.optimizer.param_groups[0]["lr"], r.step)
-                columns = {i: k for k, i in enumerate(self.active)}  # after the step's drops
-                for i, _ in stepped:
-                    counts[i] += 1
-                    r = self.runs[i]
-                    if r.step % r.config.eval_every == 0 or r.step == r.config.steps:
-                        due.append(i)
-                if due:
-                    sums = self.sums.tolist()
-                    due = [(i, sums[0][columns[i]] / counts[i], sums[1][columns[i]] / counts[i])
-                           for i in due]  # fmt: skip
-                    self.sums[:, [columns[i] for i, _, _ in due]] = 0
-                    counts.update(dict.fromkeys([i for i, _, _ in due], 0))
-                for i, record in self._evaluate(due).items():  # the due runs at once
-                    _log_eval(writers[i], record, self.runs[i].config.model.glances)
-                    self._save(i)
-                    if self._maybe_stop(i):
-                        finished.append(i)
-                for i, *_ in stepped:
-                    if self._done(i):
-                        finished.append(i)
-                if finished:
-                    self._drop(sorted(set(finished)))
-        finally:
-            bar.close()
-            for w in writers.values():
-                w.close()
-        for i in writers:
-            if n_train:
+        self._bar = tqdm(total=total, disable=not progress, unit="step",
+                         desc=f"train x{len(self.active)}")  # fmt: skip
+        self._t_train, self._n_train = 0.0, 0
+
+    def finish(self) -> None:
+        """After :meth:`launch`: the step read back (:meth:`land`), then its bookkeeping: the
+        logs, the evaluations due (at once), the checkpoints, and the finished runs leave."""
+        t0 = time.perf_counter()
+        stepped = self.land()
+        self._t_train += time.perf_counter() - t0
+        self._n_train += 1
+        self._bar.update(len(stepped))
+        writers, counts = self._writers, self._counts
+        finished, due = [], []
+        logged = [(i, k) for i, k in stepped
+                  if self.runs[i].step % self.runs[i].config.log_every == 0]  # fmt: skip
+        with self._on_stream():
+            numbers = self.numbers.tolist() if logged else None  # one read for all
+        for i, k in logged:
+            r, w = self.runs[i], writers[i]
+            loss, reward, *parts = (row[k] for row in numbers)
+            w.add_scalar("train/loss", loss, r.step)
+            for name, x in zip(_PARTS, parts, strict=True):
+                w.add_scalar(f"train/{name}", x, r.step)
+            w.add_scalar("train/reward", reward, r.step)
+            w.add_scalar("train/lr", r.optimizer.param_groups[0]["lr"], r.step)
+        columns = {i: k for k, i in enumerate(self.active)}  # after the step's drops
+        for i, _ in stepped:
+            counts[i] += 1
+            r = self.runs[i]
+            if r.step % r.config.eval_every == 0 or r.step == r.config.steps:
+                due.append(i)
+        with self._on_stream():
+            if due:
+                sums = self.sums.tolist()
+                due = [(i, sums[0][columns[i]] / counts[i], sums[1][columns[i]] / counts[i])
+                       for i in due]  # fmt: skip
+                self.sums[:, [columns[i] for i, _, _ in due]] = 0
+                counts.update(dict.fromkeys([i for i, _, _ in due], 0))
+            records = self._evaluate(due)  # the due runs at once
+        for i, record in records.items():
+            _log_eval(writers[i], record, self.runs[i].config.model.glances)
+            self._save(i)
+            if self._maybe_stop(i):
+                finished.append(i)
+        for i, *_ in stepped:
+            if self._done(i):
+                finished.append(i)
+        if finished:
+            self._drop(sorted(set(finished)))
+
+    def close(self) -> list[dict | str]:
+        """After the last step: the writers closed, each run's timing.json; per run its
+        metrics, or the one-line error that stopped it."""
+        self._bar.close()
+        for w in self._writers.values():
+            w.close()
+        for i in self._writers:
+            if self._n_train:
                 _write_json(
                     self.outs[i] / TIMING_FILE,
-                    {"steps_timed": n_train, "ms_per_step": 1000 * t_train / n_train,
+                    {"steps_timed": self._n_train,
+                     "ms_per_step": 1000 * self._t_train / self._n_train,
                      "batched_runs": len(self.runs), "torch_threads": torch.get_num_threads(),
                      "device": self.runs[i].config.device},
                 )  # fmt: skip
         return [self.results.get(i, None) or self.metrics(i) for i in range(len(self.runs))]
+
+    def _on_stream(self):
+        """The group's CUDA stream as the current one (:func:`train_groups`), else nothing."""
+        return contextlib.nullcontext() if self.stream is None else torch.cuda.stream(self.stream)
 
     def _maybe_stop(self, i: int) -> bool:
         r = self.runs[i]
@@ -887,6 +921,33 @@ class BatchedRuns:
         }
         _write_atomic(self.outs[i] / CHECKPOINT_FILE, lambda p: torch.save(state, p))
         _write_json(self.outs[i] / METRICS_FILE, self.metrics(i))
+
+
+def train_groups(groups: list[BatchedRuns], progress: bool = False) -> list[list[dict | str]]:
+    """Train several batched groups together, each to its runs' ``steps``: every round
+    launches each group's step before reading any group's back (:meth:`BatchedRuns.launch`,
+    :meth:`BatchedRuns.finish`), so that on a GPU the groups' steps, each on its own CUDA
+    stream, can overlap. A group's numbers are its own (as trained alone). Returns each
+    group's :meth:`BatchedRuns.train` value."""
+    if len(groups) > 1:
+        for g in groups:
+            if g.sums.device.type == "cuda":
+                g.stream = torch.cuda.Stream(g.sums.device)
+    started = []
+    try:
+        for g in groups:
+            g.start(progress)
+            started.append(g)
+        live = [g for g in groups if g.active]
+        while live:
+            for g in live:
+                g.launch()
+            for g in live:
+                g.finish()
+            live = [g for g in live if g.active]
+    finally:
+        outcomes = [g.close() for g in started]
+    return outcomes
 
 
 # --------------------------------------------------------------------------- entry points
