@@ -105,8 +105,7 @@ def together(args, tmp: Path) -> tuple[float, float]:
     for k, grp in enumerate(groups):  # other seeds in each group
         for r in grp.runs:
             r.env.generator.manual_seed(1000 * k + r.config.seed)
-        if cuda:
-            grp.stream = torch.cuda.Stream()
+        grp.use_own_stream()
     out = []
     for live in (groups[:1], groups):
         for _ in range(_GRAPH_WARMUP + 1):  # warm-up and capture

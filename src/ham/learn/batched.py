@@ -577,7 +577,7 @@ class BatchedRuns:
         for r in runs:  # as train_step: the run's optimizer (its checkpoint) holds its rates
             for group in r.optimizer.param_groups:
                 group["lr"] = r.config.learning_rate(r.step) * group.get("lr_scale", 1.0)
-        with self._on_stream():
+        with self._on_stream():  # all of a group's work on its stream: no race with another's
             flags = self._graphed_step(runs) if self.cuda_graph else self._device_step(runs)
         self._launched = (runs, flags)
         self._t_train += time.perf_counter() - t0
@@ -585,9 +585,12 @@ class BatchedRuns:
     def land(self) -> list[tuple[int, int]]:
         """The launched step's flags read back (its one sync) and its runs' steps counted; a run
         whose loss or weights are not finite leaves the group. Returns :meth:`step`'s value."""
+        with self._on_stream():  # a run leaving restacks the weights: on the group's stream
+            return self._land()
+
+    def _land(self) -> list[tuple[int, int]]:
         runs, flags = self._launched
-        with self._on_stream():
-            loss_ok, weights_ok = flags.tolist()
+        loss_ok, weights_ok = flags.tolist()
         failed, out = [], []
         for k, r in enumerate(runs):
             i = self.active[k]
@@ -798,6 +801,10 @@ class BatchedRuns:
     def start(self, progress: bool = False) -> None:
         """Before the first step: each run's directory and config, the first evaluation of the
         fresh runs, TensorBoard writers, the progress bar."""
+        with self._on_stream():
+            self._start(progress)
+
+    def _start(self, progress: bool) -> None:
         from torch.utils.tensorboard import SummaryWriter
         from tqdm.auto import tqdm
 
@@ -805,9 +812,8 @@ class BatchedRuns:
             out.mkdir(parents=True, exist_ok=True)
             _write_json(out / CONFIG_FILE, r.config.to_dict())
         self._writers = writers = {}
-        with self._on_stream():
-            fresh = self._evaluate([(i, None, None) for i in self.active
-                                    if self.runs[i].step == 0 and not self.runs[i].history])  # fmt: skip
+        fresh = self._evaluate([(i, None, None) for i in self.active
+                                if self.runs[i].step == 0 and not self.runs[i].history])  # fmt: skip
         for i, record in fresh.items():
             writers[i] = SummaryWriter(str(self.outs[i] / "tb"))
             _log_eval(writers[i], record, self.runs[i].config.model.glances)
@@ -829,6 +835,10 @@ class BatchedRuns:
     def finish(self) -> None:
         """After :meth:`launch`: the step read back (:meth:`land`), then its bookkeeping: the
         logs, the evaluations due (at once), the checkpoints, and the finished runs leave."""
+        with self._on_stream():
+            self._finish()
+
+    def _finish(self) -> None:
         t0 = time.perf_counter()
         stepped = self.land()
         self._t_train += time.perf_counter() - t0
@@ -838,8 +848,7 @@ class BatchedRuns:
         finished, due = [], []
         logged = [(i, k) for i, k in stepped
                   if self.runs[i].step % self.runs[i].config.log_every == 0]  # fmt: skip
-        with self._on_stream():
-            numbers = self.numbers.tolist() if logged else None  # one read for all
+        numbers = self.numbers.tolist() if logged else None  # one read for all
         for i, k in logged:
             r, w = self.runs[i], writers[i]
             loss, reward, *parts = (row[k] for row in numbers)
@@ -854,15 +863,13 @@ class BatchedRuns:
             r = self.runs[i]
             if r.step % r.config.eval_every == 0 or r.step == r.config.steps:
                 due.append(i)
-        with self._on_stream():
-            if due:
-                sums = self.sums.tolist()
-                due = [(i, sums[0][columns[i]] / counts[i], sums[1][columns[i]] / counts[i])
-                       for i in due]  # fmt: skip
-                self.sums[:, [columns[i] for i, _, _ in due]] = 0
-                counts.update(dict.fromkeys([i for i, _, _ in due], 0))
-            records = self._evaluate(due)  # the due runs at once
-        for i, record in records.items():
+        if due:
+            sums = self.sums.tolist()
+            due = [(i, sums[0][columns[i]] / counts[i], sums[1][columns[i]] / counts[i])
+                   for i in due]  # fmt: skip
+            self.sums[:, [columns[i] for i, _, _ in due]] = 0
+            counts.update(dict.fromkeys([i for i, _, _ in due], 0))
+        for i, record in self._evaluate(due).items():  # the due runs at once
             _log_eval(writers[i], record, self.runs[i].config.model.glances)
             self._save(i)
             if self._maybe_stop(i):
@@ -889,6 +896,13 @@ class BatchedRuns:
                      "device": self.runs[i].config.device},
                 )  # fmt: skip
         return [self.results.get(i, None) or self.metrics(i) for i in range(len(self.runs))]
+
+    def use_own_stream(self) -> None:
+        """On a GPU, the group's work on a CUDA stream of its own from now on (after the work
+        queued so far: its stacked weights), so that other groups' steps can overlap it."""
+        if self.sums.device.type == "cuda":
+            self.stream = torch.cuda.Stream(self.sums.device)
+            self.stream.wait_stream(torch.cuda.current_stream(self.sums.device))
 
     def _on_stream(self):
         """The group's CUDA stream as the current one (:func:`train_groups`), else nothing."""
@@ -931,8 +945,7 @@ def train_groups(groups: list[BatchedRuns], progress: bool = False) -> list[list
     group's :meth:`BatchedRuns.train` value."""
     if len(groups) > 1:
         for g in groups:
-            if g.sums.device.type == "cuda":
-                g.stream = torch.cuda.Stream(g.sums.device)
+            g.use_own_stream()
     started = []
     try:
         for g in groups:
