@@ -16,7 +16,7 @@ each of those is a kernel launch, so their count per step is what a launch-bound
 (the CUDA path differs a little: no compiled cell backward, no ReLUs written into records).
 
     PYTHONPATH=src python benchmarks/profile_batched.py [--table TABLE] [--glances 10]
-        [--runs 10] [--steps 4] [--shapes]
+        [--runs 10] [--steps 4] [--shapes] [--policy learned|random]
 """
 
 from __future__ import annotations
@@ -60,8 +60,8 @@ def group(tmp: str, args, units: int | None = None) -> BatchedRuns:
     widths = {} if units is None else dict.fromkeys(
         ("what_units", "where_units", "combine_units", "hidden_units"), units
     )  # fmt: skip
-    configs = [TrainConfig(model=HamConfig(glances=args.glances, **widths), seed=s,
-                           table=args.table) for s in range(args.runs)]  # fmt: skip
+    model = HamConfig(glances=args.glances, policy=args.policy, **widths)
+    configs = [TrainConfig(model=model, seed=s, table=args.table) for s in range(args.runs)]
     outs = [Path(tmp) / f"{units}-{s}" for s in range(args.runs)]
     g = BatchedRuns(_open_runs(configs, outs), outs)
     for _ in range(3):  # warm up: buffers, compiled kernels
@@ -95,6 +95,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--table", default=None, help="a glance table (default: online simulator)")
     p.add_argument("--glances", type=int, default=10)
+    p.add_argument("--policy", choices=("learned", "random"), default="learned")
     p.add_argument("--runs", type=int, default=10)
     p.add_argument("--steps", type=int, default=4)
     p.add_argument("--rows", type=int, default=30, help="operators shown")
