@@ -40,6 +40,7 @@ STACKED = "src/ham/learn/stacked_ham.py"  # the stacked model (in MODULE itself 
 def load(path: Path, name: str):
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # a dataclass in it looks its module up there
     spec.loader.exec_module(module)
     return module
 

@@ -687,7 +687,7 @@ def test_the_graphed_step_is_the_eager_step(tmp_path, monkeypatch):
     calls = []
     graphed = BatchedRuns._graphed_step
     monkeypatch.setattr(BatchedRuns, "_graphed_step", lambda g, runs: calls.append(
-        "replay" in g._graph_state) or graphed(g, runs))  # fmt: skip
+        g._graph_state.replay is not None) or graphed(g, runs))  # fmt: skip
     eager, graph = _graph_group(tmp_path, "e", False), _graph_group(tmp_path, "g", True)
     # replays: steps 1-5 of all four runs, 6-8 without the 5-step run; two warm-up steps each
     assert calls.count(True) == (5 - 2) + (3 - 2)

@@ -39,7 +39,8 @@ import contextlib
 import json
 import os
 import time
-from dataclasses import replace
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import torch
@@ -192,6 +193,19 @@ _FUSED_SGD = getattr(torch, "_fused_sgd_", None)
 _GRAPH_WARMUP = 2  # eager steps of a new stack before its step is captured as a CUDA graph
 
 
+@dataclass
+class _GraphState:
+    """A stack's CUDA graph (:meth:`BatchedRuns._graphed_step`): its eager warm-up steps so
+    far, the replay once captured, and the rates it reads (one per update: ``rate_keys``, its
+    (run, scale) pairs), filled before each replay (on a GPU through ``pinned`` memory)."""
+
+    warm: int = 0
+    replay: Callable[[], torch.Tensor] | None = None
+    rate_keys: list[tuple] | None = None
+    rates: torch.Tensor | None = None
+    pinned: torch.Tensor | None = None
+
+
 def _capturing() -> bool:
     """Whether a CUDA graph is being captured (its kernels are recorded, not run)."""
     return torch.cuda.is_available() and torch.cuda.is_current_stream_capturing()
@@ -265,7 +279,7 @@ class BatchedRuns:
                            "accepted: sgd (each run's own Adam steps apart)")  # fmt: skip
         # with a CUDA graph (_graphed_step): its state for the current stack, {} when new
         self.cuda_graph = cuda_graph
-        self._graph_state: dict | None = None
+        self._graph_state: _GraphState | None = None
         self._lr_scale = [_lr_scales(r, p) for r, p in zip(self.runs, self._params, strict=True)]
         self._checked = False
         # the active runs' loss and reward summed since their last evaluation (their train
@@ -300,7 +314,7 @@ class BatchedRuns:
                     # a run without one yet starts from zeros: 0 * m + g is exactly the
                     # optimizer's first buffer (a copy of g)
                     self._new_buffer(name, [st.get("momentum_buffer") for st in states])
-        self._graph_state = {} if self.cuda_graph else None  # a new stack: a new graph
+        self._graph_state = _GraphState() if self.cuda_graph else None  # a new stack: a new graph
         truncate = [self.runs[i].config.model.truncate_bptt for i in self.active]
         if all(t == self._template.config.truncate_bptt for t in truncate):
             self._net.truncate = None  # the stacked model's config says it for all
@@ -369,18 +383,14 @@ class BatchedRuns:
                 lr, m, nesterov, _ = settings[k]
                 ps = [self.stacked[n][idx] for n in names]
                 gs = [grads[n][idx] for n in names]
-                if rates is not None:  # the rate read from the device (a graph's replays)
-                    bs = [] if m == 0 else [self.buffers[n][idx] for n in names]
-                    _FUSED_SGD(ps, gs, bs, weight_decay=0.0, momentum=m, lr=rates[j],
-                               dampening=0.0, nesterov=nesterov, maximize=False,
-                               is_first_step=False)  # fmt: skip
-                    continue
-                if m == 0:  # the optimizer keeps no buffers
+                if m == 0 and rates is None:  # the optimizer keeps no buffers
                     torch._foreach_add_(ps, gs, alpha=-(lr * scale))
                 elif _FUSED_SGD is not None:
-                    # zero-initialized buffers: 0 * m + g is exactly the first buffer
-                    _FUSED_SGD(ps, gs, [self.buffers[n][idx] for n in names],
-                               weight_decay=0.0, momentum=m, lr=lr * scale, dampening=0.0,
+                    # zero-initialized buffers: 0 * m + g is exactly the first buffer; with a
+                    # graph the rate is read from the device (its replays' rates)
+                    _FUSED_SGD(ps, gs, [] if m == 0 else [self.buffers[n][idx] for n in names],
+                               weight_decay=0.0, momentum=m,
+                               lr=lr * scale if rates is None else rates[j], dampening=0.0,
                                nesterov=nesterov, maximize=False,
                                is_first_step=False)  # fmt: skip
                 else:  # torch.optim.SGD's foreach steps
@@ -413,31 +423,30 @@ class BatchedRuns:
         state = self._graph_state
         if state is None:
             return None
-        if state.get("rate_keys") != keys:
+        if state.rate_keys != keys:
             # float32 on a GPU (the fused kernel reads it so), float64 on a CPU (read as a
             # double there: the numbers of the rates given as numbers, to the bit)
             dtype = torch.float64 if self.sums.device.type == "cpu" else torch.float32
-            state["rate_keys"] = keys
-            state["rates"] = torch.zeros(len(keys), dtype=dtype, device=self.sums.device)
+            state.rate_keys = keys
+            state.rates = torch.zeros(len(keys), dtype=dtype, device=self.sums.device)
         if not _capturing():
             self._fill_rates(settings)
-        return state["rates"]
+        return state.rates
 
     def _fill_rates(self, settings: list[tuple]) -> None:
         state = self._graph_state
-        rates = state["rates"]
-        values = torch.tensor([settings[k][0] * scale for k, scale in state["rate_keys"]],
+        rates = state.rates
+        values = torch.tensor([settings[k][0] * scale for k, scale in state.rate_keys],
                               dtype=rates.dtype)  # fmt: skip
         if rates.device.type != "cuda":
             rates.copy_(values)
             return
         # through pinned memory: a copy from pageable memory would wait for the GPU to idle
         # (the step's flags were read, so the last copy from this buffer is done)
-        pinned = state.get("pinned")
-        if pinned is None or pinned.shape != rates.shape:
-            pinned = state["pinned"] = torch.empty_like(values).pin_memory()
-        pinned.copy_(values)
-        rates.copy_(pinned, non_blocking=True)
+        if state.pinned is None or state.pinned.shape != rates.shape:
+            state.pinned = torch.empty_like(values).pin_memory()
+        state.pinned.copy_(values)
+        rates.copy_(state.pinned, non_blocking=True)
 
     def _done(self, i: int) -> bool:
         return self.runs[i].step >= self.runs[i].config.steps
@@ -449,19 +458,26 @@ class BatchedRuns:
         n, batch = objects.shape
         own = [r.config.model.glances for r in runs]
         glances = max(own)  # a run's glances after its own last are left out of its loss
-        half = None  # a stand-in for the draws not made (a run past its last glance)
+        stand_ins: dict[tuple, torch.Tensor] = {}  # made once a step, by shape and dtype
 
-        def uniform(drawing: list[bool]) -> torch.Tensor:
-            """Each drawing run's ``U[0, 1)`` draws of uniform poses from its own generator
-            (as :func:`uniform_locations` and ``Uniform.sample`` draw them), a stand-in for
-            the others (never kept)."""
-            stand_in = None if all(drawing) else torch.zeros(batch, 2, device=objects.device)
-            return torch.stack([torch.rand(batch, 2, generator=r.policy_generator,
-                                           device=objects.device) if d else stand_in
+        def draws(drawing: list[bool], shape: tuple, dtype: torch.dtype) -> torch.Tensor:
+            """Each drawing run's ``U[0, 1)`` draws from its own generator (as its single run
+            draws them), a stand-in for a run past its last glance (which draws nothing)."""
+            if not all(drawing) and (shape, dtype) not in stand_ins:
+                stand_ins[shape, dtype] = torch.full(shape, 0.5, dtype=dtype,
+                                                     device=objects.device)  # fmt: skip
+            return torch.stack([torch.rand(shape, generator=r.policy_generator, dtype=dtype,
+                                           device=objects.device) if d else stand_ins[shape, dtype]
                                 for r, d in zip(runs, drawing, strict=True)])  # fmt: skip
 
+        def kept(drawn: torch.Tensor, drawing: list[bool], q: torch.Tensor) -> torch.Tensor:
+            """The drawn poses, a run past its last glance keeping its pose ``q``."""
+            if all(drawing):
+                return drawn
+            return torch.where(self._const(drawing).view(-1, 1, 1), drawn.to(q.dtype), q)
+
         # the first glance: random (the paper), transformed once for all runs
-        q = uniform_locations(batch, None, uniform=uniform([True] * n))
+        q = uniform_locations(batch, None, uniform=draws([True] * n, (batch, 2), torch.float32))
         state = None  # the core's initial state (LSTMCore's zeros)
         locations, logits, baselines, mus, sigmas = [], [], [], [], []
         flat_objects = objects.reshape(-1)
@@ -481,24 +497,13 @@ class BatchedRuns:
             if dist:
                 mus.append(dist[0])
                 sigmas.append(dist[1])
-                # each run's draws from its own generator (as TruncatedGaussian.sample draws
-                # them), the inverse-CDF transform once for all runs
-                shape = dist[0].shape[1:]
-                if half is None and not all(drawing):  # a stand-in for the draws not made
-                    half = torch.full(shape, 0.5, dtype=torch.float64, device=objects.device)
-                u = torch.stack([torch.rand(shape, generator=r.policy_generator,
-                                            dtype=torch.float64, device=objects.device)
-                                 if d else half for r, d in zip(runs, drawing, strict=True)])  # fmt: skip
-                drawn = truncated_normal(dist[0], dist[1], uniform=u)
-                if not all(drawing):
-                    keep = self._const(drawing).view(-1, 1, 1)
-                    drawn = torch.where(keep, drawn.to(q.dtype), q)
-                q = drawn
-            else:  # the random policy
-                drawn = uniform_locations(batch, None, uniform=uniform(drawing))
-                if not all(drawing):
-                    drawn = torch.where(self._const(drawing).view(-1, 1, 1), drawn, q)
-                q = drawn
+                # each run's draws as TruncatedGaussian.sample draws them, the inverse-CDF
+                # transform once for all runs
+                u = draws(drawing, tuple(dist[0].shape[1:]), torch.float64)
+                q = kept(truncated_normal(dist[0], dist[1], uniform=u), drawing, q)
+            else:  # the random policy (Uniform.sample's draws), transformed once for all runs
+                u = draws(drawing, (batch, 2), torch.float32)
+                q = kept(uniform_locations(batch, None, uniform=u), drawing, q)
         mu = torch.stack(mus, 1) if mus else None
         sigma = torch.stack(sigmas, 1) if sigmas else None
         return (
@@ -619,12 +624,12 @@ class BatchedRuns:
         (no graphs) the device step is called where a graph would be replayed: the same
         protocol, checked by the tests against the eager step, to the bit."""
         state = self._graph_state
-        if "replay" in state:
+        if state.replay is not None:
             self._fill_rates(self._settings(runs))
-            return state["replay"]()
+            return state.replay()
         cuda = self.sums.device.type == "cuda"
-        if state.get("warm", 0) < _GRAPH_WARMUP:
-            state["warm"] = state.get("warm", 0) + 1
+        if state.warm < _GRAPH_WARMUP:
+            state.warm += 1
             if not cuda:
                 return self._device_step(runs)
             side = torch.cuda.Stream()  # as torch.cuda.graphs' whole-network example warms up
@@ -634,7 +639,7 @@ class BatchedRuns:
             torch.cuda.current_stream().wait_stream(side)
             return flags
         if not cuda:
-            state["replay"] = lambda: self._device_step(runs)
+            state.replay = lambda: self._device_step(runs)
         else:
             graph = torch.cuda.CUDAGraph()
             for r in runs:  # each replay advances them by the draws of one step
@@ -647,7 +652,7 @@ class BatchedRuns:
                 graph.replay()
                 return flags
 
-            state["replay"] = replay
+            state.replay = replay
         return self._graphed_step(runs)
 
     def _device_step(self, runs: list[Run]) -> torch.Tensor:
