@@ -742,6 +742,10 @@ def read_json(path: Path) -> dict:
         return json.loads(Path(path).read_text())
     except FileNotFoundError:
         raise HamError(f"{str(path)!r} does not exist: not a training run directory?") from None
+    except NotADirectoryError:
+        raise HamError(
+            f"{str(Path(path).parent)!r} is a file; accepted: a training run directory"
+        ) from None
     except json.JSONDecodeError as exc:
         raise HamError(f"{str(path)!r} is not valid JSON ({exc})") from None
 
