@@ -26,7 +26,7 @@ import traceback
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 from ham.errors import HamError
 from ham.experiments.runs import is_finished, run_dir
@@ -128,6 +128,50 @@ def _results(get: Callable[[], dict | list[dict]], keys: list[str]) -> list[dict
     return r if isinstance(r, list) else [r]
 
 
+class _Task(NamedTuple):
+    """One worker's share: ``fn(*args)`` trains the runs ``keys`` (one run, or a batched
+    model's) and returns their results."""
+
+    fn: Callable[..., dict | list[dict]]
+    args: tuple
+    keys: list[str]
+
+
+def _single_tasks(jobs: list[Job], root: Path, world: dict, grid: int | None) -> list[_Task]:
+    """A task a run (:func:`run_job`): the local and Ray executors."""
+    return [_Task(_safe_run, (j.to_dict(), str(root), world, grid), [j.key]) for j in jobs]
+
+
+def _batched_tasks(
+    jobs: list[Job], root: Path, world: dict, grid: int | None, options: BatchedOptions
+) -> list[_Task]:
+    """A task a batched model (:func:`group_jobs`, :func:`run_batch`): the batched executors."""
+    groups = [[j.to_dict() for j in g] for g in _groups(jobs, options)]
+    return [_Task(_safe_batch, (g, str(root), world, grid, options), [j["key"] for j in g])
+            for g in groups]  # fmt: skip
+
+
+def _on_pool(tasks: list[_Task], workers: int, on_result: Callable[[dict], None]) -> None:
+    """The tasks on a process pool of at most ``workers`` (one torch thread each), or in this
+    process when there is one task or one worker (the way to use one GPU)."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    workers = min(workers, len(tasks))
+    if workers <= 1:
+        for t in tasks:
+            r = t.fn(*t.args)  # reports its runs' failures itself (_safe_run, _safe_batch)
+            for x in r if isinstance(r, list) else [r]:
+                on_result(x)
+        return
+    ctx = mp.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init) as pool:
+        futures = {pool.submit(t.fn, *t.args): t.keys for t in tasks}
+        for fut in as_completed(futures):
+            for r in _results(fut.result, futures[fut]):
+                on_result(r)
+
+
 def execute_local(
     jobs: list[Job],
     root: Path,
@@ -136,23 +180,9 @@ def execute_local(
     workers: int,
     on_result: Callable[[dict], None],
 ) -> None:
-    """A process pool over the cores, one torch thread per worker (no more workers than jobs;
-    one job, or one worker, runs in this process)."""
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
-    workers = min(workers, len(jobs))
-    if workers <= 1:
-        for job in jobs:
-            on_result(_safe_run(job.to_dict(), str(root), world, grid))
-        return
-    ctx = mp.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init) as pool:
-        futures = {pool.submit(_safe_run, j.to_dict(), str(root), world, grid): [j.key]
-                   for j in jobs}  # fmt: skip
-        for fut in as_completed(futures):
-            for r in _results(fut.result, futures[fut]):
-                on_result(r)
+    """Single runs on a process pool over the cores, one torch thread per worker (no more
+    workers than jobs; one job, or one worker, runs in this process)."""
+    _on_pool(_single_tasks(jobs, root, world, grid), workers, on_result)
 
 
 def gpu_share(resources: dict) -> float:
@@ -179,12 +209,15 @@ def _ray_options(ray, jobs: list[Job]) -> dict:
 
 
 def _on_ray(
-    address: str | None, submit: Callable, on_result: Callable[[dict], None], cpus: int | None
+    address: str | None,
+    jobs: list[Job],
+    tasks: list[_Task],
+    on_result: Callable[[dict], None],
+    cpus: int | None,
 ) -> None:
-    """Start Ray with ``cpus`` CPUs (default: all; tasks take one each), or join the cluster at
-    ``address``; submit the tasks ``submit(ray)`` returns (each task's reference -> the keys of
-    its runs), hand each result to ``on_result`` as it arrives, and shut down the Ray started
-    here."""
+    """Start Ray with ``cpus`` CPUs (default: all; tasks take one each, :func:`_ray_options`
+    for the ``jobs``), or join the cluster at ``address``; run the tasks as Ray tasks, hand each
+    result to ``on_result`` as it arrives, and shut down the Ray started here."""
     try:
         import ray
     except ImportError:
@@ -201,7 +234,13 @@ def _on_ray(
                 f"--ray-address {address!r}: {reason}; accepted: {_RAY_ADDRESSES}"
             ) from None
     try:
-        keys = submit(ray)
+        options = _ray_options(ray, jobs)
+        remotes: dict[Callable, object] = {}
+        keys = {}
+        for t in tasks:
+            if t.fn not in remotes:
+                remotes[t.fn] = ray.remote(**options)(t.fn)
+            keys[remotes[t.fn].remote(*t.args)] = t.keys
         pending = list(keys)
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
@@ -222,15 +261,10 @@ def execute_ray(
     on_result: Callable[[dict], None],
     workers: int | None = None,
 ) -> None:
-    """The same grid as Ray tasks, one CPU each (and a share of a GPU for runs on CUDA,
+    """Single runs as Ray tasks, one CPU each (and a share of a GPU for runs on CUDA,
     :func:`gpu_share`; ``pip install ham[cluster]``); a Ray started here gets ``workers`` CPUs
     (default: all)."""
-
-    def submit(ray):
-        remote = ray.remote(**_ray_options(ray, jobs))(_safe_run)
-        return {remote.remote(j.to_dict(), str(root), world, grid): [j.key] for j in jobs}
-
-    _on_ray(address, submit, on_result, workers)
+    _on_ray(address, jobs, _single_tasks(jobs, root, world, grid), on_result, workers)
 
 
 def execute_ray_batched(
@@ -247,16 +281,8 @@ def execute_ray_batched(
     started here gets ``workers`` CPUs, default all): Ray hands each node whole batched models,
     as many at once as the node has CPUs; groups on CUDA each take a share of a GPU
     (:func:`gpu_share`), so that they spread evenly over a node's GPUs."""
-
-    options = options or BatchedOptions()
-
-    def submit(ray):
-        remote = ray.remote(**_ray_options(ray, jobs))(_safe_batch)
-        groups = [[j.to_dict() for j in g] for g in _groups(jobs, options)]
-        return {remote.remote(g, str(root), world, grid, options): [j["key"] for j in g]
-                for g in groups}  # fmt: skip
-
-    _on_ray(address, submit, on_result, workers)
+    tasks = _batched_tasks(jobs, root, world, grid, options or BatchedOptions())
+    _on_ray(address, jobs, tasks, on_result, workers)
 
 
 @dataclass(frozen=True)
@@ -457,24 +483,8 @@ def execute_batched(
     """Jobs of one shape trained as one batched model each (:func:`group_jobs`); the
     groups on a process pool of ``workers`` (one torch thread each), or in this process when
     there is one group or one worker (the way to use one GPU)."""
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
-    options = options or BatchedOptions()
-    groups = [[j.to_dict() for j in g] for g in _groups(jobs, options)]
-    workers = min(workers, len(groups))
-    if workers <= 1:
-        for g in groups:
-            for r in _safe_batch(g, str(root), world, grid, options):
-                on_result(r)
-        return
-    ctx = mp.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init) as pool:
-        futures = {pool.submit(_safe_batch, g, str(root), world, grid, options):
-                   [j["key"] for j in g] for g in groups}  # fmt: skip
-        for fut in as_completed(futures):
-            for r in _results(fut.result, futures[fut]):
-                on_result(r)
+    tasks = _batched_tasks(jobs, root, world, grid, options or BatchedOptions())
+    _on_pool(tasks, workers, on_result)
 
 
 def execute(
@@ -511,27 +521,25 @@ def execute(
         bar.set_postfix(failed=sum(x["status"] == "failed" for x in results.values()))
 
     batched = batched or BatchedOptions()
-    if progress and executor == "batched" and todo:
-        models = _groups(todo, batched)
-        if len(models) < workers and max(len(g) for g in models) > 1:
-            # the grouping does not follow --workers: the same command gives the same numbers
-            # on any machine (a run's last bits depend on its batch's size)
-            print(f"{len(models)} batched model(s) for {workers} workers: --batch-runs N spreads "
-                  "one shape's runs over more models", file=sys.stderr)  # fmt: skip
     for attempt in range(retries + 1):
         if not todo:
             break
+        if executor in BATCHED_EXECUTORS:
+            tasks = _batched_tasks(todo, root, world, grid, batched)
+        else:
+            tasks = _single_tasks(todo, root, world, grid)
         if attempt:
             print(f"retrying {len(todo)} failed run(s) (attempt {attempt + 1})", file=sys.stderr)
-        if executor == "ray":
-            execute_ray(todo, root, world, grid, ray_address, on_result, workers)
-        elif executor == "ray-batched":
-            execute_ray_batched(todo, root, world, grid, ray_address, on_result, batched,
-                                workers)  # fmt: skip
-        elif executor == "batched":
-            execute_batched(todo, root, world, grid, workers, on_result, batched)
+        elif progress and executor == "batched" and len(tasks) < workers:
+            if max(len(t.keys) for t in tasks) > 1:
+                # the grouping does not follow --workers: the same command gives the same
+                # numbers on any machine (a run's last bits depend on its batch's size)
+                print(f"{len(tasks)} batched model(s) for {workers} workers: --batch-runs N "
+                      "spreads one shape's runs over more models", file=sys.stderr)  # fmt: skip
+        if executor in RAY_EXECUTORS:
+            _on_ray(ray_address, todo, tasks, on_result, workers)
         else:
-            execute_local(todo, root, world, grid, workers, on_result)
+            _on_pool(tasks, workers, on_result)
         todo = [j for j in todo if results.get(j.key, {}).get("status") == "failed"]
     bar.close()
     return results, [results[j.key] for j in todo]
