@@ -1,5 +1,6 @@
 """``ham reproduce`` with the smoke profile: the real CLI, real runs, local pool and local Ray."""
 
+import contextlib
 import json
 import os
 import signal
@@ -215,6 +216,43 @@ def test_a_killed_worker_fails_its_runs_and_the_retry_finishes_them(tmp_path):
     for key in ("full-concat2-g2-s0", "full-concat2-g2-s1"):
         m = json.loads((out / "runs" / key / "metrics.json").read_text())
         assert m["steps"] == 150
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc (Linux)")
+def test_a_killed_reproduce_takes_its_workers_with_it(tmp_path):
+    """``kill`` of ``ham reproduce`` (SIGTERM to it alone, as a scheduler or a user sends it)
+    ends its pool's workers too: left training, they would write the runs' checkpoints beside a
+    second ``ham reproduce`` of the same folder."""
+    out = tmp_path / "g"
+    argv, env = ham_command(
+        "reproduce", "table1", "--profile", "smoke", "--glances", "2", "--variants", "full",
+        "--seeds", "2", "--steps", "100000", "--workers", "2", "--quiet", "--out", str(out),
+    )  # fmt: skip
+    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    workers: list[int] = []
+    try:
+        deadline = time.monotonic() + 120
+        while len(list(out.glob("runs/*/config.json"))) < 2 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        workers = [
+            p for p in _children(proc.pid)
+            if b"spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes()
+            and b"resource_tracker" not in Path(f"/proc/{p}/cmdline").read_bytes()
+        ]  # fmt: skip
+        assert len(workers) == 2, workers
+        proc.terminate()
+        proc.wait(timeout=30)
+        deadline = time.monotonic() + 30
+        while any(Path(f"/proc/{w}").exists() for w in workers) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        alive = [w for w in workers if Path(f"/proc/{w}").exists()]
+    finally:
+        proc.kill()
+        proc.wait()
+        for w in workers:  # a failed check leaves none behind
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(w, signal.SIGKILL)
+    assert not alive, f"workers {alive} outlived their ham reproduce"
 
 
 def test_ray_tasks_on_cuda_take_a_share_of_a_gpu():

@@ -107,9 +107,25 @@ def _safe_run(job: dict, root: str, world: dict, grid: int) -> dict:
 
 
 # --------------------------------------------------------------------------- executors
-def _worker_init() -> None:
+def _worker_init(parent: int) -> None:
+    """One torch thread; and the worker ends with the process that started it (``parent``).
+
+    A pool's worker notices its parent's death only between tasks, and a task here is a whole
+    training run: a ``kill`` of ``ham reproduce`` would leave its runs training on, and a second
+    ``ham reproduce`` of the same folder would then train them twice at once, each writing the
+    other's checkpoints. On Linux the kernel sends the worker SIGTERM when its parent dies
+    (``PR_SET_PDEATHSIG``); the run resumes from its last checkpoint (written atomically).
+    """
     import torch
 
+    if sys.platform.startswith("linux"):
+        import ctypes
+        import signal
+
+        pr_set_pdeathsig = 1
+        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGTERM)
+        if os.getppid() != parent:  # it died before the call
+            os._exit(1)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     torch.set_num_threads(1)
 
@@ -165,7 +181,9 @@ def _on_pool(tasks: list[_Task], workers: int, on_result: Callable[[dict], None]
                 on_result(x)
         return
     ctx = mp.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init) as pool:
+    with ProcessPoolExecutor(
+        max_workers=workers, mp_context=ctx, initializer=_worker_init, initargs=(os.getpid(),)
+    ) as pool:
         futures = {pool.submit(t.fn, *t.args): t.keys for t in tasks}
         for fut in as_completed(futures):
             for r in _results(fut.result, futures[fut]):
