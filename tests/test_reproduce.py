@@ -219,16 +219,20 @@ def test_a_killed_worker_fails_its_runs_and_the_retry_finishes_them(tmp_path):
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc (Linux)")
-def test_a_killed_reproduce_takes_its_workers_with_it(tmp_path):
-    """``kill`` of ``ham reproduce`` (SIGTERM to it alone, as a scheduler or a user sends it)
-    ends its pool's workers too: left training, they would write the runs' checkpoints beside a
-    second ``ham reproduce`` of the same folder."""
+@pytest.mark.parametrize("how", ["kill", "ctrl-c"])
+def test_a_stopped_reproduce_takes_its_workers_with_it(tmp_path, how):
+    """``kill`` of ``ham reproduce`` (SIGTERM to it alone, as a scheduler or a user sends it) or
+    Ctrl-C (SIGINT to its whole process group) ends its pool's workers too, at once: left
+    training, they would write the runs' checkpoints beside a second ``ham reproduce`` of the
+    same folder, and after Ctrl-C each worker went on to the next run. Ctrl-C answers with one
+    line and exit 130, and no run starts after it."""
     out = tmp_path / "g"
     argv, env = ham_command(
         "reproduce", "table1", "--profile", "smoke", "--glances", "2", "--variants", "full",
-        "--seeds", "2", "--steps", "100000", "--workers", "2", "--quiet", "--out", str(out),
+        "--seeds", "3", "--steps", "100000", "--workers", "2", "--quiet", "--out", str(out),
     )  # fmt: skip
-    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env,
+                            text=True, start_new_session=True)  # fmt: skip
     workers: list[int] = []
     try:
         deadline = time.monotonic() + 120
@@ -240,8 +244,11 @@ def test_a_killed_reproduce_takes_its_workers_with_it(tmp_path):
             and b"resource_tracker" not in Path(f"/proc/{p}/cmdline").read_bytes()
         ]  # fmt: skip
         assert len(workers) == 2, workers
-        proc.terminate()
-        proc.wait(timeout=30)
+        if how == "kill":
+            proc.terminate()
+        else:
+            os.killpg(proc.pid, signal.SIGINT)
+        _, stderr = proc.communicate(timeout=30)
         deadline = time.monotonic() + 30
         while any(Path(f"/proc/{w}").exists() for w in workers) and time.monotonic() < deadline:
             time.sleep(0.1)
@@ -253,6 +260,10 @@ def test_a_killed_reproduce_takes_its_workers_with_it(tmp_path):
             with contextlib.suppress(ProcessLookupError):
                 os.kill(w, signal.SIGKILL)
     assert not alive, f"workers {alive} outlived their ham reproduce"
+    if how == "ctrl-c":
+        assert proc.returncode == 130
+        assert stderr == "ham: interrupted\n"  # no traceback, no warning of leaked semaphores
+        assert len(list(out.glob("runs/*"))) == 2  # the third run never started
 
 
 def test_ray_tasks_on_cuda_take_a_share_of_a_gpu():

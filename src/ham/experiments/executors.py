@@ -108,7 +108,8 @@ def _safe_run(job: dict, root: str, world: dict, grid: int) -> dict:
 
 # --------------------------------------------------------------------------- executors
 def _worker_init(parent: int) -> None:
-    """One torch thread; and the worker ends with the process that started it (``parent``).
+    """One torch thread; Ctrl-C left to the pool's owner; and the worker ends with the process
+    that started it (``parent``).
 
     A pool's worker notices its parent's death only between tasks, and a task here is a whole
     training run: a ``kill`` of ``ham reproduce`` would leave its runs training on, and a second
@@ -116,11 +117,22 @@ def _worker_init(parent: int) -> None:
     other's checkpoints. On Linux the kernel sends the worker SIGTERM when its parent dies
     (``PR_SET_PDEATHSIG``); the run resumes from its last checkpoint (written atomically).
     """
+    import signal
+
     import torch
 
+    # Ctrl-C reaches the whole process group: a worker would take it as its task's end and go
+    # on to the next one; the pool's owner ends the workers instead (_on_pool)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # tqdm's default lock is a multiprocessing semaphore, which a worker ended by the pool's
+    # owner could not release (the resource tracker then warns of it); a worker's bars are off
+    import threading
+
+    from tqdm import tqdm
+
+    tqdm.set_lock(threading.RLock())
     if sys.platform.startswith("linux"):
         import ctypes
-        import signal
 
         pr_set_pdeathsig = 1
         ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGTERM)
@@ -184,10 +196,18 @@ def _on_pool(tasks: list[_Task], workers: int, on_result: Callable[[dict], None]
     with ProcessPoolExecutor(
         max_workers=workers, mp_context=ctx, initializer=_worker_init, initargs=(os.getpid(),)
     ) as pool:
-        futures = {pool.submit(t.fn, *t.args): t.keys for t in tasks}
-        for fut in as_completed(futures):
-            for r in _results(fut.result, futures[fut]):
-                on_result(r)
+        try:
+            futures = {pool.submit(t.fn, *t.args): t.keys for t in tasks}
+            for fut in as_completed(futures):
+                for r in _results(fut.result, futures[fut]):
+                    on_result(r)
+        except BaseException:
+            # Ctrl-C (the workers ignore it, _worker_init) or an error here: end the workers now
+            # instead of waiting for their runs (hours); each run resumes from its checkpoint
+            pool.shutdown(wait=False, cancel_futures=True)
+            for p in mp.active_children():
+                p.terminate()
+            raise
 
 
 def execute_local(
