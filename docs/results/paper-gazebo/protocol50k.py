@@ -5,6 +5,11 @@ e.g. `protocol50k.py preset-g3 runs/gz-paper/runs/full-concat2-g3-s*`: per seed 
 final accuracy, the steps run (a run stopped at a perfect evaluation ends early), mean ± s.e.m.
 of the best, and the mean over the seeds of the best accuracy so far at a few steps (a stopped
 run keeps its best, 1.000, from its stop on).
+
+    python docs/results/paper-gazebo/protocol50k.py plot OUT.png TITLE LABEL:PAPER:GLOB [...]
+
+draws each cell's accuracy during training (the mean over the seeds of every evaluation, the runs
+matched by the glob GLOB) with the paper's number PAPER as a dashed line of the same colour.
 """
 
 import json
@@ -45,7 +50,39 @@ def cell(dirs: list[str]) -> dict:
     }
 
 
+def plot(out: str, title: str, cells: list[str]) -> None:
+    import glob
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for k, spec in enumerate(cells):
+        label, paper, pattern = spec.split(":", 2)
+        ms = [json.load(open(Path(d) / "metrics.json")) for d in sorted(glob.glob(pattern))]
+        steps = [e["step"] for e in ms[0]["history"]]
+        n = min(len(m["history"]) for m in ms)
+        mean = [sum(m["history"][i]["accuracy"] for m in ms) / len(ms) for i in range(n)]
+        color = f"C{k}"
+        ax.plot(steps[:n], mean, color=color, lw=1, label=f"{label} ({len(ms)} seeds)")
+        ax.axhline(float(paper), color=color, ls="--", lw=1)
+    ax.set_xlabel("training step")
+    ax.set_ylabel("accuracy (sampled poses, 6,400 episodes)")
+    ax.set_title(title + " (dashed: the paper's best)", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="lower right")
+    tmp = out + ".tmp"
+    fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png")
+    os.replace(tmp, out)
+    print(out)
+
+
 def main() -> None:
+    if sys.argv[1] == "plot":
+        plot(sys.argv[2], sys.argv[3], sys.argv[4:])
+        return
     name, dirs = sys.argv[1], sys.argv[2:]
     data = json.load(open(HERE))
     data["cells"][name] = cell(dirs)
