@@ -231,8 +231,11 @@ def test_a_stopped_reproduce_takes_its_workers_with_it(tmp_path, how):
         "reproduce", "table1", "--profile", "smoke", "--glances", "2", "--variants", "full",
         "--seeds", "3", "--steps", "100000", "--workers", "2", "--quiet", "--out", str(out),
     )  # fmt: skip
+    # a terminal's Ctrl-C reaches the whole foreground group; the group's own here, with SIGINT
+    # handled (a pytest-xdist worker ignores it, and an ignored SIGINT is inherited)
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env,
-                            text=True, start_new_session=True)  # fmt: skip
+                            text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # fmt: skip
     workers: list[int] = []
     try:
         deadline = time.monotonic() + 120
