@@ -218,6 +218,14 @@ def test_a_killed_worker_fails_its_runs_and_the_retry_finishes_them(tmp_path):
         assert m["steps"] == 150
 
 
+def _running(pid: int) -> bool:
+    """``pid`` exists and has not ended (a zombie waits for a parent that may never reap it)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc (Linux)")
 @pytest.mark.parametrize("how", ["kill", "ctrl-c"])
 def test_a_stopped_reproduce_takes_its_workers_with_it(tmp_path, how):
@@ -253,9 +261,9 @@ def test_a_stopped_reproduce_takes_its_workers_with_it(tmp_path, how):
             os.killpg(proc.pid, signal.SIGINT)
         _, stderr = proc.communicate(timeout=30)
         deadline = time.monotonic() + 30
-        while any(Path(f"/proc/{w}").exists() for w in workers) and time.monotonic() < deadline:
+        while any(_running(w) for w in workers) and time.monotonic() < deadline:
             time.sleep(0.1)
-        alive = [w for w in workers if Path(f"/proc/{w}").exists()]
+        alive = [w for w in workers if _running(w)]
     finally:
         proc.kill()
         proc.wait()
