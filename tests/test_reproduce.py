@@ -187,6 +187,15 @@ def _children(pid: int) -> list[int]:
     return out
 
 
+def _pool_workers(pid: int) -> list[int]:
+    """The process pool's workers of ``ham reproduce`` ``pid`` (not its resource tracker)."""
+    return [
+        p for p in _children(pid)
+        if b"spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes()
+        and b"resource_tracker" not in Path(f"/proc/{p}/cmdline").read_bytes()
+    ]  # fmt: skip
+
+
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc (Linux)")
 def test_a_killed_worker_fails_its_runs_and_the_retry_finishes_them(tmp_path):
     """A pool worker killed mid-run (as the kernel kills one out of memory): its runs are
@@ -202,11 +211,7 @@ def test_a_killed_worker_fails_its_runs_and_the_retry_finishes_them(tmp_path):
     deadline = time.monotonic() + 120
     while not list(out.glob("runs/*/config.json")) and time.monotonic() < deadline:
         time.sleep(0.1)
-    workers = [
-        p for p in _children(proc.pid)
-        if b"spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes()
-        and b"resource_tracker" not in Path(f"/proc/{p}/cmdline").read_bytes()
-    ]  # fmt: skip
+    workers = _pool_workers(proc.pid)
     assert workers, "no pool worker found"
     os.kill(workers[0], signal.SIGKILL)
     stdout, stderr = proc.communicate(timeout=300)
@@ -249,11 +254,7 @@ def test_a_stopped_reproduce_takes_its_workers_with_it(tmp_path, how):
         deadline = time.monotonic() + 120
         while len(list(out.glob("runs/*/config.json"))) < 2 and time.monotonic() < deadline:
             time.sleep(0.1)
-        workers = [
-            p for p in _children(proc.pid)
-            if b"spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes()
-            and b"resource_tracker" not in Path(f"/proc/{p}/cmdline").read_bytes()
-        ]  # fmt: skip
+        workers = _pool_workers(proc.pid)
         assert len(workers) == 2, workers
         if how == "kill":
             proc.terminate()
