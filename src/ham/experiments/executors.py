@@ -174,7 +174,8 @@ def _batched_tasks(
     jobs: list[Job], root: Path, world: dict, grid: int | None, options: BatchedOptions
 ) -> list[_Task]:
     """A task a batched model (:func:`group_jobs`, :func:`run_batch`): the batched executors."""
-    groups = [[j.to_dict() for j in g] for g in _groups(jobs, options)]
+    groups = [[j.to_dict() for j in g]
+              for g in group_jobs(jobs, options.batch_runs, options.merge_glances)]  # fmt: skip
     return [_Task(_safe_batch, (g, str(root), world, grid, options), [j["key"] for j in g])
             for g in groups]  # fmt: skip
 
@@ -187,10 +188,9 @@ def _on_pool(tasks: list[_Task], workers: int, on_result: Callable[[dict], None]
 
     workers = min(workers, len(tasks))
     if workers <= 1:
-        for t in tasks:
-            r = t.fn(*t.args)  # reports its runs' failures itself (_safe_run, _safe_batch)
-            for x in r if isinstance(r, list) else [r]:
-                on_result(x)
+        for t in tasks:  # _safe_run and _safe_batch report their runs' failures themselves
+            for r in _results(lambda t=t: t.fn(*t.args), t.keys):
+                on_result(r)
         return
     ctx = mp.get_context("spawn")
     with ProcessPoolExecutor(
@@ -441,10 +441,6 @@ def group_jobs(
         starts = [k * q + min(k, r) for k in range(parts + 1)]
         groups += [g[a:b] for a, b in zip(starts, starts[1:], strict=False)]
     return groups
-
-
-def _groups(jobs: list, options: BatchedOptions) -> list[list]:
-    return group_jobs(jobs, options.batch_runs, options.merge_glances)
 
 
 def run_batch(
