@@ -9,7 +9,12 @@ run keeps its best, 1.000, from its stop on).
     python docs/results/paper-gazebo/protocol50k.py plot OUT.png TITLE LABEL:PAPER:GLOB [...]
 
 draws each cell's accuracy during training (the mean over the seeds of every evaluation, the runs
-matched by the glob GLOB) with the paper's number PAPER as a dashed line of the same colour.
+matched by the glob GLOB) with the paper's number PAPER as a dashed line of the same colour. A
+spec written `avg=LABEL:PAPER:GLOB` draws the accuracy of the outputs averaged over the glances
+(the paper's <pi_MLP>) instead.
+
+Cells of MLP-core runs also get the averaged outputs' best (`best_accumulated`, the paper's
+<pi_MLP> row is scored on the same runs).
 """
 
 import json
@@ -22,32 +27,55 @@ HERE = Path(__file__).parent / "protocol50k.json"
 STEPS = (2000, 4000, 10000, 20000, 30000, 40000, 50000)
 
 
-def cell(dirs: list[str]) -> dict:
-    ms = [json.load(open(Path(d) / "metrics.json")) for d in sorted(dirs)]
-    best = [round(m["best_accuracy"], 4) for m in ms]
-    n = len(best)
-    mean = sum(best) / n
-    sem = math.sqrt(sum((b - mean) ** 2 for b in best) / (n - 1)) / math.sqrt(n) if n > 1 else 0.0
+def _accuracy(entry: dict, averaged: bool) -> float:
+    """An evaluation's accuracy: of the last output, or of the outputs averaged over the glances."""
+    return entry["accumulated_accuracy_per_glance"][-1] if averaged else entry["accuracy"]
+
+
+def _mean_sem(xs: list[float]) -> tuple[float, float]:
+    n = len(xs)
+    mean = sum(xs) / n
+    sem = math.sqrt(sum((x - mean) ** 2 for x in xs) / (n - 1)) / math.sqrt(n) if n > 1 else 0.0
+    return round(mean, 4), round(sem, 4)
+
+
+def _so_far(ms: list[dict], averaged: bool) -> dict:
+    """The mean over the seeds of the best accuracy up to each of STEPS."""
     by_step = {}
     for s in STEPS:
         if all(m["steps"] < s and not m.get("stopped_at_perfect") for m in ms):
             continue
-        so_far = []
-        for m in ms:
-            accs = [e["accuracy"] for e in m["history"] if e["step"] <= s]
-            so_far.append(max(accs))
-        by_step[str(s)] = round(sum(so_far) / n, 4)
-    return {
+        so_far = [max(_accuracy(e, averaged) for e in m["history"] if e["step"] <= s) for m in ms]
+        by_step[str(s)] = round(sum(so_far) / len(ms), 4)
+    return by_step
+
+
+def cell(dirs: list[str]) -> dict:
+    ms = [json.load(open(Path(d) / "metrics.json")) for d in sorted(dirs)]
+    best = [round(m["best_accuracy"], 4) for m in ms]
+    n = len(best)
+    mean, sem = _mean_sem(best)
+    out = {
         "seeds": [m["config"]["seed"] for m in ms],
         "steps": [m["steps"] for m in ms],
         "stopped_at_perfect": [m.get("stopped_at_perfect") for m in ms],
         "best": best,
-        "best_mean": round(mean, 4),
-        "best_sem": round(sem, 4),
+        "best_mean": mean,
+        "best_sem": sem,
         "final": [round(m["final_accuracy"], 4) for m in ms],
         "final_mean": round(sum(m["final_accuracy"] for m in ms) / n, 4),
-        "best_so_far_by_step": by_step,
+        "best_so_far_by_step": _so_far(ms, averaged=False),
     }
+    if all(m["config"]["model"]["core"] == "mlp" for m in ms):
+        acc = [round(m["best_accumulated_accuracy"], 4) for m in ms]
+        mean, sem = _mean_sem(acc)
+        out.update(
+            best_accumulated=acc,
+            best_accumulated_mean=mean,
+            best_accumulated_sem=sem,
+            best_accumulated_so_far_by_step=_so_far(ms, averaged=True),
+        )
+    return out
 
 
 def plot(out: str, title: str, cells: list[str]) -> None:
@@ -60,11 +88,12 @@ def plot(out: str, title: str, cells: list[str]) -> None:
 
     fig, ax = plt.subplots(figsize=(7, 4))
     for k, spec in enumerate(cells):
-        label, paper, pattern = spec.split(":", 2)
+        averaged = spec.startswith("avg=")
+        label, paper, pattern = spec.removeprefix("avg=").split(":", 2)
         ms = [json.load(open(Path(d) / "metrics.json")) for d in sorted(glob.glob(pattern))]
         steps = [e["step"] for e in ms[0]["history"]]
         n = min(len(m["history"]) for m in ms)
-        mean = [sum(m["history"][i]["accuracy"] for m in ms) / len(ms) for i in range(n)]
+        mean = [sum(_accuracy(m["history"][i], averaged) for m in ms) / len(ms) for i in range(n)]
         color = f"C{k}"
         ax.plot(steps[:n], mean, color=color, lw=1, label=f"{label} ({len(ms)} seeds)")
         ax.axhline(float(paper), color=color, ls="--", lw=1)
