@@ -103,6 +103,19 @@ def test_the_paper_tables_are_grids_in_docs(tmp_path):
     assert keys[:2] == ["full-concat2-g1-s0", "full-concat2-g1-s1"] and len(keys) == 3 * 7 * 10
 
 
+@pytest.mark.parametrize("path", sorted(DOCS.glob("*.toml")), ids=lambda p: p.stem)
+def test_every_grid_in_docs_plans_valid_runs(path, tmp_path):
+    """Each grid file the docs name loads, and every run it plans is a valid training config."""
+    g = load_grid(path)
+    jobs = g.jobs(g.table_paths(tmp_path, tmp_path / "cache"))
+    keys = [j.key for j in jobs]
+    assert keys and len(set(keys)) == len(keys)
+    if path.stem == "paper_protocol_taxels_mlp":
+        assert {j.config["model"]["core"] for j in jobs} == {"mlp"}
+        assert {j.config["world"]["simulator"] for j in jobs} == {"fast"}
+        assert len(jobs) == 12 and jobs[0].config["steps"] == 50000
+
+
 def test_the_agent_grid_is_the_old_script(tmp_path):
     """docs/grids/agent.toml: the runs benchmarks/agent_experiments.sh trained with `ham train`."""
     from ham.cli.agent import _config_from_args
