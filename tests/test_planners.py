@@ -44,6 +44,12 @@ def test_greedy_information_gain_never_beats_the_oracle():
     assert pl.expected_glances("oracle") <= pl.expected_glances("infogain") + 1e-12
 
 
+def test_the_share_of_poses_that_identify_every_object():
+    pl = hand_made([[0, 1, 2, 3], [0, 0, 2, 2], [0, 1, 2, 0]], weight=[0.2, 0.5, 0.3])
+    assert pl.identifying_share() == pytest.approx(0.2)
+    assert hand_made([[0, 0, 2, 2]]).identifying_share() == 0.0
+
+
 def test_indistinguishable_objects_stop_the_count():
     pl = Planner(hand_made([[0, 0, 2, 2]]))  # 0 and 1 are never told apart
     assert pl.oracle(5) == pytest.approx(0.5)
@@ -112,6 +118,16 @@ def test_cli_json_and_errors(tmp_path, ham_cli, ham_main):
     d = json.loads(p.stdout)
     assert set(d["accuracy"]) == {"1", "2"} and 0 < d["accuracy"]["1"] <= 1
     assert d["expected_glances_to_identify"] >= 1
+    # the share by brute force: the nearest-grid-point weight of the poses with four distinct images
+    t = GlanceTable.load(path)
+    p = normalize(t.pressure.double(), "l2").reshape(t.n_objects, 11 * 11, -1).transpose(0, 1)
+    alone = ((torch.cdist(p, p) <= 1e-6).sum(-1) == 1).all(-1).numpy()
+    cell = np.full(11, 1.0)
+    cell[[0, -1]] = 0.5
+    w = np.outer(cell, cell).reshape(-1)
+    assert d["identifying_share"] == pytest.approx(w[alone].sum() / w.sum(), abs=1e-12)
+    text = ham_cli("baselines", "--policy", "random", "--table", str(path), "--glances", "1")
+    assert f"tells every object apart at {d['identifying_share']:.1%} of poses" in text.stdout
     bad = ham_main("baselines", "--policy", "random", "--table", str(path), "--glances", "0")
     assert bad.returncode == 2 and "--glances 0" in bad.stderr and "Traceback" not in bad.stderr
     bad = ham_main("baselines", "--policy", "oracle", "--table", str(tmp_path / "no.h5"))

@@ -123,6 +123,13 @@ class Partitions:
         pose = np.stack([grid_values(n)[i] for n, i in zip(shape, idx, strict=True)], axis=1)
         return cls(rows, weight, pose, action.reshape(shape))
 
+    def identifying_share(self) -> float:
+        """The probability that one uniform pose tells every object apart: the weight of the
+        actions whose split leaves each object alone. 0 when no single glance can identify
+        every object; then only sequences (or nothing) can."""
+        alone = np.array([len(np.unique(row)) == self.n_objects for row in self.labels])
+        return float(self.weight[alone].sum())
+
     def split(self, mask: int, action: int) -> list[int]:
         """The classes (bit masks) an action splits the consistent set ``mask`` into."""
         classes: dict[int, int] = {}
