@@ -13,6 +13,12 @@ matched by the glob GLOB) with the paper's number PAPER as a dashed line of the 
 spec written `avg=LABEL:PAPER:GLOB` draws the accuracy of the outputs averaged over the glances
 (the paper's <pi_MLP>) instead.
 
+    python docs/results/paper-gazebo/protocol50k.py poses TABLE RUN_DIR [RUN_DIR ...]
+
+prints, per run, where its last glance goes at its last evaluation (the mean location per object)
+and how many of the objects one glance there tells apart (the Bayes accuracy of that single glance
+on the glance table TABLE, exact images).
+
 Cells of MLP-core runs also get the averaged outputs' best (`best_accumulated`, the paper's
 <pi_MLP> row is scored on the same runs).
 """
@@ -108,9 +114,29 @@ def plot(out: str, title: str, cells: list[str]) -> None:
     print(out)
 
 
+def poses(table_path: str, dirs: list[str]) -> None:
+    import torch
+
+    from ham.experiments.random_glance_bound import agreement
+    from ham.world.table import GlanceTable, nearest_index
+
+    table = GlanceTable.load(table_path)
+    one = (1.0 / agreement(table, 1e-6).sum(-1)).mean(-1)  # (grid, grid): one glance's accuracy
+    for d in sorted(dirs):
+        last = json.load(open(Path(d) / "metrics.json"))["history"][-1]
+        cells = [] if last["mu_mean"] else ["no learned glance"]
+        for x, phi in last["mu_mean"] or []:
+            i, j = (int(nearest_index(torch.tensor(v), table.grid)) for v in (x, phi))
+            cells.append(f"({x:+.2f}, {phi:+.2f}): {one[i, j]:.2f}")
+        print(f"{Path(d).name} (final {last['accuracy']:.3f}): " + "; ".join(cells))
+
+
 def main() -> None:
     if sys.argv[1] == "plot":
         plot(sys.argv[2], sys.argv[3], sys.argv[4:])
+        return
+    if sys.argv[1] == "poses":
+        poses(sys.argv[2], sys.argv[3:])
         return
     name, dirs = sys.argv[1], sys.argv[2:]
     data = json.load(open(HERE))
