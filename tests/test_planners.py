@@ -120,8 +120,8 @@ def test_cli_json_and_errors(tmp_path, ham_cli, ham_main):
     assert d["expected_glances_to_identify"] >= 1
     # the share by brute force: the nearest-grid-point weight of the poses with four distinct images
     t = GlanceTable.load(path)
-    p = normalize(t.pressure.double(), "l2").reshape(t.n_objects, 11 * 11, -1).transpose(0, 1)
-    alone = ((torch.cdist(p, p) <= 1e-6).sum(-1) == 1).all(-1).numpy()
+    img = normalize(t.pressure.double(), "l2").reshape(t.n_objects, 11 * 11, -1).transpose(0, 1)
+    alone = ((torch.cdist(img, img) <= 1e-6).sum(-1) == 1).all(-1).numpy()
     cell = np.full(11, 1.0)
     cell[[0, -1]] = 0.5
     w = np.outer(cell, cell).reshape(-1)
