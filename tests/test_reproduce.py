@@ -189,11 +189,8 @@ def _children(pid: int) -> list[int]:
 
 def _pool_workers(pid: int) -> list[int]:
     """The process pool's workers of ``ham reproduce`` ``pid`` (not its resource tracker)."""
-    return [
-        p for p in _children(pid)
-        if b"spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes()
-        and b"resource_tracker" not in Path(f"/proc/{p}/cmdline").read_bytes()
-    ]  # fmt: skip
+    cmdlines = {p: Path(f"/proc/{p}/cmdline").read_bytes() for p in _children(pid)}
+    return [p for p, c in cmdlines.items() if b"spawn_main" in c and b"resource_tracker" not in c]
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc (Linux)")

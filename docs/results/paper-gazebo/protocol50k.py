@@ -124,11 +124,15 @@ def poses(table_path: str, dirs: list[str]) -> None:
     one = (1.0 / agreement(table, 1e-6).sum(-1)).mean(-1)  # (grid, grid): one glance's accuracy
     for d in sorted(dirs):
         last = json.load(open(Path(d) / "metrics.json"))["history"][-1]
-        cells = [] if last["mu_mean"] else ["no learned glance"]
-        for x, phi in last["mu_mean"] or []:
+        head = f"{Path(d).name} (final {last['accuracy']:.3f}): "
+        if not last["mu_mean"]:  # random locations, or one glance: no learned glance
+            print(head + "no learned glance")
+            continue
+        cells = []
+        for x, phi in last["mu_mean"]:
             i, j = (int(nearest_index(torch.tensor(v), table.grid)) for v in (x, phi))
             cells.append(f"({x:+.2f}, {phi:+.2f}): {one[i, j]:.2f}")
-        print(f"{Path(d).name} (final {last['accuracy']:.3f}): " + "; ".join(cells))
+        print(head + "; ".join(cells))
 
 
 def main() -> None:
