@@ -9,7 +9,7 @@ import torch
 
 from ham.errors import HamError
 from ham.experiments.figures import plot_confusion
-from ham.learn.evaluation import evaluate
+from ham.learn.evaluation import SWAPS, evaluate, last_pose_swap, swap_partners
 from ham.learn.train import TrainConfig, train
 from ham.model.agent import HamConfig, HapticAttentionModel
 
@@ -84,3 +84,34 @@ def test_plot_confusion(tmp_path):
     with pytest.raises(HamError, match="negative"):
         plot_confusion([[1, -2], [0, 1]], ["a", "b"], tmp_path / "x.png")
     assert not (tmp_path / "x.png").exists()
+
+
+def test_swap_partners_take_the_same_object_elsewhere_and_every_other_object():
+    objects = torch.arange(24) % 4  # a balanced batch
+    same, other = swap_partners(objects, 4)
+    assert (objects[same] == objects).all() and (same != torch.arange(24)).all()
+    assert (objects[other] != objects).all()
+    for o in range(4):  # every other object in turn
+        assert set(objects[other][objects == o].tolist()) == set(range(4)) - {o}
+    odd = torch.tensor([2, 0, 1, 0, 2, 1, 1])  # unbalanced, unordered
+    same, other = swap_partners(odd, 3)
+    assert (odd[same] == odd).all() and (same != torch.arange(7)).all()
+    assert (odd[other] != odd).all()
+    with pytest.raises(HamError, match=r"\[2, 1, 2\] episodes per object; accepted: >= 2"):
+        swap_partners(torch.tensor([0, 0, 1, 2, 2]), 3)
+
+
+@pytest.mark.parametrize("core", ["lstm", "mlp"])
+def test_last_pose_swap_own_is_the_evaluation_and_a_fixed_sweep_loses_nothing(env, core):
+    torch.manual_seed(4)
+    agent = HapticAttentionModel(HamConfig(glances=3, core=core))
+    swap = last_pose_swap(agent, env, batches=3, seed=7, policy="sample")
+    assert swap["own"] == evaluate(agent, env, batches=3, seed=7, policy="sample").accuracy
+    assert swap["episodes"] == 24 and set(swap) == {*SWAPS, "batches", "episodes"}
+    # A fixed sweep sends every episode's last glance to one pose: any swap is the same glance.
+    sweep = HapticAttentionModel(HamConfig(glances=3, core=core, policy="grid"))
+    swap = last_pose_swap(sweep, env, batches=3, seed=7)
+    assert swap["own"] == swap["same_object"] == swap["other_object"]
+    assert swap["own"] == evaluate(sweep, env, batches=3, seed=7).accuracy
+    with pytest.raises(HamError, match="on object; accepted: a haptic world"):
+        last_pose_swap(agent, object())

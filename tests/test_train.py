@@ -113,6 +113,13 @@ def test_cli_train_evaluate_heatmap(tmp_path, capsys):
     assert code == 0 and "sample poses" in stdout
     assert "per true object" in stdout and "ramp_down" in stdout
     assert (tmp_path / "confusion.png").stat().st_size > 0
+    code, stdout, _ = ham_inprocess(capsys, "evaluate", str(out), "--batches", "2", "--json",
+                                    "--swap-last-pose")  # fmt: skip
+    swap = json.loads(stdout)["last_pose_swap"]
+    assert code == 0 and swap["own"] == d["accuracy"] and swap["episodes"] == 16
+    code, stdout, _ = ham_inprocess(capsys, "evaluate", str(out), "--batches", "2",
+                                    "--swap-last-pose")  # fmt: skip
+    assert code == 0 and f"own {swap['own']:.4f}, another episode" in stdout
 
     png = tmp_path / "heat.png"
     code, _, _ = ham_inprocess(capsys, "heatmap", str(out), "--out", str(png), "--batches", "3",

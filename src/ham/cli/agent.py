@@ -74,6 +74,10 @@ def add_commands(subparsers) -> None:
                    "instances); online runs only")  # fmt: skip
     p.add_argument("--confusion", metavar="PNG",
                    help="also plot the confusion matrix after the last glance")  # fmt: skip
+    p.add_argument("--swap-last-pose", action="store_true",
+                   help="also the accuracy with the last glance made at another episode's pose: "
+                   "one of the same object, one of another object, a uniform one (how much the "
+                   "pose itself tells the classifier)")  # fmt: skip
     p.set_defaults(func=cmd_evaluate)
 
     p = subparsers.add_parser(
@@ -321,9 +325,16 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     policy = args.eval_policy or run.config.eval_policy
     try:
         result = evaluate(run.agent, run.env, args.batches, seed=args.seed, policy=policy)
+        swap = None
+        if args.swap_last_pose:
+            from ham.learn.evaluation import last_pose_swap
+
+            swap = last_pose_swap(run.agent, run.env, args.batches, seed=args.seed, policy=policy)
     finally:
         run.close()
     d = {"run": str(args.run), "steps": run.step, "eval_policy": policy, **result.to_dict()}
+    if swap is not None:
+        d["last_pose_swap"] = swap
     if args.confusion:
         from ham.experiments.figures import plot_confusion
 
@@ -346,6 +357,12 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         print(f"{s + 1:>6}  {a:>8.4f}  {b:>11.4f}")
     print(f"accuracy after the last glance: {result.accuracy:.4f}")
     _print_confusion(result.confusion[-1], result.per_object_accuracy, result.objects)
+    if swap is not None:
+        print(
+            "the last glance at another pose, accuracy: own {own:.4f}, another episode of the "
+            "same object's {same_object:.4f}, another object's {other_object:.4f}, uniform "
+            "{uniform:.4f}".format(**swap)
+        )
     if args.confusion:
         print(f"wrote {d['confusion_png']}")
     return 0

@@ -34,6 +34,7 @@ from ham.errors import HamError
 from ham.learn.environment import HapticEnv
 from ham.learn.stopping import stop_glances
 from ham.model.agent import HapticAttentionModel
+from ham.model.location_net import uniform_locations
 
 
 @dataclass
@@ -266,3 +267,94 @@ def heatmap_data(
         "sigma_mean": (sigma_sum / denom).tolist() if has_sigma else None,
         "accuracy": correct / (batches * env.batch_size),
     }
+
+
+#: The last glance's counterfactual poses of :func:`last_pose_swap`, in its result's order.
+SWAPS: tuple[str, ...] = ("own", "same_object", "other_object", "uniform")
+
+
+def swap_partners(objects: torch.Tensor, n_objects: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """For each episode of a batch ``objects`` ``(B,)``, an episode of the same object (the next
+    one of that object, cyclically) and one of another object (the ``m``-th episode of object
+    ``o`` takes the ``m``-th, cyclically, of object ``o + 1 + m mod (K - 1)``: every other object
+    in turn). Every object needs two episodes in the batch, and ``K >= 2``."""
+    counts = torch.bincount(objects, minlength=n_objects)
+    if n_objects < 2 or int(counts.min()) < 2:
+        raise HamError(
+            f"a batch with {counts.tolist()} episodes per object; accepted: >= 2 objects and >= 2 "
+            "episodes of each (a batch size >= 2 x the objects)"
+        )
+    members = [torch.nonzero(objects == o).flatten() for o in range(n_objects)]
+    same = torch.empty_like(objects)
+    other = torch.empty_like(objects)
+    for o, idx in enumerate(members):
+        same[idx] = idx.roll(-1)
+        m = torch.arange(len(idx), device=objects.device)
+        partner = (o + 1 + m % (n_objects - 1)) % n_objects
+        for p in range(n_objects):
+            chosen = partner == p
+            if chosen.any():
+                pool = members[p]
+                other[idx[chosen]] = pool[m[chosen] % len(pool)]
+    return same, other
+
+
+@torch.no_grad()
+def last_pose_swap(
+    agent: HapticAttentionModel,
+    env: HapticEnv,
+    batches: int = 100,
+    seed: int = 0,
+    policy: str = "mean",
+) -> dict:
+    """How much the last glance's *pose* tells the classifier, beyond what is felt there.
+
+    The episodes of :func:`evaluate` (same ``batches``, ``seed``, ``policy``) are replayed up to
+    the last glance, which is then made at another pose, on the episode's own object:
+
+    * ``own``: its own pose (the evaluation's accuracy, recomputed);
+    * ``same_object``: the pose the policy chose in another episode of the same object;
+    * ``other_object``: the pose the policy chose in an episode of another object;
+    * ``uniform``: a uniform pose (the evaluation's generator, after the episodes).
+
+    Where the policy sends the last glance to a pose that tells every object apart whatever the
+    object, the four agree up to ``uniform``. Where the pose itself depends on the object
+    (chosen from what earlier glances felt), a classifier that reads it (the "where" input) loses
+    accuracy at another object's pose: ``own - other_object`` measures how much the location
+    carries, the memory of the paper's MLP core, which sees only the last glance. The glances
+    before the last are replayed at their recorded poses, so a core with memory keeps it.
+    Returns accuracies keyed by :data:`SWAPS`, with ``batches`` and ``episodes``.
+    """
+    _check(batches, policy, seed)
+    if not isinstance(env, HapticEnv):
+        raise HamError(
+            f"the last pose swap on {type(env).__name__}; accepted: a haptic world (a table or "
+            "the online simulator), whose glances can be replayed at chosen poses"
+        )
+    generator = torch.Generator(device=env.device)
+    generator.manual_seed(int(seed))
+    k = env.n_objects
+    correct = dict.fromkeys(SWAPS, 0)
+    was_training = agent.training
+    agent.eval()
+    try:
+        episodes = []
+        for b in range(batches):
+            objects = env.balanced_objects(b)
+            episode = agent(env, objects, generator, greedy=policy == "mean")
+            episodes.append((b, objects, episode.locations))
+        for b, objects, locations in episodes:
+            env.balanced_objects(b)  # the batch's object poses again (objects varying in x, y)
+            state = agent.core.initial_state(len(objects), locations[0])
+            for q in locations[:-1]:
+                _, state = agent.glance_step(env, objects, q, state)
+            last = locations[-1]
+            same, other = swap_partners(objects, k)
+            uniform = uniform_locations(len(objects), generator, env.device, last.shape[-1])
+            for name, q in zip(SWAPS, (last, last[same], last[other], uniform), strict=True):
+                tau, _ = agent.glance_step(env, objects, q, state)
+                correct[name] += int((agent.classifier(tau).argmax(-1) == objects).sum())
+    finally:
+        agent.train(was_training)
+    n = batches * env.batch_size
+    return {**{name: c / n for name, c in correct.items()}, "batches": batches, "episodes": n}
