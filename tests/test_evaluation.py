@@ -107,6 +107,8 @@ def test_last_pose_swap_own_is_the_evaluation_and_a_fixed_sweep_loses_nothing(en
     agent = HapticAttentionModel(HamConfig(glances=3, core=core))
     swap = last_pose_swap(agent, env, batches=3, seed=7, policy="sample")
     assert swap["own"] == evaluate(agent, env, batches=3, seed=7, policy="sample").accuracy
+    if core == "mlp":  # no memory: the same object's poses, permuted, are the same glances
+        assert swap["same_object"] == swap["own"]
     assert swap["episodes"] == 24 and set(swap) == {*SWAPS, "batches", "episodes"}
     # A fixed sweep sends every episode's last glance to one pose: any swap is the same glance.
     sweep = HapticAttentionModel(HamConfig(glances=3, core=core, policy="grid"))

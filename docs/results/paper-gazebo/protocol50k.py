@@ -19,6 +19,12 @@ prints, per run, where its last glance goes at its last evaluation (the mean loc
 and how many of the objects one glance there tells apart (the Bayes accuracy of that single glance
 on the glance table TABLE, exact images).
 
+    python docs/results/paper-gazebo/protocol50k.py swap OUT.json RUN_DIR [RUN_DIR ...]
+
+evaluates each run with its last glance made at another pose (`ham evaluate --swap-last-pose`:
+its own, another episode's of the same object, another object's, a uniform one; sampled poses,
+100 batches) and writes the accuracies to OUT.json.
+
 Cells of MLP-core runs also get the averaged outputs' best (`best_accumulated`, the paper's
 <pi_MLP> row is scored on the same runs).
 """
@@ -135,12 +141,36 @@ def poses(table_path: str, dirs: list[str]) -> None:
         print(head + "; ".join(cells))
 
 
+def swap(out: str, dirs: list[str]) -> None:
+    """Per run, `ham evaluate RUN --swap-last-pose` (sampled poses, 100 batches, seed 12345):
+    the accuracy with the last glance at its own pose, at another episode's of the same object,
+    at another object's, at a uniform one; written to OUT (JSON) and printed."""
+    from ham.learn.evaluation import SWAPS, last_pose_swap
+    from ham.learn.train import load_run
+
+    rows = {}
+    for d in sorted(dirs):
+        run = load_run(d)
+        try:
+            r = last_pose_swap(run.agent, run.env, 100, seed=12345, policy="sample")
+        finally:
+            run.close()
+        rows[Path(d).name] = {"step": run.step, **r}
+        print(Path(d).name, " ".join(f"{k} {r[k]:.4f}" for k in SWAPS))
+    tmp = out + ".tmp"
+    Path(tmp).write_text(json.dumps(rows, indent=1) + "\n")
+    os.replace(tmp, out)
+
+
 def main() -> None:
     if sys.argv[1] == "plot":
         plot(sys.argv[2], sys.argv[3], sys.argv[4:])
         return
     if sys.argv[1] == "poses":
         poses(sys.argv[2], sys.argv[3:])
+        return
+    if sys.argv[1] == "swap":
+        swap(sys.argv[2], sys.argv[3:])
         return
     name, dirs = sys.argv[1], sys.argv[2:]
     data = json.load(open(HERE))

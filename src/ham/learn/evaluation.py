@@ -322,7 +322,9 @@ def last_pose_swap(
     (chosen from what earlier glances felt), a classifier that reads it (the "where" input) loses
     accuracy at another object's pose: ``own - other_object`` measures how much the location
     carries, the memory of the paper's MLP core, which sees only the last glance. The glances
-    before the last are replayed at their recorded poses, so a core with memory keeps it.
+    before the last are replayed at their recorded poses, so a core with memory keeps it. For a
+    core without memory (the MLP) ``same_object`` is ``own`` exactly: it permutes the same
+    (object, pose) glances among the object's episodes.
     Returns accuracies keyed by :data:`SWAPS`, with ``batches`` and ``episodes``.
     """
     _check(batches, policy, seed)
