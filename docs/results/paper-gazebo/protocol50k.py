@@ -23,7 +23,7 @@ on the glance table TABLE, exact images).
 
 evaluates each run with its last glance made at another pose (`ham evaluate --swap-last-pose`:
 its own, another episode's of the same object, another object's, a uniform one; sampled poses,
-100 batches) and writes the accuracies to OUT.json.
+100 batches) and writes the accuracies to OUT.json, and a bar chart of them beside it (OUT.png).
 
 Cells of MLP-core runs also get the averaged outputs' best (`best_accumulated`, the paper's
 <pi_MLP> row is scored on the same runs).
@@ -160,6 +160,42 @@ def swap(out: str, dirs: list[str]) -> None:
     tmp = out + ".tmp"
     Path(tmp).write_text(json.dumps(rows, indent=1) + "\n")
     os.replace(tmp, out)
+    swap_plot(rows, str(Path(out).with_suffix(".png")))
+
+
+def swap_plot(rows: dict, out: str) -> None:
+    """Bars per cell (the run names without the seed): the mean over the seeds of each swap's
+    accuracy, the seeds as dots."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ham.learn.evaluation import SWAPS
+
+    cells: dict[str, list[dict]] = {}
+    for name, r in rows.items():
+        cells.setdefault(name.rsplit("-s", 1)[0], []).append(r)
+    fig, ax = plt.subplots(figsize=(7, 3.6))
+    width = 0.8 / len(SWAPS)
+    for j, swap in enumerate(SWAPS):
+        for i, runs in enumerate(cells.values()):
+            xs = i + (j - (len(SWAPS) - 1) / 2) * width
+            ys = [r[swap] for r in runs]
+            ax.bar(xs, sum(ys) / len(ys), width, color=f"C{j}", label=swap if i == 0 else None)
+            ax.plot([xs] * len(ys), ys, "k.", ms=3)
+    ax.set_xticks(range(len(cells)), [f"{c} ({len(r)} seeds)" for c, r in cells.items()],
+                  fontsize=8)  # fmt: skip
+    ax.set_ylabel("accuracy after the last glance")
+    ax.set_ylim(0, 1.05)
+    ax.set_title("the last glance at its own pose or another's (sampled poses, 6,400 episodes)",
+                 fontsize=9)  # fmt: skip
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=7, ncol=4, loc="lower left")
+    tmp = out + ".tmp"
+    fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png")
+    os.replace(tmp, out)
+    print(out)
 
 
 def main() -> None:
