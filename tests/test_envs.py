@@ -377,6 +377,8 @@ def test_ham_train_env_flag_resumes_and_evaluates(ap_gym, ham_cli, tmp_path, cap
     d = json.loads(stdout)
     assert d["objects"] == ["0", "1"] and d["episodes"] == 16
     assert sum(map(sum, d["confusion"][-1])) == 16
+    code, _, err = ham_inprocess(capsys, "evaluate", str(out), "--swap-last-pose")
+    assert code == 2 and "accepted: a haptic world" in err and len(err.strip().splitlines()) == 1
 
     code, _, err = ham_inprocess(capsys, "train", "--resume", str(out), "--env", CS15)
     assert code == 2 and "remove --env" in err
