@@ -144,7 +144,7 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--device", default="cpu", help="cpu or cuda (wall-clock times on cuda)")
     p.add_argument("--products", choices=("auto", "onednn", "bmm"), default="auto",
-                   help="the batched CPU products: auto (by the CPU's vendor), one oneDNN "
+                   help="the batched CPU products: auto (by the CPU: oneDNN on AMD with AVX-512), one oneDNN "
                    "product per run, or one MKL bmm for all runs")  # fmt: skip
     p.add_argument("--json", action="store_true")
     args = p.parse_args()

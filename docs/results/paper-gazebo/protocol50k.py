@@ -4,7 +4,8 @@
 e.g. `protocol50k.py preset-g3 runs/gz-paper/runs/full-concat2-g3-s*`: per seed the best and the
 final accuracy, the steps run (a run stopped at a perfect evaluation ends early), mean ± s.e.m.
 of the best, and the mean over the seeds of the best accuracy so far at a few steps (a stopped
-run keeps its best, 1.000, from its stop on).
+run keeps its best, 1.000, from its stop on), and the curve a plot draws (`mean_curve`: each
+evaluation's mean accuracy over the seeds), so that figures outlive the run folders.
 
     python docs/results/paper-gazebo/protocol50k.py plot OUT.png TITLE LABEL:PAPER:GLOB [...]
 
@@ -62,6 +63,18 @@ def _so_far(ms: list[dict], averaged: bool) -> dict:
     return by_step
 
 
+def _mean_curve(ms: list[dict]) -> list[list[float]]:
+    """Every evaluation's accuracy, the mean over the seeds (up to the shortest run)."""
+    n = min(len(m["history"]) for m in ms)
+    return [
+        [
+            ms[0]["history"][i]["step"],
+            round(sum(m["history"][i]["accuracy"] for m in ms) / len(ms), 4),
+        ]
+        for i in range(n)
+    ]
+
+
 def cell(dirs: list[str]) -> dict:
     ms = [json.load(open(Path(d) / "metrics.json")) for d in sorted(dirs)]
     best = [round(m["best_accuracy"], 4) for m in ms]
@@ -77,6 +90,8 @@ def cell(dirs: list[str]) -> dict:
         "final": [round(m["final_accuracy"], 4) for m in ms],
         "final_mean": round(sum(m["final_accuracy"] for m in ms) / n, 4),
         "best_so_far_by_step": _so_far(ms, averaged=False),
+        # the plot's curve, so that a figure outlives the run folders: [step, mean accuracy]
+        "mean_curve": _mean_curve(ms),
     }
     if all(m["config"]["model"]["core"] == "mlp" for m in ms):
         acc = [round(m["best_accumulated_accuracy"], 4) for m in ms]

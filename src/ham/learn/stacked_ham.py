@@ -5,8 +5,8 @@ axis, ``(N, B, ...)`` in and out; :class:`ham.learn.batched.BatchedRuns` trains 
 What makes a step of N runs cheaper than N steps of one (docs/batched.md has the
 measurements):
 
-- the products (:func:`_mm_nt`): one ``bmm`` for all runs (on an AMD CPU each large product is one
-  oneDNN call per run), the layers reading the core's output joined into one layer
+- the products (:func:`_mm_nt`): one ``bmm`` for all runs (on an AMD CPU with AVX-512 each large
+  product is one oneDNN call per run), the layers reading the core's output joined into one layer
   (:meth:`StackedHam._heads`), and from 6 glances on the CPU the gates' forward as two products of
   half the outputs (:meth:`_Layer.split_forward`);
 - deferred weight gradients: each layer (:class:`_Layer`) records its inputs and output gradients
@@ -47,14 +47,17 @@ _LINEAR_ONEDNN = getattr(getattr(torch.ops, "mkldnn", None), "_linear_pointwise"
 if _LINEAR_ONEDNN is not None and not torch.backends.mkldnn.is_available():
     _LINEAR_ONEDNN = None
 # The CPU products' path, by what was measured (docs/batched.md): MKL, torch's BLAS,
-# picks its kernels by the CPU's vendor. On AMD it runs AVX2 kernels, and one oneDNN product
-# per run (AVX-512) is twice as fast as its batched bmm; on Intel it runs AVX-512 kernels, and
-# its bmm makes the batched step 1.2-1.3x faster than oneDNN per run. Fixed per machine, so a
-# run resumed on the same machine takes the same path (bit-identical resume).
-_PER_RUN_ONEDNN = cpu_info("vendor_id") == "AuthenticAMD"
+# picks its kernels by the CPU's vendor. On an AMD CPU with AVX-512 it runs AVX2 kernels, and
+# one oneDNN product per run (AVX-512) is twice as fast as its batched bmm; on Intel it runs
+# AVX-512 kernels, and on an AMD CPU without AVX-512 both have only AVX2: there its bmm makes
+# the batched step 1.2-1.3x faster than oneDNN per run. Fixed per machine, so a run resumed on
+# the same machine takes the same path (bit-identical resume).
+_AMD = cpu_info("vendor_id") == "AuthenticAMD"
+_PER_RUN_ONEDNN = _AMD and "avx512f" in cpu_info("flags").split()
 # tanh in the LSTM cell as 2 sigmoid(2x) - 1 (:class:`_TanhLSTMCell`): on AMD, where
-# torch.tanh is slow; fixed per machine as the products' path
-_SIGMOID_TANH = _PER_RUN_ONEDNN
+# torch.tanh is slow (with AVX-512 or without: 0.6 ms against 0.25 on 10 x 64 x 256);
+# fixed per machine as the products' path
+_SIGMOID_TANH = _AMD
 # smaller layers (poses in, heads out, 256 -> 64): one bmm beats N small calls (measured)
 _ONEDNN_MIN = 128 * 256
 # The forward of a layer with this many outputs (the LSTM's gates: 1024), in a step of at least
@@ -74,10 +77,11 @@ def _mm_nt(a: torch.Tensor, b: torch.Tensor, bias: torch.Tensor | None = None) -
     either possibly a transposed view (never copied: a transposing copy costs more than the
     product).
 
-    On an AMD CPU in fp32 (:data:`_PER_RUN_ONEDNN`), one oneDNN product per run: MKL's sgemm
-    runs its AVX2 kernels there, oneDNN's AVX-512 kernels are twice as fast, and MKL's batched
-    ``bmm`` is no faster than a loop of single products. Elsewhere (Intel: MKL's AVX-512
-    kernels; CUDA: one launch for all runs) one ``bmm``, the bias added in place on the CPU
+    On an AMD CPU with AVX-512 in fp32 (:data:`_PER_RUN_ONEDNN`), one oneDNN product per run:
+    MKL's sgemm runs its AVX2 kernels there, oneDNN's AVX-512 kernels are twice as fast, and
+    MKL's batched ``bmm`` is no faster than a loop of single products. Elsewhere (Intel: MKL's
+    AVX-512 kernels; AMD without AVX-512: AVX2 either way; CUDA: one launch for all runs) one
+    ``bmm``, the bias added in place on the CPU
     (``baddbmm`` first copies the broadcast bias into the output: 10.2 vs 8.7 ms for the LSTM's
     gates of 10 runs) and by ``baddbmm`` on a GPU (docs/batched.md)."""
     if _onednn_ok(a, b):
