@@ -199,7 +199,7 @@ def swap_plot(rows: dict, out: str) -> None:
             ys = [r[swap] for r in runs]
             ax.bar(xs, sum(ys) / len(ys), width, color=f"C{j}", label=swap if i == 0 else None)
             ax.plot([xs] * len(ys), ys, "k.", ms=3)
-    ax.set_xticks(range(len(cells)), [f"{c} ({len(r)} seeds)" for c, r in cells.items()],
+    ax.set_xticks(range(len(cells)), [f"{c}\n({len(r)} seeds)" for c, r in cells.items()],
                   fontsize=8)  # fmt: skip
     ax.set_ylabel("accuracy after the last glance")
     ax.set_ylim(0, 1.05)
