@@ -63,14 +63,14 @@ def _so_far(ms: list[dict], averaged: bool) -> dict:
     return by_step
 
 
-def _mean_curve(ms: list[dict]) -> list[list[float]]:
-    """Every evaluation's accuracy, the mean over the seeds (up to the shortest run)."""
+def _mean_curve(ms: list[dict], averaged: bool = False) -> list[tuple[int, float]]:
+    """Every evaluation's ``(step, accuracy)``, the mean over the seeds (up to the shortest run)."""
     n = min(len(m["history"]) for m in ms)
     return [
-        [
+        (
             ms[0]["history"][i]["step"],
-            round(sum(m["history"][i]["accuracy"] for m in ms) / len(ms), 4),
-        ]
+            sum(_accuracy(m["history"][i], averaged) for m in ms) / len(ms),
+        )
         for i in range(n)
     ]
 
@@ -91,7 +91,7 @@ def cell(dirs: list[str]) -> dict:
         "final_mean": round(sum(m["final_accuracy"] for m in ms) / n, 4),
         "best_so_far_by_step": _so_far(ms, averaged=False),
         # the plot's curve, so that a figure outlives the run folders: [step, mean accuracy]
-        "mean_curve": _mean_curve(ms),
+        "mean_curve": [[step, round(a, 4)] for step, a in _mean_curve(ms)],
     }
     if all(m["config"]["model"]["core"] == "mlp" for m in ms):
         acc = [round(m["best_accumulated_accuracy"], 4) for m in ms]
@@ -118,11 +118,9 @@ def plot(out: str, title: str, cells: list[str]) -> None:
         averaged = spec.startswith("avg=")
         label, paper, pattern = spec.removeprefix("avg=").split(":", 2)
         ms = [json.load(open(Path(d) / "metrics.json")) for d in sorted(glob.glob(pattern))]
-        steps = [e["step"] for e in ms[0]["history"]]
-        n = min(len(m["history"]) for m in ms)
-        mean = [sum(_accuracy(m["history"][i], averaged) for m in ms) / len(ms) for i in range(n)]
+        steps, mean = zip(*_mean_curve(ms, averaged), strict=True)
         color = f"C{k}"
-        ax.plot(steps[:n], mean, color=color, lw=1, label=f"{label} ({len(ms)} seeds)")
+        ax.plot(steps, mean, color=color, lw=1, label=f"{label} ({len(ms)} seeds)")
         ax.axhline(float(paper), color=color, ls="--", lw=1)
     ax.set_xlabel("training step")
     ax.set_ylabel("accuracy (sampled poses, 6,400 episodes)")
