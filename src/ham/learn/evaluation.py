@@ -289,13 +289,9 @@ def swap_partners(objects: torch.Tensor, n_objects: int) -> tuple[torch.Tensor, 
     other = torch.empty_like(objects)
     for o, idx in enumerate(members):
         same[idx] = idx.roll(-1)
-        m = torch.arange(len(idx), device=objects.device)
-        partner = (o + 1 + m % (n_objects - 1)) % n_objects
-        for p in range(n_objects):
-            chosen = partner == p
-            if chosen.any():
-                pool = members[p]
-                other[idx[chosen]] = pool[m[chosen] % len(pool)]
+        for m, i in enumerate(idx.tolist()):
+            pool = members[(o + 1 + m % (n_objects - 1)) % n_objects]
+            other[i] = pool[m % len(pool)]
     return same, other
 
 
