@@ -26,6 +26,8 @@ heat maps).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 
 import torch
@@ -85,6 +87,23 @@ def _check(batches: int, policy: str, seed: int = 0) -> None:
         raise HamError(f"evaluation policy {policy!r}; accepted: {', '.join(EVAL_POLICIES)}")
 
 
+@contextmanager
+def _evaluating(
+    agent: HapticAttentionModel, env: HapticEnv, seed: int
+) -> Iterator[torch.Generator]:
+    """The agent in eval mode (its mode restored after) and a generator seeded by ``seed`` on
+    the world's device: the set-up shared by every evaluation here, so that one seed gives the
+    same episodes in each."""
+    generator = torch.Generator(device=env.device)
+    generator.manual_seed(int(seed))
+    was_training = agent.training
+    agent.eval()
+    try:
+        yield generator
+    finally:
+        agent.train(was_training)
+
+
 @torch.no_grad()
 def evaluate(
     agent: HapticAttentionModel,
@@ -95,8 +114,6 @@ def evaluate(
 ) -> EvalResult:
     """Accuracies of ``agent`` on ``batches`` balanced batches of ``env`` (poses seeded by ``seed``)."""
     _check(batches, policy, seed)
-    generator = torch.Generator(device=env.device)
-    generator.manual_seed(int(seed))
     glances, k = agent.config.glances, env.n_objects
     correct = torch.zeros(glances, device=env.device)
     accumulated = torch.zeros(glances, device=env.device)
@@ -108,9 +125,7 @@ def evaluate(
     path = torch.zeros((), device=env.device, dtype=torch.float64)
     stop_correct = torch.zeros((), device=env.device, dtype=torch.float64)
     stop_glances_sum = torch.zeros((), device=env.device, dtype=torch.float64)
-    was_training = agent.training
-    agent.eval()
-    try:
+    with _evaluating(agent, env, seed) as generator:
         for b in range(batches):
             objects = env.balanced_objects(b)
             episode = agent(env, objects, generator, greedy=policy == "mean")
@@ -131,8 +146,6 @@ def evaluate(
             if mode is not None:
                 mu_sum.index_add_(0, objects, mode[-1].double())
                 n_obj += torch.bincount(objects, minlength=k)
-    finally:
-        agent.train(was_training)
     stop = (stop_correct, stop_glances_sum) if agent.config.stop else None
     return eval_result(env, batches, correct, accumulated, confusion, mu_sum, n_obj, path, stop)
 
@@ -200,8 +213,6 @@ def heatmap_data(
     _check(batches, policy, seed)
     if not (isinstance(bins, int) and 1 <= bins <= MAX_BINS):
         raise HamError(f"bins = {bins!r}; accepted: an integer 1..{MAX_BINS}")
-    generator = torch.Generator(device=env.device)
-    generator.manual_seed(int(seed))
     k = env.n_objects
     dims = tuple(agent.config.pose_dims)
     pairs = [(a, b) for a in range(len(dims)) for b in range(a + 1, len(dims))] or [(0, None)]
@@ -212,9 +223,7 @@ def heatmap_data(
     n_obj = torch.zeros(k, device=env.device, dtype=torch.float64)
     correct = 0.0
     has_mu = has_sigma = False
-    was_training = agent.training
-    agent.eval()
-    try:
+    with _evaluating(agent, env, seed) as generator:
         for b in range(batches):
             objects = env.balanced_objects(b)
             episode = agent(env, objects, generator, greedy=policy == "mean")
@@ -237,8 +246,6 @@ def heatmap_data(
                 if scale is not None:
                     sigma_sum.index_add_(0, objects, scale[-1].double())
                     has_sigma = True
-    finally:
-        agent.train(was_training)
     denom = n_obj.clamp_min(1)[:, None]
     mu_mean = mu_sum / denom
     mu_std = (mu_sq / denom - mu_mean**2).clamp_min(0).sqrt()
@@ -329,13 +336,9 @@ def last_pose_swap(
             f"the last pose swap on {type(env).__name__}; accepted: a haptic world (a table or "
             "the online simulator), whose glances can be replayed at chosen poses"
         )
-    generator = torch.Generator(device=env.device)
-    generator.manual_seed(int(seed))
     k = env.n_objects
     correct = dict.fromkeys(SWAPS, 0)
-    was_training = agent.training
-    agent.eval()
-    try:
+    with _evaluating(agent, env, seed) as generator:
         episodes = []
         for b in range(batches):
             objects = env.balanced_objects(b)
@@ -352,7 +355,5 @@ def last_pose_swap(
             for name, q in zip(SWAPS, (last, last[same], last[other], uniform), strict=True):
                 tau, _ = agent.glance_step(env, objects, q, state)
                 correct[name] += int((agent.classifier(tau).argmax(-1) == objects).sum())
-    finally:
-        agent.train(was_training)
     n = batches * env.batch_size
     return {**{name: c / n for name, c in correct.items()}, "batches": batches, "episodes": n}

@@ -3,6 +3,8 @@ the CPU says of itself (:func:`cpu_info`)."""
 
 from __future__ import annotations
 
+import functools
+
 import torch
 
 from ham.errors import HamError
@@ -42,14 +44,24 @@ def check_device(device: str | torch.device, *, available: bool = True) -> torch
 
 def cpu_info(key: str) -> str:
     """The first ``key`` line of ``/proc/cpuinfo`` (``vendor_id``: ``GenuineIntel`` or
-    ``AuthenticAMD``; ``model name``), or ``""`` where there is none (another OS or
+    ``AuthenticAMD``; ``model name``; ``flags``), or ``""`` where there is none (another OS or
     architecture)."""
+    return _first_cpu_lines().get(key, "")
+
+
+@functools.cache
+def _first_cpu_lines() -> dict[str, str]:
+    """The first CPU's ``/proc/cpuinfo`` lines by name, read once per process (the CPU does not
+    change under a running process)."""
+    lines: dict[str, str] = {}
     try:
         with open("/proc/cpuinfo") as f:
             for line in f:
                 name, sep, value = line.partition(":")
-                if sep and name.strip() == key:
-                    return value.strip()
+                if sep:
+                    lines.setdefault(name.strip(), value.strip())
+                elif lines:  # the blank line after the first CPU's block
+                    break
     except OSError:
         pass
-    return ""
+    return lines
