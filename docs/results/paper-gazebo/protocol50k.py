@@ -12,7 +12,8 @@ evaluation's mean accuracy over the seeds), so that figures outlive the run fold
 draws each cell's accuracy during training (the mean over the seeds of every evaluation, the runs
 matched by the glob GLOB) with the paper's number PAPER as a dashed line of the same colour. A
 spec written `avg=LABEL:PAPER:GLOB` draws the accuracy of the outputs averaged over the glances
-(the paper's <pi_MLP>) instead.
+(the paper's <pi_MLP>) instead. GLOB written `cell=NAME` draws the `mean_curve` stored in
+protocol50k.json's cell NAME (for a cell whose run folders are gone).
 
     python docs/results/paper-gazebo/protocol50k.py poses TABLE RUN_DIR [RUN_DIR ...]
 
@@ -117,10 +118,17 @@ def plot(out: str, title: str, cells: list[str]) -> None:
     for k, spec in enumerate(cells):
         averaged = spec.startswith("avg=")
         label, paper, pattern = spec.removeprefix("avg=").split(":", 2)
-        ms = [json.load(open(Path(d) / "metrics.json")) for d in sorted(glob.glob(pattern))]
-        steps, mean = zip(*_mean_curve(ms, averaged), strict=True)
+        if pattern.startswith("cell="):  # a stored cell's curve, its run folders gone
+            if averaged:
+                sys.exit(f"{spec}: a stored cell keeps the last output's curve only, not avg=")
+            stored = json.load(open(HERE))["cells"][pattern.removeprefix("cell=")]
+            curve, seeds = stored["mean_curve"], len(stored["seeds"])
+        else:
+            ms = [json.load(open(Path(d) / "metrics.json")) for d in sorted(glob.glob(pattern))]
+            curve, seeds = _mean_curve(ms, averaged), len(ms)
+        steps, mean = zip(*curve, strict=True)
         color = f"C{k}"
-        ax.plot(steps, mean, color=color, lw=1, label=f"{label} ({len(ms)} seeds)")
+        ax.plot(steps, mean, color=color, lw=1, label=f"{label} ({seeds} seeds)")
         ax.axhline(float(paper), color=color, ls="--", lw=1)
     ax.set_xlabel("training step")
     ax.set_ylabel("accuracy (sampled poses, 6,400 episodes)")
