@@ -148,6 +148,11 @@ def check_batchable(config: TrainConfig) -> None:
             "batched; accepted: the paper's x,phi without height (train it with ham train or "
             "--executor local)"
         )
+    if config.pose_noise > 0:
+        raise HamError(
+            f"pose_noise = {config.pose_noise!r} cannot be batched; accepted: 0 (train it with "
+            "ham train or --executor local)"
+        )
     if config.object_pose.enabled:
         raise HamError(
             "a random object pose cannot be batched; accepted: none (train it with ham train "

@@ -6,7 +6,8 @@ no fixed training set. :class:`HapticEnv` draws such batches from its own seeded
 ``torch.Generator`` and answers glances ``q = (q_x, q_phi) in [-1, 1]^2`` with normalized
 pressure vectors (L2 by default, the paper; L1 as in the authors' code). Beyond the paper:
 ``q in [-1, 1]^k`` over the world's pose dims, the contact height ``h`` with each glance
-(:meth:`HapticEnv.glance_height`), and a random object pose per episode (``object_pose``).
+(:meth:`HapticEnv.glance_height`), a random object pose per episode (``object_pose``), and
+actuation noise: each glance made a little off the pose the agent chose (``pose_noise``).
 
 Glances come from a :class:`ham.world.source.GlanceSource`. Evaluation uses balanced batches (:meth:`HapticEnv.balanced_objects`).
 """
@@ -18,6 +19,9 @@ import torch
 from ham.errors import HamError
 from ham.world.sensor import NORMALIZATIONS, normalize
 from ham.world.source import GlanceSource, ObjectPoseConfig
+
+# keeps the evaluation batches' noise seeds apart from their object-pose seeds
+_NOISE_STREAM = 2**40
 
 
 class HapticEnv:
@@ -32,6 +36,12 @@ class HapticEnv:
         object_pose: a random object pose per episode (:class:`ObjectPoseConfig`; ``None`` or
             a disabled one: the objects stay at their pose, the paper). Training batches draw
             it from the object generator; evaluation batch ``i`` from its own seed.
+        pose_noise: the standard deviation of Gaussian noise on each glance's pose, in the
+            normalized units (0: none, the paper). The glance is made at the noisy pose,
+            clamped to ``[-1, 1]``; the caller keeps the pose it chose. Training batches draw
+            the noise from the object generator (so checkpoints hold it), evaluation batch
+            ``i`` from a generator of its own seed, glance after glance: the same evaluation
+            episodes at every evaluation, and evaluating leaves the training stream as it was.
     """
 
     def __init__(
@@ -42,6 +52,7 @@ class HapticEnv:
         seed: int = 0,
         device: str | torch.device = "cpu",
         object_pose: ObjectPoseConfig | None = None,
+        pose_noise: float = 0.0,
     ) -> None:
         if not (isinstance(batch_size, int) and batch_size >= 1):
             raise HamError(f"batch_size = {batch_size!r}; accepted: an integer >= 1")
@@ -49,6 +60,12 @@ class HapticEnv:
             raise HamError(
                 f"normalization {normalization!r}; accepted: {', '.join(NORMALIZATIONS)}"
             )
+        if (
+            isinstance(pose_noise, bool)
+            or not isinstance(pose_noise, (int, float))
+            or not (0 <= pose_noise <= 1)
+        ):
+            raise HamError(f"pose_noise = {pose_noise!r}; accepted: a number 0..1")
         self.source = source
         self.pose_dims = tuple(getattr(source, "pose_dims", ("x", "phi")))
         self.n_objects = source.n_objects
@@ -61,6 +78,8 @@ class HapticEnv:
         self.seed = int(seed)
         self.object_pose = object_pose if object_pose and object_pose.enabled else None
         self._pose: tuple[torch.Tensor, ...] | None = None  # the current batch's object poses
+        self.pose_noise = float(pose_noise)
+        self._noise = self.generator  # the current batch's pose-noise generator
 
     @property
     def objects(self) -> list:
@@ -75,6 +94,7 @@ class HapticEnv:
         )
         if self.object_pose is not None:
             self._pose = self.object_pose.sample(len(ids), self.generator, self.device)
+        self._noise = self.generator
         return ids
 
     def balanced_objects(self, batch_index: int = 0) -> torch.Tensor:
@@ -88,7 +108,19 @@ class HapticEnv:
             g = torch.Generator(device=self.device)
             g.manual_seed(10_007 * (self.seed + 1) + batch_index)
             self._pose = self.object_pose.sample(len(ids), g, self.device)
+        if self.pose_noise > 0:
+            self._noise = torch.Generator(device=self.device)
+            self._noise.manual_seed(10_007 * (self.seed + 1) + batch_index + _NOISE_STREAM)
         return ids
+
+    def executed(self, q: torch.Tensor) -> torch.Tensor:
+        """The poses the glances at ``q`` ``(B, k)`` are made at: ``q`` itself, or with
+        ``pose_noise`` ``q`` plus Gaussian noise, clamped to ``[-1, 1]`` (the pad cannot leave
+        its range), drawn from the current batch's generator."""
+        if self.pose_noise == 0:
+            return q
+        noise = torch.randn(q.shape, generator=self._noise, device=self.device)
+        return (q + noise.to(q.dtype).mul_(self.pose_noise)).clamp_(-1, 1)
 
     def glance_height(
         self, object_ids: torch.Tensor, q: torch.Tensor
@@ -101,7 +133,7 @@ class HapticEnv:
                 f"{object_ids.shape[0]} objects but the batch drew {pose[0].shape[0]} object "
                 "poses; accepted: the ids of the last sample_objects/balanced_objects batch"
             )
-        pressure, height = self.source.glance(object_ids, q, pose)
+        pressure, height = self.source.glance(object_ids, self.executed(q), pose)
         pressure = normalize(pressure.to(self.device, torch.float32), self.normalization)
         return pressure, height.to(self.device, torch.float32)
 

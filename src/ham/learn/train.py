@@ -165,6 +165,11 @@ class TrainConfig:
             (0: off, the paper).
         object_offset_max: and shifted along x and y by offsets uniform in
             [-object_offset_max, object_offset_max] m (0: off, the paper).
+        pose_noise: actuation noise (beyond the paper; the haptic world, a table or online):
+            each glance is made at the chosen pose plus Gaussian noise of this standard
+            deviation in the normalized pose units (the range [-1, 1]: 0.05 is 2.5 % of it),
+            clamped to the range, while the model's "where" input stays the chosen pose
+            (:class:`ham.learn.environment.HapticEnv`; 0: off, the paper).
         replay_size: the sac learner's replay buffer, in episodes (the oldest overwritten).
         replay_batch: episodes replayed per sac update.
         sac_updates: sac updates per training step (each on a fresh draw from the buffer;
@@ -221,6 +226,7 @@ class TrainConfig:
     policy_epochs: int | None = None
     object_yaw_max: float = 0.0
     object_offset_max: float = 0.0
+    pose_noise: float = 0.0
     replay_size: int = 100_000
     replay_batch: int = 32
     sac_updates: int = 4
@@ -328,6 +334,14 @@ class TrainConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= top:
                 raise HamError(f"{name} = {v!r}; accepted: a number 0..{top:.6g}")
+        v = self.pose_noise
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= 1:
+            raise HamError(f"pose_noise = {v!r}; accepted: a number 0..1 (normalized pose units)")
+        if v > 0 and self.env is not None:
+            raise HamError(
+                f"pose_noise = {v!r} with env {self.env.env!r}; accepted: a pose noise in the "
+                "haptic world (a table or online glances)"
+            )
         if self.object_pose.enabled and (self.table is not None or self.env is not None):
             raise HamError(
                 f"a random object pose ({self.object_pose}) with "
@@ -683,6 +697,7 @@ def make_env(config: TrainConfig, device: torch.device | str = "cpu") -> HapticE
         stream_seed(config.seed, 0),
         device,
         object_pose=config.object_pose,
+        pose_noise=config.pose_noise,
     )
 
 
