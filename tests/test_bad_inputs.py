@@ -328,6 +328,8 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("train-beta-minus", ["train", "--out", "r", "--beta", "-1"], "-1"),
     ("train-beta-nan", ["train", "--out", "r", "--beta", "nan"], "nan"),
     ("train-seed-minus", ["train", "--out", "r", "--seed", "-1"], "-1"),
+    ("train-seed-huge", ["train", "--out", "r", "--seed", "99999999999999999999"], "accepted: an integer 0..4294967295"),
+    ("train-pose-noise-minus", ["train", "--out", "r", "--pose-noise", "-0.1"], "pose_noise = -0.1"),
     ("train-eval-every-0", ["train", "--out", "r", "--eval-every", "0"], "eval_every = 0"),
     ("train-eval-batches-0", ["train", "--out", "r", "--eval-batches", "0"], "eval_batches = 0"),
     ("train-lr-step-0", ["train", "--out", "r", "--lr-step", "0"], "lr_step = 0"),

@@ -193,6 +193,10 @@ def test_resume_refuses_in_one_line(tmp_path, capsys):
     for argv, message in [
         (["sb3", "--resume", str(tmp_path), "--out", str(tmp_path / "c")], "not both"),
         (["sb3", "--out", str(tmp_path / "c")], "needs --algo"),
+        (
+            ["sb3", "--algo", "ppo", "--seed", "4294967296", "--out", str(tmp_path / "c")],
+            "seed = 4294967296; accepted: an integer 0..4294967295",
+        ),
     ]:
         assert main(argv) == 2
         err = capsys.readouterr().err.strip().splitlines()

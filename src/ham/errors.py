@@ -31,3 +31,15 @@ def check_known_fields(cls, d: dict, what: str) -> None:
     unknown = sorted(str(k) for k in d if k not in known)
     if unknown:
         raise HamError(f"{what} has unknown fields {unknown}; accepted: {', '.join(known)}")
+
+
+#: The largest run seed: a run's generators are seeded by ``seed * 1000 + stream`` (and the
+#: evaluation batches' by multiples of that), and NumPy's and Stable-Baselines3's by ``seed``:
+#: 32 bits keep every one of them inside the 64-bit seeds torch and NumPy take.
+MAX_SEED = 2**32 - 1
+
+
+def check_seed(seed) -> None:
+    """A run's seed: an integer ``0..MAX_SEED`` (one line naming the value otherwise)."""
+    if not (isinstance(seed, int) and not isinstance(seed, bool) and 0 <= seed <= MAX_SEED):
+        raise HamError(f"seed = {seed!r}; accepted: an integer 0..{MAX_SEED}")

@@ -37,7 +37,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ham.errors import HamError, check_choices
+from ham.errors import HamError, check_choices, check_seed
 from ham.world.files import atomic_write
 
 ALGOS: tuple[str, ...] = ("ppo", "sac", "crossq")
@@ -200,8 +200,7 @@ class Sb3Config:
             v = getattr(self, name)
             if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
                 raise HamError(f"{name} = {v!r}; accepted: an integer >= 1")
-        if not (isinstance(self.seed, int) and self.seed >= 0):
-            raise HamError(f"seed = {self.seed!r}; accepted: an integer >= 0")
+        check_seed(self.seed)
         from ham.world.devices import check_device
 
         check_device(self.device, available=False)  # the spelling; train_sb3 checks presence

@@ -36,7 +36,7 @@ import torch
 from torch import nn
 from tqdm.auto import tqdm
 
-from ham.errors import HamError, check_choices, check_known_fields
+from ham.errors import HamError, check_choices, check_known_fields, check_seed
 from ham.learn.ap_adapter import ApGymConfig, ApGymGlanceEnv
 from ham.learn.environment import HapticEnv
 from ham.learn.evaluation import EVAL_POLICIES, EvalResult, evaluate
@@ -280,8 +280,7 @@ class TrainConfig:
             )
         if not (math.isfinite(self.beta) and self.beta >= 0):
             raise HamError(f"beta = {self.beta!r}; accepted: a finite number >= 0")
-        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
-            raise HamError(f"seed = {self.seed!r}; accepted: an integer >= 0")
+        check_seed(self.seed)
         check_choices(self)
         for name in ("gamma", "gae_lambda"):
             v = getattr(self, name)
