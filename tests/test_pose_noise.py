@@ -102,3 +102,9 @@ def test_the_cli_refuses_a_bad_pose_noise_and_a_batched_noisy_run(tmp_path, ham_
 
     with pytest.raises(HamError, match="pose_noise = 0.05 cannot be batched"):
         check_batchable(_tiny())
+
+
+@pytest.mark.parametrize("bad", [float("nan"), -0.5, 1.5, "0.1", None])
+def test_the_env_refuses_a_bad_pose_noise(source, bad):
+    with pytest.raises(HamError, match=r"pose_noise = .*; accepted: a number 0\.\.1"):
+        HapticEnv(source, batch_size=8, pose_noise=bad)

@@ -24,6 +24,13 @@ from ham.world.source import GlanceSource, ObjectPoseConfig
 _NOISE_STREAM = 2**40
 
 
+def check_pose_noise(pose_noise) -> None:
+    """A pose noise (standard deviation, normalized pose units): a number 0..1."""
+    v = pose_noise
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= 1:
+        raise HamError(f"pose_noise = {v!r}; accepted: a number 0..1 (normalized pose units)")
+
+
 class HapticEnv:
     """Batches of objects and their normalized glances.
 
@@ -60,12 +67,7 @@ class HapticEnv:
             raise HamError(
                 f"normalization {normalization!r}; accepted: {', '.join(NORMALIZATIONS)}"
             )
-        if (
-            isinstance(pose_noise, bool)
-            or not isinstance(pose_noise, (int, float))
-            or not (0 <= pose_noise <= 1)
-        ):
-            raise HamError(f"pose_noise = {pose_noise!r}; accepted: a number 0..1")
+        check_pose_noise(pose_noise)
         self.source = source
         self.pose_dims = tuple(getattr(source, "pose_dims", ("x", "phi")))
         self.n_objects = source.n_objects

@@ -38,7 +38,7 @@ from tqdm.auto import tqdm
 
 from ham.errors import HamError, check_choices, check_known_fields, check_seed
 from ham.learn.ap_adapter import ApGymConfig, ApGymGlanceEnv
-from ham.learn.environment import HapticEnv
+from ham.learn.environment import HapticEnv, check_pose_noise
 from ham.learn.evaluation import EVAL_POLICIES, EvalResult, evaluate
 from ham.learn.hybrid_loss import REDUCTIONS, HybridLoss, hybrid_loss
 from ham.learn.info_loss import (
@@ -333,12 +333,10 @@ class TrainConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= top:
                 raise HamError(f"{name} = {v!r}; accepted: a number 0..{top:.6g}")
-        v = self.pose_noise
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= 1:
-            raise HamError(f"pose_noise = {v!r}; accepted: a number 0..1 (normalized pose units)")
-        if v > 0 and self.env is not None:
+        check_pose_noise(self.pose_noise)
+        if self.pose_noise > 0 and self.env is not None:
             raise HamError(
-                f"pose_noise = {v!r} with env {self.env.env!r}; accepted: a pose noise in the "
+                f"pose_noise = {self.pose_noise!r} with env {self.env.env!r}; accepted: a pose noise in the "
                 "haptic world (a table or online glances)"
             )
         if self.object_pose.enabled and (self.table is not None or self.env is not None):
