@@ -199,6 +199,39 @@ def test_runs_of_other_glance_counts_share_a_batch(tmp_path, policy, device):
         assert len(history[-1]["accuracy_per_glance"]) == c.model.glances
 
 
+def test_runs_with_pose_noise_equal_single_runs(tmp_path):
+    # each run draws its noise from its own object stream, as its single run: one sigma per run
+    # (none for one), and a run of fewer glances that stops drawing after its last
+    configs = [tiny(0, pose_noise=0.05), tiny(1, pose_noise=0.2),
+               tiny(2, model=HamConfig(glances=2), pose_noise=0.1), tiny(3)]  # fmt: skip
+    train_both(tmp_path, configs)
+    assert_same_runs(tmp_path, configs)
+    quiet = train(tiny(0), tmp_path / "quiet", progress=False)  # run 0 without its noise
+    assert (
+        quiet["history"][-1]["train_loss"] != metrics(tmp_path / "b0")["history"][-1]["train_loss"]
+    )
+
+
+@pytest.mark.parametrize("policy", ["mean", "sample"])
+def test_the_batched_evaluation_under_pose_noise_equals_each_runs_own(
+    tmp_path, monkeypatch, policy
+):
+    monkeypatch.setattr(batched, "_EVAL_ROWS", 16)  # 5 batches of 8 in passes of 2 batches
+    configs = [tiny(s, eval_batches=5, eval_policy=policy, pose_noise=0.1 * s) for s in range(3)]
+    outs = [tmp_path / f"b{s}" for s in range(3)]
+    group = BatchedRuns(_open_runs(configs, outs), outs)
+    group.step()
+    for i, got in zip([0, 1, 2], group.evaluate([0, 1, 2]), strict=True):
+        r = group.runs[i]
+        want = evaluate(r.agent, r.env, 5, seed=stream_seed(i, 2), policy=policy).to_dict()
+        got = got.to_dict()
+        for key in ("path_length", "mu_mean"):
+            assert torch.allclose(
+                torch.tensor(got.pop(key)), torch.tensor(want.pop(key)), atol=1e-5
+            )
+        assert got == want
+
+
 @pytest.mark.parametrize(
     "model,policy",
     [

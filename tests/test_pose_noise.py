@@ -90,7 +90,7 @@ def test_a_bad_pose_noise_is_refused(kw, match):
         _tiny(**kw)
 
 
-def test_the_cli_refuses_a_bad_pose_noise_and_a_batched_noisy_run(tmp_path, ham_main):
+def test_the_cli_refuses_a_bad_pose_noise_and_a_graphed_noisy_run(tmp_path, ham_main):
     line = one_line_error(ham_main("train", "--pose-noise", "1.5", "--out", str(tmp_path / "r")))
     assert "pose_noise = 1.5; accepted: a number 0..1" in line
     assert not (tmp_path / "r").exists()
@@ -98,10 +98,12 @@ def test_the_cli_refuses_a_bad_pose_noise_and_a_batched_noisy_run(tmp_path, ham_
                                    "0.1", "--out", str(tmp_path / "r")))  # fmt: skip
     assert "pose_noise = 0.1 with env 'ap_gym:CircleSquare-v0'" in line
     assert not (tmp_path / "r").exists()
-    from ham.learn.batched import check_batchable
+    from ham.learn.batched import BatchedRuns, _open_runs, check_batchable
 
-    with pytest.raises(HamError, match="pose_noise = 0.05 cannot be batched"):
-        check_batchable(_tiny())
+    check_batchable(_tiny())  # batched runs draw each run's noise as its single run
+    outs = [tmp_path / "b0"]
+    with pytest.raises(HamError, match="pose_noise with a CUDA graph"):
+        BatchedRuns(_open_runs([_tiny()], outs), outs, cuda_graph=True)
 
 
 @pytest.mark.parametrize("bad", [float("nan"), -0.5, 1.5, "0.1", None])

@@ -84,7 +84,8 @@ _PARTS = ("classification", "reinforce", "baseline_loss")  # TensorBoard, as tra
 # the world, the optimizer, the batch) is one for the group.
 PER_RUN = ("seed", "steps", "lr", "lr_decay", "lr_step", "lr_min", "momentum", "nesterov",
            "policy_lr_scale", "beta", "classification_reduction", "reinforce_reduction",
-           "normalization", "eval_every", "eval_batches", "eval_policy", "log_every")  # fmt: skip
+           "normalization", "eval_every", "eval_batches", "eval_policy", "log_every",
+           "pose_noise")  # fmt: skip
 
 
 def shape_key(config: TrainConfig, glances: bool = True) -> str:
@@ -147,11 +148,6 @@ def check_batchable(config: TrainConfig) -> None:
             f"{' with the height input' if config.model.height_input else ''} cannot be "
             "batched; accepted: the paper's x,phi without height (train it with ham train or "
             "--executor local)"
-        )
-    if config.pose_noise > 0:
-        raise HamError(
-            f"pose_noise = {config.pose_noise!r} cannot be batched; accepted: 0 (train it with "
-            "ham train or --executor local)"
         )
     if config.object_pose.enabled:
         raise HamError(
@@ -233,20 +229,33 @@ def _own_glances(episode: list, glances: int) -> list:
     return [objects, locations[:, :glances], logits[:, :glances], baselines[:, :glances], *policy]
 
 
+def _executed(runs: list[Run], q: torch.Tensor, glancing: list[bool], noise=None) -> torch.Tensor:
+    """Each run's executed poses ``(N, B, 2)`` for its chosen poses ``q``
+    (:meth:`HapticEnv.executed`): with pose noise drawn from its own env's current generator,
+    as its single run draws them, or taken from ``noise`` ``(N, B, 2)`` (drawn ahead); a run
+    past its last glance (``glancing`` false) draws nothing. ``q`` itself without noise."""
+    if all(r.env.pose_noise == 0 for r in runs):
+        return q
+    return torch.stack([
+        r.env.executed(q[k], None if noise is None else noise[k]) if glancing[k] else q[k]
+        for k, r in enumerate(runs)
+    ])  # fmt: skip
+
+
 def _pressure(runs: list[Run], flat_objects: torch.Tensor, q: torch.Tensor, const) -> torch.Tensor:
-    """The glances ``(N, B, N^2)`` of ``runs`` at poses ``q (N, B, 2)`` on objects
-    ``flat_objects (N * B,)``, as each run's :meth:`HapticEnv.glance` gives them: one lookup
-    for all runs of one normalization (their envs share the glance source). ``const``:
-    :meth:`BatchedRuns._const`."""
+    """The glances ``(N, B, N^2)`` of ``runs`` at executed poses ``q (N, B, 2)``
+    (:func:`_executed`) on objects ``flat_objects (N * B,)``, as each run's
+    :meth:`HapticEnv.glance` gives them: one lookup for all runs of one normalization (their
+    envs share the glance source). ``const``: :meth:`BatchedRuns._const`."""
     n, rows = q.shape[0], q.shape[1]
     kinds = _grouped(range(n), lambda k: runs[k].env.normalization)
     if len(kinds) == 1:
-        return runs[0].env.glance(flat_objects, q.reshape(-1, 2)).view(n, rows, -1)
+        return runs[0].env.glance(flat_objects, q.reshape(-1, 2), exact=True).view(n, rows, -1)
     objects, out = flat_objects.view(n, rows), None
     for ks in kinds.values():
         idx = const(ks)
         part = runs[ks[0]].env.glance(objects.index_select(0, idx).reshape(-1),
-                                      q.index_select(0, idx).reshape(-1, 2))  # fmt: skip
+                                      q.index_select(0, idx).reshape(-1, 2), exact=True)  # fmt: skip
         part = part.view(len(ks), rows, -1)
         out = part.new_empty(n, rows, part.shape[2]) if out is None else out
         out.index_copy_(0, idx, part)
@@ -282,6 +291,9 @@ class BatchedRuns:
         if cuda_graph and not (self._sgd and _FUSED_SGD is not None):
             raise HamError(f"optimizer {self.runs[0].config.optimizer!r} with a CUDA graph; "
                            "accepted: sgd (each run's own Adam steps apart)")  # fmt: skip
+        if cuda_graph and any(r.config.pose_noise > 0 for r in self.runs):
+            raise HamError("pose_noise with a CUDA graph (not yet run on a GPU); accepted: "
+                           "pose_noise = 0, or the eager step (no --cuda-graph)")  # fmt: skip
         # with a CUDA graph (_graphed_step): its state for the current stack, {} when new
         self.cuda_graph = cuda_graph
         self._graph_state: _GraphState | None = None
@@ -488,7 +500,8 @@ class BatchedRuns:
         flat_objects = objects.reshape(-1)
         for s in range(glances):
             # one lookup of N * B glances: a glance depends only on its object and pose
-            pressure = _pressure(runs, flat_objects, q, self._const)
+            at = _executed(runs, q, [s < g for g in own])
+            pressure = _pressure(runs, flat_objects, at, self._const)
             final = s == glances - 1
             state, lg, b, dist = self._net.glance(self.stacked, pressure, q, state, not final)
             locations.append(q)
@@ -741,6 +754,16 @@ class BatchedRuns:
                 for s in range(later):
                     torch.rand(batch, 2, generator=g, device=device, dtype=dtype,
                                out=draws[j, b, s])  # fmt: skip
+        # pose noise as each run's evaluation draws it: per batch its own generator, a
+        # randn(B, 2) per glance (HapticEnv.eval_noise_generator)
+        noise = None
+        if any(r.env.pose_noise > 0 for r in runs):
+            noise = torch.zeros(n, batches, glances, batch, 2, device=device)
+            for j, r in enumerate(runs):
+                for b in range(batches if r.env.pose_noise > 0 else 0):
+                    g = r.env.eval_noise_generator(b)
+                    for s in range(glances):
+                        torch.randn(batch, 2, generator=g, device=device, out=noise[j, b, s])
         correct = torch.zeros(n, glances, device=device)
         accumulated = torch.zeros(n, glances, device=device)
         confusion = torch.zeros(n * glances * k * k, dtype=torch.long, device=device)
@@ -760,7 +783,12 @@ class BatchedRuns:
             state = None  # the core's initial state
             locations, logits, mode = [], [], None
             for s in range(glances):
-                pressure = _pressure(runs, flat_objects, q, self._const)
+                at = (
+                    q
+                    if noise is None
+                    else _executed(runs, q, [True] * n, noise[:, b0:b1, s].reshape(n, rows, 2))
+                )
+                pressure = _pressure(runs, flat_objects, at, self._const)
                 final = s == glances - 1
                 state, lg, _, dist = self._net.glance(p, pressure, q, state, not final, False)
                 locations.append(q)
@@ -999,7 +1027,8 @@ def _open_runs(configs: list[TrainConfig], outs: list[Path]) -> list[Run]:
     check_model_fits(c0.model.pressure_dim, c0.model.n_objects, source)
     runs: list[Run] = []
     for c in configs:
-        env = HapticEnv(source, c.batch_size, c.normalization, stream_seed(c.seed, 0), device)
+        env = HapticEnv(source, c.batch_size, c.normalization, stream_seed(c.seed, 0), device,
+                        pose_noise=c.pose_noise)  # fmt: skip
         runs.append(Run.create(c, env))
     return runs
 

@@ -111,38 +111,51 @@ class HapticEnv:
             g.manual_seed(10_007 * (self.seed + 1) + batch_index)
             self._pose = self.object_pose.sample(len(ids), g, self.device)
         if self.pose_noise > 0:
-            self._noise = torch.Generator(device=self.device)
-            self._noise.manual_seed(10_007 * (self.seed + 1) + batch_index + _NOISE_STREAM)
+            self._noise = self.eval_noise_generator(batch_index)
         return ids
 
-    def executed(self, q: torch.Tensor) -> torch.Tensor:
+    def eval_noise_generator(self, batch_index: int) -> torch.Generator:
+        """The pose-noise generator of evaluation batch ``batch_index``: each glance of the
+        batch draws ``randn(B, k)`` from it in turn (the batched evaluation draws the same)."""
+        g = torch.Generator(device=self.device)
+        g.manual_seed(10_007 * (self.seed + 1) + batch_index + _NOISE_STREAM)
+        return g
+
+    def executed(self, q: torch.Tensor, noise: torch.Tensor | None = None) -> torch.Tensor:
         """The poses the glances at ``q`` ``(B, k)`` are made at: ``q`` itself, or with
         ``pose_noise`` ``q`` plus Gaussian noise, clamped to ``[-1, 1]`` (the pad cannot leave
-        its range), drawn from the current batch's generator."""
+        its range). The noise ``randn(B, k)`` is drawn from the current batch's generator, or
+        given (``noise``: drawn ahead, as the batched evaluation does)."""
         if self.pose_noise == 0:
             return q
-        noise = torch.randn(q.shape, generator=self._noise, device=self.device)
-        return (q + noise.to(q.dtype).mul_(self.pose_noise)).clamp_(-1, 1)
+        if noise is None:
+            noise = torch.randn(q.shape, generator=self._noise, device=self.device)
+        return (q + noise.to(q.dtype) * self.pose_noise).clamp(-1, 1)
 
     def glance_height(
-        self, object_ids: torch.Tensor, q: torch.Tensor
+        self, object_ids: torch.Tensor, q: torch.Tensor, *, exact: bool = False
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Normalized pressure vectors ``(B, N^2)`` (256) and contact heights ``(B,)`` (m) for
-        the poses ``q`` ``(B, k)`` in ``[-1, 1]`` (columns: the world's pose dims)."""
+        the poses ``q`` ``(B, k)`` in ``[-1, 1]`` (columns: the world's pose dims), made at
+        :meth:`executed` poses (``exact``: at ``q`` itself, poses already executed)."""
         pose = self._pose
         if pose is not None and pose[0].shape[0] != object_ids.shape[0]:
             raise HamError(
                 f"{object_ids.shape[0]} objects but the batch drew {pose[0].shape[0]} object "
                 "poses; accepted: the ids of the last sample_objects/balanced_objects batch"
             )
-        pressure, height = self.source.glance(object_ids, self.executed(q), pose)
+        at = q if exact else self.executed(q)
+        pressure, height = self.source.glance(object_ids, at, pose)
         pressure = normalize(pressure.to(self.device, torch.float32), self.normalization)
         return pressure, height.to(self.device, torch.float32)
 
-    def glance(self, object_ids: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+    def glance(
+        self, object_ids: torch.Tensor, q: torch.Tensor, *, exact: bool = False
+    ) -> torch.Tensor:
         """Normalized pressure vectors ``(B, N^2)`` (256) for the poses ``q`` ``(B, k)`` in
-        ``[-1, 1]`` (``k = 2``, ``(q_x, q_phi)``, in the paper)."""
-        return self.glance_height(object_ids, q)[0]
+        ``[-1, 1]`` (``k = 2``, ``(q_x, q_phi)``, in the paper); ``exact`` as in
+        :meth:`glance_height`."""
+        return self.glance_height(object_ids, q, exact=exact)[0]
 
     # ---------------------------------------------------------------- checkpoints
     def state_dict(self) -> dict:
