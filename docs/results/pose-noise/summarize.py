@@ -2,8 +2,9 @@
 
     python docs/results/pose-noise/summarize.py RUNS_DIR [RUNS_DIR ...]
 
-RUNS_DIR: the `runs/` folders of `ham reproduce grid` (keys `noise{sigma}-g{G}-s{seed}` and
-`rloc-noise{sigma}-g{G}-s{seed}`). Per cell: each seed's best accuracy within the steps run, the
+RUNS_DIR: the `runs/` folders of `ham reproduce grid` (keys `noise{sigma}-g{G}-s{seed}`,
+`rloc-noise{sigma}-g{G}-s{seed}`, and `p50k-noise{sigma}-g{G}-s{seed}` for runs of the paper's
+50,000 steps, cells `full50k-...`). Per cell: each seed's best accuracy within the steps run, the
 mean ± s.e.m., the best so far at 2,000 / 4,000 / 10,000 steps; beside them the noiseless runs of
 the same world and protocol (the first 10,000 steps of protocol50k.json's taxel cells, 3 seeds)
 and the paper's Table 1. The figure: accuracy against sigma, one line per glance count.
@@ -22,8 +23,10 @@ PAPER = {
     "full": {1: 0.547, 2: 0.831, 3: 0.910, 4: 0.942},
     "rloc": {1: 0.547, 2: 0.753, 3: 0.858, 4: 0.917},
 }
-STEPS = (2000, 4000, 10000)
-KEY = re.compile(r"(?P<rloc>rloc-)?noise(?P<sigma>[0-9.]+)-g(?P<g>\d+)-s(?P<seed>\d+)$")
+STEPS = (2000, 4000, 10000, 20000, 50000)
+KEY = re.compile(
+    r"(?P<long>p50k-)?(?P<rloc>rloc-)?noise(?P<sigma>[0-9.]+)-g(?P<g>\d+)-s(?P<seed>\d+)$"
+)
 
 
 def _mean_sem(xs: list[float]) -> tuple[float, float]:
@@ -41,7 +44,7 @@ def cells(dirs: list[str]) -> dict:
             if not m or not (d / "metrics.json").exists():
                 continue
             metrics = json.loads((d / "metrics.json").read_text())
-            kind = "rloc" if m["rloc"] else "full"
+            kind = ("rloc" if m["rloc"] else "full") + ("50k" if m["long"] else "")
             runs.setdefault((kind, float(m["sigma"]), int(m["g"])), []).append(metrics)
     out = {}
     for (kind, sigma, g), ms in sorted(runs.items()):
@@ -54,6 +57,7 @@ def cells(dirs: list[str]) -> dict:
                 4,
             )
             for s in STEPS
+            if s <= max(m["steps"] for m in ms)
         }
         out[f"{kind}-noise{sigma}-g{g}"] = {
             "kind": kind, "sigma": sigma, "glances": g,
@@ -72,7 +76,7 @@ def noiseless() -> dict:
         for g in (1, 2, 3, 4):
             c = stored.get(fmt.format(g=g))
             if c is not None:
-                so_far = {s: c["best_so_far_by_step"][s] for s in map(str, STEPS)}
+                so_far = {s: c["best_so_far_by_step"][s] for s in map(str, STEPS[:3])}
                 out[f"{kind}-noise0.0-g{g}"] = {
                     "kind": kind, "sigma": 0.0, "glances": g, "seeds": c["seeds"],
                     "best_so_far_by_step": so_far, "source": f"protocol50k.json {fmt.format(g=g)}",
@@ -87,19 +91,25 @@ def plot(data: dict, out: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 4))
-    for k, (kind, g) in enumerate(sorted({(c["kind"], c["glances"]) for c in data.values()})):
-        pts = sorted(
-            (c["sigma"], c["best_so_far_by_step"]["10000"])
-            for c in data.values() if c["kind"] == kind and c["glances"] == g
-        )  # fmt: skip
-        if len(pts) < 2:
-            continue
+    lines = {}  # (kind, glances) -> [(sigma, best in 10,000 steps)], the 10k-step cells only
+    for c in data.values():
+        if c["kind"] in PAPER:
+            lines.setdefault((c["kind"], c["glances"]), []).append(
+                (c["sigma"], c["best_so_far_by_step"]["10000"])
+            )
+    drawn = sorted(key for key, pts in lines.items() if len(pts) >= 2)
+    for k, (kind, g) in enumerate(drawn):
+        pts = sorted(lines[kind, g])
         color, style = f"C{k}", "-" if kind == "full" else ":"
         label = f"{'learned' if kind == 'full' else 'random locations'}, {g} glance{'s' * (g > 1)}"
         ax.plot(*zip(*pts, strict=True), style, marker="o", color=color, label=label)
         ax.axhline(PAPER[kind][g], color=color, ls="--", lw=0.8)
+        for c in data.values():  # the same cell run to the paper's 50,000 steps: an open marker
+            if c["kind"] == kind + "50k" and c["glances"] == g:
+                ax.plot(c["sigma"], c["best_mean"], "o", mfc="none", color=color, ms=9,
+                        label=f"{label}, 50,000 steps")  # fmt: skip
     ax.set_xlabel("pose noise sigma (normalized pose units; the range is [-1, 1])")
-    ax.set_ylabel("best accuracy in 10,000 steps (sampled poses)")
+    ax.set_ylabel("best accuracy (sampled poses), 10,000 steps")
     ax.set_title(
         "Table 1 under actuation noise, paper-gazebo taxel world (dashed: the paper)", fontsize=10
     )
