@@ -760,7 +760,9 @@ class BatchedRuns:
         if any(r.env.pose_noise > 0 for r in runs):
             noise = torch.zeros(n, batches, glances, batch, 2, device=device)
             for j, r in enumerate(runs):
-                for b in range(batches if r.env.pose_noise > 0 else 0):
+                if r.env.pose_noise == 0:
+                    continue  # its noise is never read (HapticEnv.executed returns q)
+                for b in range(batches):
                     g = r.env.eval_noise_generator(b)
                     for s in range(glances):
                         torch.randn(batch, 2, generator=g, device=device, out=noise[j, b, s])

@@ -107,19 +107,23 @@ class HapticEnv:
         start = batch_index * self.batch_size
         ids = torch.arange(start, start + self.batch_size, device=self.device) % self.n_objects
         if self.object_pose is not None:
-            g = torch.Generator(device=self.device)
-            g.manual_seed(10_007 * (self.seed + 1) + batch_index)
+            g = self._eval_generator(batch_index)
             self._pose = self.object_pose.sample(len(ids), g, self.device)
         if self.pose_noise > 0:
             self._noise = self.eval_noise_generator(batch_index)
         return ids
 
+    def _eval_generator(self, batch_index: int, stream: int = 0) -> torch.Generator:
+        """A generator of evaluation batch ``batch_index``, seeded by the env's seed, the batch
+        and ``stream`` (0: object poses, :data:`_NOISE_STREAM`: pose noise)."""
+        g = torch.Generator(device=self.device)
+        g.manual_seed(10_007 * (self.seed + 1) + batch_index + stream)
+        return g
+
     def eval_noise_generator(self, batch_index: int) -> torch.Generator:
         """The pose-noise generator of evaluation batch ``batch_index``: each glance of the
         batch draws ``randn(B, k)`` from it in turn (the batched evaluation draws the same)."""
-        g = torch.Generator(device=self.device)
-        g.manual_seed(10_007 * (self.seed + 1) + batch_index + _NOISE_STREAM)
-        return g
+        return self._eval_generator(batch_index, _NOISE_STREAM)
 
     def executed(self, q: torch.Tensor, noise: torch.Tensor | None = None) -> torch.Tensor:
         """The poses the glances at ``q`` ``(B, k)`` are made at: ``q`` itself, or with
