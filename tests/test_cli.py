@@ -49,6 +49,10 @@ def test_glance_picture(ham_cli, tmp_path):
             "grid = 1; accepted: an integer 2..2001",
         ),
         (["objects", "--set", "box,cube"], "unknown object 'cube'"),
+        (
+            ["objects", "--set", "papr"],
+            "unknown object set or object 'papr'; accepted: a set (paper, mhsb,",
+        ),
     ],
 )
 def test_bad_input_is_one_line_without_traceback(ham_cli, args, message, tmp_path):

@@ -35,6 +35,26 @@ def test_two_binary_splits_need_two_glances():
     assert pl.random(2) == pytest.approx(0.5 * 1.0 + 0.5 * 0.5)
 
 
+@pytest.mark.parametrize("glances", [1, 2, 3, 4, 5, 7, 16, 40, 1000, 10**12])
+def test_random_glances_any_count_in_closed_form(glances):
+    # Two binary splits drawn with p 0.2 / 0.8: wrong half the time unless both were drawn.
+    # 4 consistent sets per object: up to 4 glances step by step, beyond by squaring.
+    pl = Planner(hand_made([[0, 0, 2, 2], [0, 1, 0, 1]], weight=[0.2, 0.8]))
+    expected = 1 - 0.5 * (0.2**glances + 0.8**glances)
+    assert pl.random(glances) == pytest.approx(expected, rel=1e-12)
+    assert pl.random(glances) <= 1.0
+
+
+def test_more_glances_than_objects_cost_no_recursion():
+    # Planned policies stop gaining once nothing splits: the same value for any larger count.
+    pl = Planner(hand_made([[0, 1, 1, 1], [0, 0, 2, 2], [0, 0, 2, 3], [0, 1, 0, 0]]))
+    for first in ("planned", "random"):
+        assert pl.oracle(10**6, first) == pl.oracle(4, first) == pytest.approx(1.0)
+        assert pl.infogain(10**6, first) == pl.infogain(4, first)
+    stuck = Planner(hand_made([[0, 0, 2, 2]]))
+    assert stuck.oracle(10**6) == stuck.infogain(10**6) == pytest.approx(0.5)
+
+
 def test_greedy_information_gain_never_beats_the_oracle():
     # action 0 isolates object 0 (entropy left 3/4 log 3); action 1 halves {0,1}|{2,3} (log 2),
     # action 2 separates 2 from 3, action 3 separates 1 from 0: the oracle halves first.

@@ -185,16 +185,48 @@ class Planner:
 
     # ------------------------------------------------------------------ policies
     def random(self, glances: int) -> float:
-        """Bayes accuracy of ``glances`` uniform random poses: exact expectation over poses."""
+        """Bayes accuracy of ``glances`` uniform random poses: exact expectation over poses.
+
+        For the true object ``k`` the consistent set is a Markov chain over the sets reachable
+        from all objects (a glance keeps the set or shrinks it); the accuracy is the chain's
+        distribution after ``glances`` steps, weighted by ``1 / |S|``. Steps are vector-matrix
+        products, or a matrix power by squaring when there are more glances than sets, so any
+        glance count costs at most ``O(n^3 log G)`` for ``n`` sets, without recursion."""
+        return self._mean_over_objects(lambda k: self._random_one(k, glances))
+
+    def _random_one(self, k: int, glances: int) -> float:
         w = self.parts.weight
-
-        @cache
-        def acc(mask: int, k: int, g: int) -> float:
-            if g == 0:
-                return 1.0 / _size(mask)
-            return sum(w[a] * acc(self._after(mask, a, k), k, g - 1) for a in range(len(w)))
-
-        return self._mean_over_objects(lambda k: acc(self.full, k, glances))
+        masks = [self.full]
+        index = {self.full: 0}
+        moves: list[tuple[int, int, float]] = []
+        for i, mask in enumerate(masks):  # breadth first: the loop sees the sets it appends
+            for a in range(len(w)):
+                after = self._after(mask, a, k)
+                if after not in index:
+                    index[after] = len(masks)
+                    masks.append(after)
+                moves.append((i, index[after], float(w[a])))
+        n = len(masks)
+        step = np.zeros((n, n))
+        for i, j, p in moves:
+            step[i, j] += p
+        dist = np.zeros(n)
+        dist[0] = 1.0
+        if glances <= n:
+            for _ in range(glances):
+                dist = dist @ step
+        else:  # by squaring; kept stochastic, or rounding would grow with the glances
+            step /= step.sum(1, keepdims=True)
+            g = glances
+            while g:
+                if g & 1:
+                    dist = dist @ step
+                    dist /= dist.sum()
+                step = step @ step
+                step /= step.sum(1, keepdims=True)
+                g >>= 1
+        inverse_size = np.array([1.0 / _size(m) for m in masks])
+        return float(dist @ inverse_size)
 
     def grid(self, glances: int) -> float:
         """Bayes accuracy of the fixed sweep :func:`sweep` (the same poses for every object)."""
@@ -228,9 +260,10 @@ class Planner:
 
         @cache
         def acc(mask: int, k: int, g: int) -> float:
-            if g == 0:
+            after = self._after(mask, greedy(mask), k) if g else mask
+            if after == mask:  # no glance left, or the greedy pose splits nothing: it never will
                 return 1.0 / _size(mask)
-            return acc(self._after(mask, greedy(mask), k), k, g - 1)
+            return acc(after, k, g - 1)
 
         return self._with_first(acc, glances, first)
 
@@ -240,7 +273,10 @@ class Planner:
         @cache
         def best(mask: int, g: int) -> float:
             size = _size(mask)
-            if g == 0 or size == 1:
+            # A glance that splits nothing can be left out, and each one that splits shrinks the
+            # set on every path: more than size - 1 glances cannot help (recursion depth <= K).
+            g = min(g, size - 1)
+            if g == 0:
                 return 1.0 / size
             return max(
                 sum(_size(c) / size * best(c, g - 1) for c in parts)

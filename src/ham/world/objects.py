@@ -1036,6 +1036,12 @@ def resolve_set(spec: str | Sequence[str | int]) -> list[HapticObject]:
             raise HamError(
                 f"empty object set {spec!r}; accepted: {', '.join(set_names())}, or names"
             )
+        if len(parts) == 1 and parts[0] not in _ORDER and not parts[0].lstrip("-").isdigit():
+            # one unknown word: it may have been meant as a set, so name the sets too
+            raise HamError(
+                f"unknown object set or object {parts[0]!r}; accepted: a set "
+                f"({', '.join(set_names())}) or object names/ids ({', '.join(_ORDER)})"
+            )
         spec = parts
     objs = [get(k) for k in spec]
     seen = [o.name for o in objs]
