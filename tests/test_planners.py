@@ -53,6 +53,10 @@ def test_more_glances_than_objects_cost_no_recursion():
         assert pl.infogain(10**6, first) == pl.infogain(4, first)
     stuck = Planner(hand_made([[0, 0, 2, 2]]))
     assert stuck.oracle(10**6) == stuck.infogain(10**6) == pytest.approx(0.5)
+    with pytest.raises(
+        HamError, match=r"glances = 1000001 for the grid sweep; accepted: 1\.\.1000000"
+    ):
+        pl.grid(10**6 + 1)
 
 
 def test_greedy_information_gain_never_beats_the_oracle():

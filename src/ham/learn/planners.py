@@ -40,6 +40,8 @@ POLICIES: tuple[str, ...] = ("random", "grid", "infogain", "oracle")
 FIRST: tuple[str, ...] = ("planned", "random")
 #: Consistent sets are bit masks over objects: 2^K states.
 MAX_OBJECTS = 20
+#: The grid sweep lists its poses: beyond this many glances it would take minutes and gigabytes.
+MAX_SWEEP = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -232,6 +234,11 @@ class Planner:
         """Bayes accuracy of the fixed sweep :func:`sweep` (the same poses for every object)."""
         from ham.world.table import nearest_index
 
+        if glances > MAX_SWEEP:
+            raise HamError(
+                f"glances = {glances} for the grid sweep; accepted: 1..{MAX_SWEEP} (its poses "
+                "are listed one by one)"
+            )
         shape = self.parts.grid_action.shape
         poses = torch.from_numpy(sweep(glances, len(shape)))
         idx = tuple(nearest_index(poses[:, j], n).numpy() for j, n in enumerate(shape))
