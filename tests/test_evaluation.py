@@ -128,3 +128,20 @@ def test_last_pose_swap_own_is_the_evaluation_and_a_fixed_sweep_loses_nothing(en
     assert swap["own"] == pytest.approx(result.accuracy, abs=1e-6)
     with pytest.raises(HamError, match="on object; accepted: a haptic world"):
         last_pose_swap(agent, object())
+
+
+def test_a_progress_bar_changes_no_number(env, capsys):
+    # The CLI's evaluations show a bar on stderr; the episodes and counts stay those without it.
+    from ham.learn.evaluation import heatmap_data
+
+    torch.manual_seed(4)
+    agent = HapticAttentionModel(HamConfig(glances=2))
+    quiet = evaluate(agent, env, batches=3, seed=2, policy="sample")
+    assert capsys.readouterr().err == ""
+    shown = evaluate(agent, env, batches=3, seed=2, policy="sample", progress=True)
+    assert "evaluate" in capsys.readouterr().err
+    assert shown == quiet
+    assert heatmap_data(agent, env, 3, seed=2, progress=True) == heatmap_data(agent, env, 3, seed=2)
+    swaps = last_pose_swap(agent, env, 3, seed=2, progress=True)
+    assert "last pose swaps" in capsys.readouterr().err
+    assert swaps == last_pose_swap(agent, env, 3, seed=2)

@@ -324,12 +324,16 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     run = load_run(args.run, device=args.device, objects=args.objects)
     policy = args.eval_policy or run.config.eval_policy
     try:
-        result = evaluate(run.agent, run.env, args.batches, seed=args.seed, policy=policy)
+        result = evaluate(
+            run.agent, run.env, args.batches, seed=args.seed, policy=policy, progress=True
+        )
         swap = None
         if args.swap_last_pose:
             from ham.learn.evaluation import last_pose_swap
 
-            swap = last_pose_swap(run.agent, run.env, args.batches, seed=args.seed, policy=policy)
+            swap = last_pose_swap(
+                run.agent, run.env, args.batches, seed=args.seed, policy=policy, progress=True
+            )
     finally:
         run.close()
     d = {"run": str(args.run), "steps": run.step, "eval_policy": policy, **result.to_dict()}
@@ -392,7 +396,9 @@ def cmd_heatmap(args: argparse.Namespace) -> int:
         check_output(args.json, (".json",), what="--json")
     run = load_run(args.run, device=args.device, objects=args.objects)
     policy = args.eval_policy or run.config.eval_policy
-    data = heatmap_data(run.agent, run.env, args.batches, args.bins, seed=args.seed, policy=policy)
+    data = heatmap_data(
+        run.agent, run.env, args.batches, args.bins, seed=args.seed, policy=policy, progress=True
+    )
     data["step"] = run.step
     out = plot_heatmap(data, args.out)
     if args.json:

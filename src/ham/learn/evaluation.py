@@ -26,7 +26,7 @@ heat maps).
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 
@@ -104,6 +104,16 @@ def _evaluating(
         agent.train(was_training)
 
 
+def _batch_range(batches: int, progress: bool, desc: str) -> Iterable[int]:
+    """``range(batches)``, with a progress bar on stderr when ``progress`` (the CLI's long
+    evaluations; training's periodic evaluations pass none)."""
+    if not progress:
+        return range(batches)
+    from tqdm.auto import tqdm
+
+    return tqdm(range(batches), desc=desc, unit="batch", leave=False)
+
+
 @torch.no_grad()
 def evaluate(
     agent: HapticAttentionModel,
@@ -111,8 +121,10 @@ def evaluate(
     batches: int = 100,
     seed: int = 0,
     policy: str = "mean",
+    progress: bool = False,
 ) -> EvalResult:
-    """Accuracies of ``agent`` on ``batches`` balanced batches of ``env`` (poses seeded by ``seed``)."""
+    """Accuracies of ``agent`` on ``batches`` balanced batches of ``env`` (poses seeded by ``seed``;
+    ``progress``: a progress bar)."""
     _check(batches, policy, seed)
     glances, k = agent.config.glances, env.n_objects
     correct = torch.zeros(glances, device=env.device)
@@ -126,7 +138,7 @@ def evaluate(
     stop_correct = torch.zeros((), device=env.device, dtype=torch.float64)
     stop_glances_sum = torch.zeros((), device=env.device, dtype=torch.float64)
     with _evaluating(agent, env, seed) as generator:
-        for b in range(batches):
+        for b in _batch_range(batches, progress, "evaluate"):
             objects = env.balanced_objects(b)
             episode = agent(env, objects, generator, greedy=policy == "mean")
             predicted = episode.logits.argmax(-1)  # (S, B)
@@ -198,6 +210,7 @@ def heatmap_data(
     bins: int = 20,
     seed: int = 0,
     policy: str = "mean",
+    progress: bool = False,
 ) -> dict:
     """The last glance's pose ``(q_x, q_phi)`` per object, binned ``bins x bins`` over
     ``[-1, 1]^2``, over ``batches`` balanced batches; with the mean and spread of the policy's
@@ -224,7 +237,7 @@ def heatmap_data(
     correct = 0.0
     has_mu = has_sigma = False
     with _evaluating(agent, env, seed) as generator:
-        for b in range(batches):
+        for b in _batch_range(batches, progress, "heat map"):
             objects = env.balanced_objects(b)
             episode = agent(env, objects, generator, greedy=policy == "mean")
             q = episode.locations[-1]
@@ -309,6 +322,7 @@ def last_pose_swap(
     batches: int = 100,
     seed: int = 0,
     policy: str = "mean",
+    progress: bool = False,
 ) -> dict:
     """How much the last glance's *pose* tells the classifier, beyond what is felt there.
 
@@ -340,11 +354,12 @@ def last_pose_swap(
     correct = dict.fromkeys(SWAPS, 0)
     with _evaluating(agent, env, seed) as generator:
         episodes = []
-        for b in range(batches):
+        for b in _batch_range(batches, progress, "episodes"):
             objects = env.balanced_objects(b)
             episode = agent(env, objects, generator, greedy=policy == "mean")
             episodes.append((b, objects, episode.locations))
-        for b, objects, locations in episodes:
+        for b in _batch_range(batches, progress, "last pose swaps"):
+            _, objects, locations = episodes[b]
             env.balanced_objects(b)  # the batch's object poses again (objects varying in x, y)
             state = agent.core.initial_state(len(objects), locations[0])
             for q in locations[:-1]:
