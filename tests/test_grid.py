@@ -169,6 +169,8 @@ def test_the_agent_grid_is_the_old_script(tmp_path):
         ('name = "x"\nkey = "{name}"\n', r"key '\{name\}' names the axes' cells, but there are no axes"),
         ('name = "x y"\n', r"grid name 'x y'; accepted: letters, digits"),
         ('name = "x"\n[base\n', r"is not valid TOML"),
+        ('name = "x"\n[[cells]]\nname = ""\n', r"cells\[0\]: name = ''; accepted: letters, digits"),
+        ('name = "x"\n[[cells]]\nname = 5\n', r"cells\[0\]: name = 5; accepted: letters, digits"),
     ],
 )  # fmt: skip
 def test_bad_grids_stop_with_one_line(tmp_path, text, message):

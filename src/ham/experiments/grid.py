@@ -320,6 +320,11 @@ class Grid:
             own_world = c.get("world")
             c = flatten({k: x for k, x in c.items() if k != "world"})
             where = f"{w} cell {c.get('name', i)!r}"
+            if "name" in c and not (isinstance(c["name"], str) and c["name"]):
+                raise HamError(
+                    f"{w} cells[{i}]: name = {c['name']!r}; accepted: letters, digits and "
+                    ". _ = , + - (not empty; or no name: named by its values)"
+                )
             _check_keys([k for k in c if k not in ("name", "seeds")], where)
             if own_world is not None:
                 c["world"] = self._cell_world(own_world, f"{where} world")
