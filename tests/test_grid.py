@@ -171,6 +171,12 @@ def test_the_agent_grid_is_the_old_script(tmp_path):
         ('name = "x"\n[base\n', r"is not valid TOML"),
         ('name = "x"\n[[cells]]\nname = ""\n', r"cells\[0\]: name = ''; accepted: letters, digits"),
         ('name = "x"\n[[cells]]\nname = 5\n', r"cells\[0\]: name = 5; accepted: letters, digits"),
+        ('name = "x"\n[base]\n"model.glances" = 1\nmodel.glances = 2\n',
+         r"grid 'x' base: key 'model.glances' is given twice \(quoted and dotted\); accepted: once"),
+        ('name = "x"\n[axes]\n"model.glances" = [1]\nmodel.glances = [2]\n',
+         r"grid 'x' axis 'model.glances' is given twice"),
+        ('name = "x"\n[[cells]]\nname = "a"\n"model.core" = "mlp"\nmodel.core = "lstm"\n',
+         r"grid 'x' cell 'a': key 'model.core' is given twice"),
     ],
 )  # fmt: skip
 def test_bad_grids_stop_with_one_line(tmp_path, text, message):

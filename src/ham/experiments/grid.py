@@ -74,15 +74,18 @@ def override_keys() -> list[str]:
     return [k for k in keys if k not in RESERVED]
 
 
-def flatten(d: Mapping, prefix: str = "") -> dict[str, Any]:
+def flatten(d: Mapping, prefix: str = "", where: str = "grid") -> dict[str, Any]:
     """``{"model": {"glances": 3}}`` -> ``{"model.glances": 3}`` (TOML's dotted keys nest)."""
     out: dict[str, Any] = {}
     for k, v in d.items():
         key = f"{prefix}{k}"
-        if isinstance(v, Mapping):
-            out.update(flatten(v, key + "."))
-        else:
-            out[key] = v
+        inner = flatten(v, key + ".", where).items() if isinstance(v, Mapping) else [(key, v)]
+        for kk, vv in inner:
+            if kk in out:  # TOML's "model.glances" and model.glances are two keys, one override
+                raise HamError(
+                    f"{where}: key {kk!r} is given twice (quoted and dotted); accepted: once"
+                )
+            out[kk] = vv
     return out
 
 
@@ -204,7 +207,7 @@ class Grid:
             )
         if not isinstance(self.base, Mapping):
             raise HamError(f"{w}: base = {self.base!r}; accepted: a table of overrides")
-        object.__setattr__(self, "base", flatten(self.base))
+        object.__setattr__(self, "base", flatten(self.base, where=f"{w} base"))
         _check_keys(self.base, f"{w} base")
         # the world (a WorldConfig table; ``preset`` names a world preset, ``pose`` may name a
         # pose preset): resolved first, a cell's own ``world`` table is laid over it
@@ -283,6 +286,8 @@ class Grid:
         axes = {}
         for name, values in _axis_items(self.axes):
             where = f"{w} axis {name!r}"
+            if name in axes:
+                raise HamError(f"{where} is given twice (quoted and dotted); accepted: once")
             if not isinstance(values, list) or not values:
                 raise HamError(f"{where} = {values!r}; accepted: a non-empty list of values")
             if all(isinstance(v, Mapping) for v in values):  # a label axis
@@ -291,7 +296,7 @@ class Grid:
                 out = []
                 for v in values:
                     own_world = v.get("world")
-                    v = flatten({k: x for k, x in v.items() if k != "world"})
+                    v = flatten({k: x for k, x in v.items() if k != "world"}, where=where)
                     if not isinstance(v.get("name"), str) or not v["name"]:
                         raise HamError(f"{where}: value {v!r} has no name")
                     _check_keys([k for k in v if k != "name"], f"{where} {v['name']!r}")
@@ -318,8 +323,8 @@ class Grid:
             if not isinstance(c, Mapping):
                 raise HamError(f"{w} cells[{i}] = {c!r}; accepted: a table of overrides")
             own_world = c.get("world")
-            c = flatten({k: x for k, x in c.items() if k != "world"})
             where = f"{w} cell {c.get('name', i)!r}"
+            c = flatten({k: x for k, x in c.items() if k != "world"}, where=where)
             if "name" in c and not (isinstance(c["name"], str) and c["name"]):
                 raise HamError(
                     f"{w} cells[{i}]: name = {c['name']!r}; accepted: letters, digits and "
