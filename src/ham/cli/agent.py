@@ -324,6 +324,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     run = load_run(args.run, device=args.device, objects=args.objects)
     policy = args.eval_policy or run.config.eval_policy
     try:
+        if args.swap_last_pose:  # refused before the evaluation's minutes, not after
+            from ham.learn.evaluation import check_swappable
+
+            check_swappable(run.env)
         result = evaluate(
             run.agent, run.env, args.batches, seed=args.seed, policy=policy, progress=True
         )

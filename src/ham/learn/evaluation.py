@@ -315,6 +315,15 @@ def swap_partners(objects: torch.Tensor, n_objects: int) -> tuple[torch.Tensor, 
     return same, other
 
 
+def check_swappable(env) -> None:
+    """A :class:`HamError` unless :func:`last_pose_swap` can replay ``env``'s glances."""
+    if not isinstance(env, HapticEnv):
+        raise HamError(
+            f"the last pose swap on {type(env).__name__}; accepted: a haptic world (a table or "
+            "the online simulator), whose glances can be replayed at chosen poses"
+        )
+
+
 @torch.no_grad()
 def last_pose_swap(
     agent: HapticAttentionModel,
@@ -345,11 +354,7 @@ def last_pose_swap(
     Returns accuracies keyed by :data:`SWAPS`, with ``batches`` and ``episodes``.
     """
     _check(batches, policy, seed)
-    if not isinstance(env, HapticEnv):
-        raise HamError(
-            f"the last pose swap on {type(env).__name__}; accepted: a haptic world (a table or "
-            "the online simulator), whose glances can be replayed at chosen poses"
-        )
+    check_swappable(env)
     k = env.n_objects
     correct = dict.fromkeys(SWAPS, 0)
     with _evaluating(agent, env, seed) as generator:
