@@ -304,6 +304,12 @@ def test_cli_resume_trains_a_finished_run_further_as_if_never_stopped(
         (["--algo", "ppo", "--algo-kwargs", "{x"], "not JSON"),
         (["--algo", "ppo", "--algo-kwargs", '{"nope": 1}'], "unexpected keyword argument 'nope'"),
         (["--algo", "ppo", "--device", "tpu"], "device 'tpu'; accepted: cpu, cuda or cuda:N"),
+        # not the active-classification protocol (ap_gym wraps it with an empty prediction)
+        (["--algo", "ppo", "--env", "CartPole-v1"],
+         "environment 'CartPole-v1' has action space Dict('action': Discrete(2), 'prediction': "
+         "Tuple()); accepted: an active classification environment"),
+        (["--algo", "ppo", "--env", "ham/HapticGlance-v0"],
+         "accepted: an active classification environment with Dict(action=..., prediction=logits)"),
     ],
 )  # fmt: skip
 def test_cli_refuses_bad_inputs_in_one_line_and_writes_nothing(tmp_path, ham_main, args, message):

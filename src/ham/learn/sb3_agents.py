@@ -98,10 +98,20 @@ class SupervisedPrediction(gym.Wrapper):
                  learn_every: int = 4) -> None:  # fmt: skip
         super().__init__(env)
         space = env.action_space
-        if not (isinstance(space, gym.spaces.Dict) and {"action", "prediction"} <= set(space)):
+        if not (
+            isinstance(space, gym.spaces.Dict)
+            and {"action", "prediction"} <= set(space)
+            and isinstance(space["prediction"], gym.spaces.Box)  # logits over the classes
+            and len(space["prediction"].shape) == 1
+        ):
+            # ap_gym.make wraps an environment without the protocol as "pseudo active
+            # perception", with an empty prediction: nothing for the head to classify
+            name = getattr(env.spec, "id", None) or type(env).__name__
             raise HamError(
-                f"action space {space}; accepted: an active classification environment with "
-                "Dict(action=..., prediction=...) (ap_gym's protocol)"
+                f"environment {name!r} has action space {space}; accepted: an active "
+                "classification environment with Dict(action=..., prediction=logits) (ap_gym's "
+                "protocol), e.g. "
+                "ham/HapticGlanceAP-v0 or ap_gym:CircleSquare-v0"
             )
         self.horizon = episode_length(env)
         self.step_dim = gym.spaces.flatdim(env.observation_space)
