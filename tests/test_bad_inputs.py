@@ -401,6 +401,8 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("reproduce-glances-0", ["reproduce", "table1", "--out", "rp", "--glances", "0"], "[0]"),
     ("reproduce-glances-minus", ["reproduce", "table1", "--out", "rp", "--glances", "-1"], "[-1]"),
     ("reproduce-glances-101", ["reproduce", "table1", "--out", "rp", "--glances", "101"], "101"),
+    ("reproduce-table2-variants", ["reproduce", "table2", "--out", "rp", "--variants", "rloc"], "--variants cut Table 1 and the figures; accepted with table1"),
+    ("reproduce-table2-glances", ["reproduce", "table2", "--out", "rp", "--glances", "2"], "--glances cut Table 1"),
     ("reproduce-device", ["reproduce", "table1", "--out", "rp", "--device", "cpu:abc"], "'cpu:abc'"),
     ("reproduce-device-tpu", ["reproduce", "table1", "--out", "rp", "--device", "tpu"], "'tpu'"),
     ("reproduce-ray-address-local", ["reproduce", "table1", "--out", "rp", "--ray-address", "auto"], "'auto'"),

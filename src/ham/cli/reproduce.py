@@ -116,6 +116,13 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         return cmd_grid(args)
     if args.file is not None:
         raise HamError(f"FILE {args.file!r} goes with `ham reproduce grid FILE`, not {args.target}")
+    if args.target == "table2":  # always the four combiners at 3 glances: nothing to cut
+        given = [f"--{k}" for k in ("glances", "variants") if getattr(args, k) is not None]
+        if given:
+            raise HamError(
+                f"{' and '.join(given)} cut Table 1 and the figures; accepted with table1, "
+                "figures or all (Table 2 is the four combiners at 3 glances)"
+            )
     from ham.world.config import WorldConfig
 
     objects, record = objects_from_args(args)
