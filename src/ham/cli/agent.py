@@ -144,6 +144,9 @@ def _config_from_args(args: argparse.Namespace):
         _check_table_sensor(args, info)
         # Register the table's recorded objects file now: a conflict fails before DIR is made.
         WorldConfig.from_dict(info.world)
+    if args.env and args.objects is not None:  # even the default set: it would be ignored
+        raise HamError(f"--objects {args.objects!r} chooses the haptic world's objects; --env "
+                       f"{args.env} brings its own classes: leave --objects out")  # fmt: skip
     if args.env:
         from ham.cli.options import sensor_changes_from_args
 
