@@ -35,10 +35,14 @@ def test_two_binary_splits_need_two_glances():
     assert pl.random(2) == pytest.approx(0.5 * 1.0 + 0.5 * 0.5)
 
 
+@pytest.mark.parametrize("dense", [True, False])
 @pytest.mark.parametrize("glances", [1, 2, 3, 4, 5, 7, 16, 40, 1000, 10**12])
-def test_random_glances_any_count_in_closed_form(glances):
+def test_random_glances_any_count_in_closed_form(glances, dense, monkeypatch):
     # Two binary splits drawn with p 0.2 / 0.8: wrong half the time unless both were drawn.
-    # 4 consistent sets per object: up to 4 glances step by step, beyond by squaring.
+    # 4 consistent sets per object: up to 4 glances step by step, beyond by squaring; without
+    # squaring (as for a set too large for it) step by step until the distribution is final.
+    if not dense:
+        monkeypatch.setattr("ham.learn.planners.MAX_DENSE_SETS", 0)
     pl = Planner(hand_made([[0, 0, 2, 2], [0, 1, 0, 1]], weight=[0.2, 0.8]))
     expected = 1 - 0.5 * (0.2**glances + 0.8**glances)
     assert pl.random(glances) == pytest.approx(expected, rel=1e-12)
