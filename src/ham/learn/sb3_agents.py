@@ -110,8 +110,7 @@ class SupervisedPrediction(gym.Wrapper):
             raise HamError(
                 f"environment {name!r} has action space {space}; accepted: an active "
                 "classification environment with Dict(action=..., prediction=logits) (ap_gym's "
-                "protocol), e.g. "
-                "ham/HapticGlanceAP-v0 or ap_gym:CircleSquare-v0"
+                "protocol), e.g. ham/HapticGlanceAP-v0 or ap_gym:CircleSquare-v0"
             )
         self.horizon = episode_length(env)
         self.step_dim = gym.spaces.flatdim(env.observation_space)
