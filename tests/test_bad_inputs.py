@@ -371,6 +371,8 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("evaluate-dir", ["evaluate", "adir"], "adir"),
     ("evaluate-file", ["evaluate", "fake.h5"], "'fake.h5' is a file"),
     ("heatmap-file", ["heatmap", "fake.h5", "--out", "h.png"], "'fake.h5' is a file"),
+    ("evaluate-confusion-dir", ["evaluate", "{run}", "--confusion", "adir"], "--confusion 'adir' is a folder"),
+    ("evaluate-confusion-jpg", ["evaluate", "{run}", "--confusion", "c.jpg"], "--confusion 'c.jpg' ends in '.jpg'"),
     ("evaluate-batches-0", ["evaluate", "{run}", "--batches", "0"], "batches = 0"),
     ("evaluate-batches-minus", ["evaluate", "{run}", "--batches", "-1"], "-1"),
     ("evaluate-seed-minus", ["evaluate", "{run}", "--seed", "-1"], "seed = -1"),

@@ -324,6 +324,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from ham.learn.evaluation import evaluate
     from ham.learn.train import load_run
 
+    if args.confusion:  # refused before the evaluation runs, not after
+        from ham.world.files import check_output
+
+        check_output(args.confusion, (".png",), what="--confusion")
     run = load_run(args.run, device=args.device, objects=args.objects)
     policy = args.eval_policy or run.config.eval_policy
     try:
