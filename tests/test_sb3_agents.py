@@ -214,6 +214,24 @@ def test_resume_refuses_in_one_line(tmp_path, capsys):
     (tmp_path / "run" / "checkpoint.pkl").write_bytes(b"not a pickle")
     with pytest.raises(HamError, match="cannot read"):
         resume_sb3(tmp_path / "run", env_steps=128)
+    # A ham sb3 run is not a ham train run, and the other way round; a damaged config is named.
+    from ham.learn.train import load_run
+
+    with pytest.raises(
+        HamError, match="'.*run' holds a ham sb3 run \\(sac\\); accepted: a ham train"
+    ):
+        load_run(tmp_path / "run")
+    (tmp_path / "train").mkdir()
+    (tmp_path / "train" / "config.json").write_text('{"model": {}, "steps": 3}')
+    with pytest.raises(HamError, match="holds a ham train run; accepted: a ham sb3 run"):
+        resume_sb3(tmp_path / "train", env_steps=128)
+    config_file = tmp_path / "run" / "config.json"
+    config_file.write_text(config_file.read_text()[:-2] + ', "bogus": 1}')
+    with pytest.raises(HamError, match=r"has unknown fields \['bogus'\]; accepted: algo, env"):
+        resume_sb3(tmp_path / "run", env_steps=128)
+    config_file.write_text("{bad")
+    with pytest.raises(HamError, match="is not valid JSON"):
+        resume_sb3(tmp_path / "run", env_steps=128)
 
 
 def test_bad_configs():

@@ -37,7 +37,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ham.errors import HamError, check_choices, check_seed
+from ham.errors import HamError, check_choices, check_known_fields, check_seed
 from ham.world.files import atomic_write
 
 ALGOS: tuple[str, ...] = ("ppo", "sac", "crossq")
@@ -414,13 +414,30 @@ def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dic
     return _learn(config, out, model, eval_env, [], 0.0, progress)
 
 
+def _read_config(out: Path) -> Sb3Config:
+    """The :class:`Sb3Config` of the ``ham sb3`` run in ``out`` (one-line HamError if not)."""
+    path = out / "config.json"
+    if not path.is_file():
+        raise HamError(f"{str(out)!r} holds no ham sb3 run (no config.json)")
+    try:
+        d = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise HamError(f"{str(path)!r} is not valid JSON ({exc})") from None
+    if isinstance(d, dict) and "model" in d and "algo" not in d:  # what ham train writes
+        raise HamError(
+            f"{str(out)!r} holds a ham train run; accepted: a ham sb3 run directory (continue "
+            "a ham train run with ham train --resume)"
+        )
+    check_known_fields(Sb3Config, d, f"sb3 config {str(path)!r}")
+    return Sb3Config(**d)
+
+
 def resume_sb3(out: str | Path, env_steps: int | None = None, progress: bool = False) -> dict:
     """Continue the run in ``out`` from its checkpoint (the last evaluation before it stopped)
     to its ``env_steps`` (or a new total ``env_steps``): the same numbers as a run never
     stopped."""
     out = Path(out)
-    if not (out / "config.json").is_file():
-        raise HamError(f"{str(out)!r} holds no ham sb3 run (no config.json)")
+    config = _read_config(out)
     if (out / "metrics.json").is_file() and env_steps is None:
         raise HamError(f"the run in {str(out)!r} is finished (metrics.json); give a larger "
                        "--env-steps to train it further")  # fmt: skip
@@ -428,7 +445,6 @@ def resume_sb3(out: str | Path, env_steps: int | None = None, progress: bool = F
         raise HamError(f"the run in {str(out)!r} has no {CHECKPOINT} (it stopped before its "
                        "first evaluation, or its environment could not be pickled); start it "
                        "again")  # fmt: skip
-    config = Sb3Config(**json.loads((out / "config.json").read_text()))
     try:
         state = pickle.loads((out / CHECKPOINT).read_bytes())
     except Exception as exc:  # a truncated or foreign file: say so in one line

@@ -762,6 +762,17 @@ def read_json(path: Path) -> dict:
         raise HamError(f"{str(path)!r} is not valid JSON ({exc})") from None
 
 
+def read_run_config(out: Path) -> TrainConfig:
+    """The :class:`TrainConfig` of the ``ham train`` run in ``out`` (one-line HamError if not)."""
+    d = read_json(out / CONFIG_FILE)
+    if isinstance(d, dict) and "algo" in d and "model" not in d:  # what ham sb3 writes
+        raise HamError(
+            f"{str(out)!r} holds a ham sb3 run ({d['algo']}); accepted: a ham train run "
+            "directory (an SB3 run: its metrics.json, or ham sb3 --resume)"
+        )
+    return TrainConfig.from_dict(d)
+
+
 def load_checkpoint(out: Path) -> dict:
     path = Path(out) / CHECKPOINT_FILE
     if not path.exists():
@@ -779,7 +790,7 @@ def load_run(out: str | os.PathLike, device: str | None = None, objects: str | N
     ``composite:test``, the held-out instances of a run trained on ``composite:train``); the
     run's world otherwise (online runs only)."""
     out = Path(out)
-    config = TrainConfig.from_dict(read_json(out / CONFIG_FILE))
+    config = read_run_config(out)
     if device is not None:
         config = replace(config, device=device)
     if objects is not None:
@@ -827,7 +838,7 @@ def resume(
     """Continue the run in ``out`` from its checkpoint (to ``steps`` in all, or to the budget
     ``env_steps`` in glances, if given)."""
     out = Path(out)
-    config = TrainConfig.from_dict(read_json(out / CONFIG_FILE))
+    config = read_run_config(out)
     if steps is not None:  # an explicit step count replaces an env_steps budget
         config = replace(config, steps=steps, env_steps=None)
     elif env_steps is not None:
