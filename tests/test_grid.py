@@ -188,6 +188,9 @@ def test_bad_grids_stop_with_one_line(tmp_path, text, message):
 def test_a_grid_file_must_exist_and_be_toml_or_json(tmp_path):
     with pytest.raises(HamError, match="cannot be read"):
         load_grid(tmp_path / "missing.toml")
+    (tmp_path / "binary.toml").write_bytes(b"\xfc\xa9 not text")
+    with pytest.raises(HamError, match="is not UTF-8 text"):
+        load_grid(tmp_path / "binary.toml")
     (tmp_path / "g.yaml").write_text("name: x\n")
     with pytest.raises(HamError, match=r"accepted: a \.toml or \.json file"):
         load_grid(tmp_path / "g.yaml")

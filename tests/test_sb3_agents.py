@@ -229,9 +229,12 @@ def test_resume_refuses_in_one_line(tmp_path, capsys):
     config_file.write_text(config_file.read_text()[:-2] + ', "bogus": 1}')
     with pytest.raises(HamError, match=r"has unknown fields \['bogus'\]; accepted: algo, env"):
         resume_sb3(tmp_path / "run", env_steps=128)
-    config_file.write_text("{bad")
-    with pytest.raises(HamError, match="is not valid JSON"):
-        resume_sb3(tmp_path / "run", env_steps=128)
+    for damaged in (b"{bad", b"\xfc\xa9 not text"):
+        config_file.write_bytes(damaged)
+        with pytest.raises(HamError, match="is not valid JSON"):
+            resume_sb3(tmp_path / "run", env_steps=128)
+        with pytest.raises(HamError, match="is not valid JSON"):
+            load_run(tmp_path / "run")
 
 
 def test_bad_configs():

@@ -596,6 +596,8 @@ def load_grid(path: str | Path) -> Grid:
         text = path.read_text()
     except OSError as exc:
         raise HamError(f"grid file {str(path)!r} cannot be read: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise HamError(f"grid file {str(path)!r} is not UTF-8 text ({exc.reason})") from None
     if path.suffix == ".toml":
         try:
             data = tomllib.loads(text)

@@ -421,7 +421,7 @@ def _read_config(out: Path) -> Sb3Config:
         raise HamError(f"{str(out)!r} holds no ham sb3 run (no config.json)")
     try:
         d = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
+    except ValueError as exc:  # JSONDecodeError, or bytes that are not UTF-8 text
         raise HamError(f"{str(path)!r} is not valid JSON ({exc})") from None
     if isinstance(d, dict) and "model" in d and "algo" not in d:  # what ham train writes
         raise HamError(

@@ -758,7 +758,7 @@ def read_json(path: Path) -> dict:
         raise HamError(
             f"{str(Path(path).parent)!r} is a file; accepted: a training run directory"
         ) from None
-    except json.JSONDecodeError as exc:
+    except ValueError as exc:  # JSONDecodeError, or bytes that are not UTF-8 text
         raise HamError(f"{str(path)!r} is not valid JSON ({exc})") from None
 
 
