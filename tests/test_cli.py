@@ -104,3 +104,37 @@ def test_demo_quick_runs_the_whole_chain(ham_cli, tmp_path):
     assert summary["agent"]["steps"] == 20
     assert 0.0 <= summary["agent"]["evaluation"]["accuracy"] <= 1.0
     assert "accuracy after the last glance" in (out / "report.md").read_text()
+
+
+@pytest.mark.parametrize(
+    "error",
+    [
+        MemoryError("Unable to allocate 95.4 GiB for an array"),  # NumPy
+        RuntimeError(
+            "DefaultCPUAllocator: can't allocate memory: you tried to allocate 4e13 bytes"
+        ),
+    ],
+)
+def test_out_of_memory_is_one_line(monkeypatch, capsys, error):
+    # An allocation the machine refuses (mocked: a real one would take the machine's memory)
+    from ham.cli.main import main
+
+    def run_out(args):
+        raise error
+
+    monkeypatch.setattr("ham.cli.agent.cmd_evaluate", run_out)
+    assert main(["evaluate", "somewhere"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("ham: error: out of memory (")
+    assert "accepted: a request that fits this machine" in err[0]
+
+
+def test_other_runtime_errors_are_not_called_out_of_memory(monkeypatch):
+    from ham.cli.main import main
+
+    def fail(args):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr("ham.cli.agent.cmd_evaluate", fail)
+    with pytest.raises(RuntimeError, match="a bug"):
+        main(["evaluate", "somewhere"])

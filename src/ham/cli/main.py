@@ -465,6 +465,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _out_of_memory(exc: BaseException, text: str) -> bool:
+    """torch's out-of-memory errors: ``torch.OutOfMemoryError`` (CUDA) or the CPU allocator's."""
+    return type(exc).__name__ == "OutOfMemoryError" or "can't allocate memory" in text
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -480,6 +485,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except OSError as exc:  # a file the user named that the checks did not foresee: still one line
         print(f"ham: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+    except (MemoryError, RuntimeError) as exc:
+        # NumPy's MemoryError; torch's CPU allocator and CUDA say it in a RuntimeError
+        text = " ".join(str(exc).split())
+        if not (isinstance(exc, MemoryError) or _out_of_memory(exc, text)):
+            raise
+        print(
+            f"ham: error: out of memory ({text[:300]}); accepted: a request that fits this "
+            "machine (fewer envs, a smaller batch, grid or object set)",
+            file=sys.stderr,
+        )
         return 2
     except KeyboardInterrupt:
         print("ham: interrupted", file=sys.stderr)
