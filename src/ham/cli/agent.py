@@ -321,7 +321,7 @@ def _print_summary(metrics: dict, out: Path) -> None:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from ham.learn.evaluation import evaluate
+    from ham.learn.evaluation import check_swappable, evaluate, last_pose_swap
     from ham.learn.train import load_run
 
     if args.confusion:  # refused before the evaluation runs, not after
@@ -332,16 +332,12 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     policy = args.eval_policy or run.config.eval_policy
     try:
         if args.swap_last_pose:  # refused before the evaluation's minutes, not after
-            from ham.learn.evaluation import check_swappable
-
             check_swappable(run.env)
         result = evaluate(
             run.agent, run.env, args.batches, seed=args.seed, policy=policy, progress=True
         )
         swap = None
         if args.swap_last_pose:
-            from ham.learn.evaluation import last_pose_swap
-
             swap = last_pose_swap(
                 run.agent, run.env, args.batches, seed=args.seed, policy=policy, progress=True
             )

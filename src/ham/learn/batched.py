@@ -64,7 +64,7 @@ from ham.learn.train import (
     _write_atomic,
     _write_json,
     load_checkpoint,
-    read_json,
+    read_run_config,
     stream_seed,
 )
 from ham.model.agent import Episode
@@ -1053,7 +1053,7 @@ def train_batched(
     resumed = []
     for k, (c, out) in enumerate(zip(configs, outs, strict=True)):
         if (out / CHECKPOINT_FILE).exists():
-            saved = TrainConfig.from_dict(read_json(out / CONFIG_FILE))
+            saved = read_run_config(out)
             # where it runs (device, table path) may change between invocations, as on resume
             saved = replace(saved, steps=c.steps, device=c.device, table=c.table)
             if not _same_run(saved, c):

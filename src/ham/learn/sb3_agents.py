@@ -416,13 +416,12 @@ def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dic
 
 def _read_config(out: Path) -> Sb3Config:
     """The :class:`Sb3Config` of the ``ham sb3`` run in ``out`` (one-line HamError if not)."""
+    from ham.learn.train import read_json  # its one-line errors for a damaged file
+
     path = out / "config.json"
     if not path.is_file():
         raise HamError(f"{str(out)!r} holds no ham sb3 run (no config.json)")
-    try:
-        d = json.loads(path.read_text())
-    except ValueError as exc:  # JSONDecodeError, or bytes that are not UTF-8 text
-        raise HamError(f"{str(path)!r} is not valid JSON ({exc})") from None
+    d = read_json(path)
     if isinstance(d, dict) and "model" in d and "algo" not in d:  # what ham train writes
         raise HamError(
             f"{str(out)!r} holds a ham train run; accepted: a ham sb3 run directory (continue "
