@@ -443,6 +443,15 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("render-height", ["render", "--object", "box", "--x", "0", "--phi", "0", "--out", "r.png", "--height", "99999"], "99999"),
     # demo
     ("demo-out-file", ["demo", "--out", "notes.txt"], "'notes.txt'"),
+    # the MuJoCo world: named before the engine compiles a scene
+    ("mujoco-housing-0", ["glance", "--simulator", "mujoco", "--object", "box", "--x", "0", "--phi", "0", "--housing-thickness", "0"], "housing_thickness = 0.0"),
+    ("pad-tiny-no-empty-range", ["glance", "--object", "box", "--x", "0", "--phi", "0", "--pitch", "1e-6"], "taxels * pitch > 0.004082 m"),
+    # --cache-dir keeps a preset's table: anywhere else it would be ignored
+    ("build-cache-dir-no-world", ["table", "build", "--grid", "3", "--out", "t.h5", "--cache-dir", "c"], "--cache-dir 'c' without --world"),
+    ("train-cache-dir-no-world", ["train", "--out", "r", "--cache-dir", "c"], "--cache-dir 'c' without --world"),
+    ("train-cache-dir-online", ["train", "--out", "r", "--world", "paper-gazebo", "--online", "--cache-dir", "c"], "--cache-dir 'c' with --online"),
+    ("reproduce-cache-dir-no-world", ["reproduce", "table1", "--out", "rp", "--cache-dir", "c"], "--cache-dir 'c' without --world"),
+    ("build-cache-dir-unmakeable", ["table", "build", "--world", "paper-gazebo", "--out", "t.h5", "--cache-dir", "/proc/no/such"], "cache folder '/proc/no/such' cannot be made"),
 ]  # fmt: skip
 if CUDA:  # on a GPU machine "cuda:99" is still out of range; "no CUDA" cases need a CPU machine
     pass

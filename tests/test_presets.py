@@ -272,7 +272,7 @@ def test_reproduce_with_the_preset_takes_its_table_from_the_cache(ham_cli, ham_m
     assert config["table"] == str(table) and config["eval_policy"] == "sample"
     assert WorldConfig.from_dict(config["world"]) == world_from_table({"preset": "paper-gazebo"})
     r = ham_main("reproduce", "table1", "--cache-dir", str(cache), "--out", str(out))
-    assert r.returncode == 2 and "--cache-dir keeps a --world preset's glance table" in r.stderr
+    assert r.returncode == 2 and "--cache-dir" in r.stderr and "without --world" in r.stderr
     r = ham_main("reproduce", "grid", str(DOCS / "grids" / "factors.toml"), "--world",
                 "paper-gazebo", "--out", str(out))  # fmt: skip
     assert r.returncode == 2 and "a grid file names its world in its [world] table" in r.stderr

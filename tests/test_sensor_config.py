@@ -71,6 +71,12 @@ def test_the_pad_must_fit_the_objects_and_carry_the_force():
     # 16 x 0.2 mm = 3.2 mm: 2 N on it would compress the 3 mm foam through.
     with pytest.raises(HamError, match=r"too small to carry 2 N.*taxels \* pitch > 0\.004082"):
         make_simulator(WorldConfig(sensor=SensorConfig(pitch=0.0002)))
+    # A stiffer foam is offered only when one within the accepted range would carry the force:
+    # a 16 um pad needs 2.6e12 Pa/m, above the 1e12 cap, so only the size is named.
+    with pytest.raises(HamError, match=r"foam_stiffness in 6\.51e\+07 \.\. 1e\+12 Pa/m$"):
+        WorldConfig(sensor=SensorConfig(pitch=0.0002))
+    with pytest.raises(HamError, match=r"taxels \* pitch > 0\.004082 m$"):
+        WorldConfig(sensor=SensorConfig(pitch=1e-6))
     # The limits themselves: 9 cm wide and 128 taxels are accepted.
     make_simulator(WorldConfig(sensor=SensorConfig(taxels=18, pitch=0.005)))
     make_simulator(WorldConfig(sensor=SensorConfig(taxels=128, pitch=0.0005)))

@@ -194,6 +194,11 @@ def _preset_defaults(args: argparse.Namespace, world) -> dict | None:
     preset = preset_from_args(args)
     if preset is None:
         return None
+    if (args.online or args.env) and args.cache_dir is not None:
+        raise HamError(
+            f"--cache-dir {args.cache_dir!r} with {'--online' if args.online else '--env'}: no "
+            "glance table is used; accepted: --cache-dir with a table-backed --world run"
+        )
     if not (args.online or args.env):
         from ham.world.cache import cached_table
 

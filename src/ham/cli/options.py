@@ -131,6 +131,11 @@ def preset_from_args(args: argparse.Namespace) -> dict | None:
     from ham.world.config import world_preset
 
     name = getattr(args, "world", None)
+    if name is None and getattr(args, "cache_dir", None) is not None:
+        raise HamError(
+            f"--cache-dir {args.cache_dir!r} without --world; accepted: --cache-dir with --world "
+            "PRESET (it keeps the preset's glance table)"
+        )
     return None if name is None else world_preset(name)
 
 

@@ -127,8 +127,6 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     objects, record = objects_from_args(args)
     preset = preset_from_args(args)
-    if args.cache_dir is not None and preset is None:
-        raise HamError("--cache-dir keeps a --world preset's glance table; give --world PRESET")
     world = WorldConfig(objects=objects, objects_file=record)
     if preset is not None:
         from dataclasses import replace

@@ -67,7 +67,13 @@ def cached_table(
     path = cached_table_path(world, grid, directory)
     if path.exists():
         return path
-    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise HamError(
+            f"cache folder '{path.parent}' cannot be made ({exc.strerror}); accepted: a folder "
+            "this user can create and write (--cache-dir or $HAM_CACHE_DIR)"
+        ) from None
     with open(path.with_name(path.name + ".lock"), "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # another process may be building it: wait for it
         if not path.exists():

@@ -81,11 +81,16 @@ class WorldConfig:
         lowest = need / (s.foam_thickness * s.size**2)
         if s.foam_stiffness < lowest:
             least_size = (need / (s.foam_thickness * s.foam_stiffness)) ** 0.5
+            # no stiffness can help a pad that needs more than the most we accept: name only size
+            stiffer = (
+                f", or foam_stiffness in {lowest:.3g} .. {MAX_FOAM_STIFFNESS:g} Pa/m"
+                if lowest <= MAX_FOAM_STIFFNESS
+                else ""
+            )
             raise HamError(
                 f"foam_stiffness = {s.foam_stiffness:g} Pa/m: the pad ({s.describe()}) is too "
                 f"small to carry {need:g} N on its {s.foam_thickness * 1000:g} mm foam; accepted: "
-                f"taxels * pitch > {least_size:.4g} m, or foam_stiffness in "
-                f"{lowest:.3g} .. {MAX_FOAM_STIFFNESS:g} Pa/m"
+                f"taxels * pitch > {least_size:.4g} m{stiffer}"
             )
 
     def resolve_objects(self) -> list[HapticObject]:

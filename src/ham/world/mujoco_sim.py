@@ -711,6 +711,11 @@ def _check_world(sensor: SensorConfig, glance: GlanceConfig, objects: list[Hapti
     """The line glance's checks of the pad (:func:`ham.world.glance.check_pad`) for the paper's
     kind of objects; for height fields only the foam's (a pad wider than such an object reads
     nothing beside it, as a real pad would)."""
+    if sensor.housing_thickness <= 0:  # a box geom needs a positive size: say so, by name
+        raise HamError(
+            f"housing_thickness = {sensor.housing_thickness!r} with the MuJoCo simulator; "
+            "accepted: a positive number (m): the pad body is a box (0 is for the fast simulator)"
+        )
     lines = [o for o in objects if not o.varies_in_y]
     if lines:
         check_pad(sensor, glance, lines)
