@@ -445,6 +445,7 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("demo-out-file", ["demo", "--out", "notes.txt"], "'notes.txt'"),
     # the MuJoCo world: named before the engine compiles a scene
     ("mujoco-housing-0", ["glance", "--simulator", "mujoco", "--object", "box", "--x", "0", "--phi", "0", "--housing-thickness", "0"], "housing_thickness = 0.0"),
+    ("mujoco-supersample", ["glance", "--simulator", "mujoco", "--object", "box", "--x", "0", "--phi", "0", "--supersample", "8"], "supersample = 8"),
     ("pad-tiny-no-empty-range", ["glance", "--object", "box", "--x", "0", "--phi", "0", "--pitch", "1e-6"], "taxels * pitch > 0.004082 m"),
     # --cache-dir keeps a preset's table: anywhere else it would be ignored
     ("build-cache-dir-no-world", ["table", "build", "--grid", "3", "--out", "t.h5", "--cache-dir", "c"], "--cache-dir 'c' without --world"),

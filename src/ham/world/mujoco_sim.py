@@ -716,6 +716,13 @@ def _check_world(sensor: SensorConfig, glance: GlanceConfig, objects: list[Hapti
             f"housing_thickness = {sensor.housing_thickness!r} with the MuJoCo simulator; "
             "accepted: a positive number (m): the pad body is a box (0 is for the fast simulator)"
         )
+    default = SensorConfig.__dataclass_fields__["supersample"].default
+    if sensor.supersample != default:  # MuJoCo reads its taxel geoms' contacts: no such density
+        raise HamError(
+            f"supersample = {sensor.supersample!r} with the MuJoCo simulator, which reads its "
+            f"taxels' contacts; accepted: the default {default} (supersample is the fast "
+            "simulator's read-out density)"
+        )
     lines = [o for o in objects if not o.varies_in_y]
     if lines:
         check_pad(sensor, glance, lines)
