@@ -161,6 +161,17 @@ def test_paper_box_tilted_about_x_is_glanced_from_a_clear_start(sim):
     assert bool(r.contact[0])
 
 
+def test_vertical_pad_flush_beside_a_height_field_glances_like_beside_a_box(sim):
+    """q_x = q_phi = -1 stands the pad vertical in the plane of the object's side wall, tilted by
+    float32's cos(pi/2) = -4e-8: MuJoCo reports nanometre contacts that no lift clears (this
+    raised "no clear start height" for every height-field object). The pad now starts beside
+    the wall and slides down it to the table, as it does beside the paper's box."""
+    r = sim.glance([1, 2], [-1.0, -1.0], [-1.0, -1.0])
+    z, force, status = r.z.numpy(), r.force.numpy(), r.info["status"].numpy()
+    assert (status == status[1]).all() and np.allclose(z, z[1], atol=2e-4), (z, status)
+    assert np.allclose(force, force[1], atol=0.05), force
+
+
 def test_bad_inputs_are_named(sim):
     with pytest.raises(HamError, match=r"q_y = 1.5 .*\[-1, 1\]"):
         sim.glance([1], [0.0], [0.0], [1.5], [0.0])

@@ -641,6 +641,10 @@ def _pad_outline(sensor: SensorConfig, config: MujocoConfig, spacing: float = 2.
 _MAX_LIFTS = 50
 #: The start height of a general glance is found to this (m) from above, then ``clearance`` added.
 _CLEAR_TOLERANCE = 5.0e-6
+#: Contacts shallower than this (m) are a face laid flush against a wall, not a penetration: a
+#: pad at q_phi = +-1 stands vertical beside an object's side, tilted by its float32 angle's
+#: rounding (cos(pi/2) = -4e-8), so lifting never clears it. Used only once the lifts fail.
+_FLUSH = 1.0e-7
 
 
 def _rotation(phi: float, phi_y: float) -> np.ndarray:
@@ -878,9 +882,12 @@ class MujocoSimulator:
             est = max(est, float((o.surface(x + c[:, 0], y + c[:, 1]) - low).max()))
         return est
 
-    def _penetration(self, m: mujoco.MjModel, d: mujoco.MjData, z: float) -> float:
+    def _penetration(
+        self, m: mujoco.MjModel, d: mujoco.MjData, z: float, flush: float = 0.0
+    ) -> float:
         """How far (m, an upper estimate) the pad at face-centre height ``z`` must rise to clear
-        every contact MuJoCo's collision finds there (0: none); the pose is already set."""
+        every contact MuJoCo's collision finds there deeper than ``flush`` (0: none); the pose is
+        already set."""
         d.qpos[0] = z
         mujoco.mj_kinematics(m, d)
         mujoco.mj_collision(m, d)
@@ -891,31 +898,39 @@ class MujocoSimulator:
         geoms = con.geom[:ncon]
         mine = self._pad_geom[geoms[:, 0]] | self._pad_geom[geoms[:, 1]]
         dist = con.dist[:ncon]
-        sel = mine & (dist < 0)
+        sel = mine & (dist < -flush)
         if not sel.any():
             return 0.0
         # A penetration p along a normal n needs a vertical lift of p / |n_z|.
         nz = np.maximum(np.abs(con.frame[:ncon, 2][sel]), 0.05)
         return float((-dist[sel] / nz).max())
 
-    def _clear_height(self, m: mujoco.MjModel, d: mujoco.MjData, z: float) -> float:
-        """The lowest face-centre height (to 5 um, from above) at which the pad touches nothing,
-        starting from the estimate ``z``: lift by the penetration until clear, then bisect."""
-        low = None
+    def _clear_height(
+        self, m: mujoco.MjModel, d: mujoco.MjData, z: float, flush: float = 0.0
+    ) -> float:
+        """The lowest face-centre height (to 5 um, from above) at which the pad touches nothing
+        (nothing deeper than ``flush``), starting from the estimate ``z``: lift by the
+        penetration until clear, then bisect. When lifting cannot clear the pad, try again with
+        flush contacts (:data:`_FLUSH`) let be."""
+        start, low = z, None
         for _ in range(_MAX_LIFTS):
-            lift = self._penetration(m, d, z)
+            lift = self._penetration(m, d, z, flush)
             if lift <= 0:
                 break
             low, z = z, z + lift + 1e-6
         else:
-            raise HamError(  # pragma: no cover - each lift clears the deepest contact
-                f"the pad found no clear start height above {z:.6f} m"
+            if flush == 0.0:
+                return self._clear_height(m, d, start, _FLUSH)
+            raise HamError(
+                f"the MuJoCo pad found no clear start height above {z:.6f} m (a contact "
+                f"{_MAX_LIFTS} lifts did not clear); accepted: a pose whose pad can be lifted "
+                "clear of the object"
             )
         if low is not None:
             high = z
             while high - low > _CLEAR_TOLERANCE:
                 mid = 0.5 * (low + high)
-                if self._penetration(m, d, mid) > 0:
+                if self._penetration(m, d, mid, flush) > 0:
                     low = mid
                 else:
                     high = mid
