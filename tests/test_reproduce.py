@@ -1,5 +1,6 @@
 """``ham reproduce`` with the smoke profile: the real CLI, real runs, local pool and local Ray."""
 
+import concurrent.futures
 import contextlib
 import json
 import os
@@ -273,6 +274,33 @@ def test_a_stopped_reproduce_takes_its_workers_with_it(tmp_path, how):
         assert proc.returncode == 130
         assert stderr == "ham: interrupted\n"  # no traceback, no warning of leaked semaphores
         assert len(list(out.glob("runs/*"))) == 2  # the third run never started
+
+
+def test_ray_address_must_be_a_grpc_server():
+    """A ``--ray-address`` where a server answers that is not gRPC (a web server) is refused at
+    once; Ray would wait there for a GCS for minutes, logging each try. A real gRPC server
+    (grpcio, which Ray's own GCS uses) passes the check."""
+    import http.server
+    import threading
+
+    import grpc
+
+    from ham.experiments.executors import check_ray_address
+
+    web = http.server.HTTPServer(("127.0.0.1", 0), http.server.BaseHTTPRequestHandler)
+    threading.Thread(target=web.serve_forever, daemon=True).start()
+    rpc = grpc.server(concurrent.futures.ThreadPoolExecutor(max_workers=1))
+    port = rpc.add_insecure_port("127.0.0.1:0")
+    rpc.start()
+    try:
+        address = f"127.0.0.1:{web.server_address[1]}"
+        with pytest.raises(HamError, match=rf"'{address}': something answers there, but not a Ray"):
+            check_ray_address("ray", address)
+        check_ray_address("ray", f"127.0.0.1:{port}")
+        check_ray_address("ray-batched", f"ray://127.0.0.1:{port}")
+    finally:
+        web.shutdown()
+        rpc.stop(None)
 
 
 def test_ray_tasks_on_cuda_take_a_share_of_a_gpu():

@@ -268,6 +268,12 @@ def _on_ray(
                      logging_level="ERROR")  # fmt: skip
         except ConnectionError as exc:  # --ray-address auto with no cluster running
             reason = str(exc).split(". ")[0]
+            if address not in (None, "auto") and os.environ.get("RAY_AUTH_MODE") != "token":
+                # Ray's error does not say why; since 2.59 `ray start --head` asks for a token
+                reason += (
+                    " (a head started with token authentication, the default of `ray start` "
+                    "since Ray 2.59, also needs RAY_AUTH_MODE=token here: docs/batched.md)"
+                )
             raise HamError(
                 f"--ray-address {address!r}: {reason}; accepted: {_RAY_ADDRESSES}"
             ) from None
@@ -395,12 +401,38 @@ def check_ray_address(executor: str, ray_address: str | None) -> None:
     import socket
 
     try:
-        socket.create_connection((host.strip("[]"), int(port)), timeout=5).close()
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=5) as conn:
+            grpc = _speaks_http2(conn)
     except OSError as exc:
         raise HamError(
             f"--ray-address {ray_address!r}: nothing answers there ({exc.strerror or exc}); "
             f"accepted: {_RAY_ADDRESSES}"
         ) from None
+    if not grpc:  # e.g. a web server: Ray would wait for a GCS there for minutes, logging
+        raise HamError(
+            f"--ray-address {ray_address!r}: something answers there, but not a Ray head (it "
+            f"does not speak gRPC); accepted: {_RAY_ADDRESSES}"
+        )
+
+
+#: HTTP/2's client connection preface and an empty SETTINGS frame (RFC 9113, 3.4 and 6.5).
+_HTTP2_HELLO = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+
+
+def _speaks_http2(conn) -> bool:
+    """Whether the server on ``conn`` answers HTTP/2's preface with its SETTINGS frame, as every
+    gRPC server does (a Ray head's GCS and its Ray Client server both are gRPC servers)."""
+    try:
+        conn.sendall(_HTTP2_HELLO)
+        head = b""
+        while len(head) < 9:  # a frame header: 3 bytes length, 1 byte type (4: SETTINGS), ...
+            part = conn.recv(9 - len(head))
+            if not part:
+                break
+            head += part
+    except OSError:  # a timeout too
+        return False
+    return len(head) == 9 and head[3] == 4
 
 
 # Runs per batched model by default: the paper's seeds of a cell, and the N the batched step was
