@@ -416,6 +416,7 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("reproduce-batch-runs-0", ["reproduce", "table1", "--out", "rp", "--executor", "batched", "--batch-runs", "0"], "batch_runs = 0"),
     ("reproduce-cuda-graph-local", ["reproduce", "table1", "--out", "rp", "--cuda-graph"], "--cuda-graph needs --executor batched"),
     ("reproduce-cuda-graph-cpu", ["reproduce", "table1", "--out", "rp", "--executor", "batched", "--cuda-graph"], "--cuda-graph needs --device cuda"),
+    ("reproduce-grid-cache-dir-unused", ["reproduce", "grid", EXAMPLE_GRID, "--out", "rp", "--cache-dir", "c"], "--cache-dir 'c': grid"),
     ("reproduce-grid-cuda-graph-cpu", ["reproduce", "grid", EXAMPLE_GRID, "--out", "rp", "--executor", "batched", "--cuda-graph"], "got 'cpu'"),
     # envs
     ("envs-check-glances-0", ["envs", "check", "--glances", "0"], "glances = 0"),

@@ -87,6 +87,11 @@ def run_grid(
         raise HamError(f"workers = {workers}; accepted: >= 1")
     if not (isinstance(retries, int) and retries >= 0):
         raise HamError(f"retries = {retries!r}; accepted: an integer >= 0")
+    if cache_dir is not None and not grid.table_cache:
+        raise HamError(
+            f"--cache-dir {str(cache_dir)!r}: grid {grid.name!r} keeps no table in the cache; "
+            "accepted: --cache-dir with a grid of [table] cache = true (docs/grids.md)"
+        )
     root = Path(out).resolve()
     tables = grid.table_paths(root, cache_dir)
     jobs = grid.jobs(tables)
