@@ -197,6 +197,9 @@ def test_grid_table_checks(tmp_path, grid_table):
         build_table(WorldConfig(), "5,3,2", tmp_path / "x.h5", progress=False)
     with pytest.raises(HamError, match="compression = 'zip'; accepted: gzip, lzf, none"):
         build_table(WorldConfig(), "5,3", tmp_path / "x.h5", progress=False, compression="zip")
+    with pytest.raises(HamError, match=r"compression = 'lzf' for the paper's \(x, phi\) table"):
+        build_table(WorldConfig(), 3, tmp_path / "x.h5", progress=False, compression="lzf")
+    assert not (tmp_path / "x.h5").exists()
     with pytest.raises(HamError, match="lookup = 'stream' on .*version-1"):
         GlanceTable.load(build_table(WorldConfig(), 3, tmp_path / "p.h5", progress=False),
                          lookup="stream")  # fmt: skip

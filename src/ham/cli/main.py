@@ -221,6 +221,9 @@ def cmd_table_build(args: argparse.Namespace) -> int:
 
         if isinstance(grid, str) and not grid.isdigit():
             raise HamError(f"--grid {grid!r} with --world; accepted: one number of poses per axis")
+        if args.compression is not None:
+            raise HamError(f"--compression {args.compression} with --world: a preset's table "
+                           "is the paper's (x, phi) kind, stored uncompressed; leave it out")  # fmt: skip
         cached = cached_table(world, int(grid), args.cache_dir, progress=not args.quiet,
                               command=command_line(args))  # fmt: skip
         out = atomic_write(args.out, lambda tmp: shutil.copyfile(cached, tmp))
@@ -421,7 +424,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--grid", default=None,
                    help="poses per axis, 2..2001 (default 201, or the --world preset's), or one "
                    "per pose dim, e.g. 21,21,9,9 with --pose-dims x,y,phi,phi_y")  # fmt: skip
-    p.add_argument("--compression", default="gzip", choices=("gzip", "lzf", "none"),
+    p.add_argument("--compression", default=None, choices=("gzip", "lzf", "none"),
                    help="of a table over other pose dims than x,phi (format 2): none writes a "
                    "memory-mappable file (default gzip)")  # fmt: skip
     p.add_argument("--out", required=True, help="HDF5 file to write (atomically), .h5 or .hdf5")

@@ -177,7 +177,7 @@ def build_table(
     batch: int | None = None,
     progress: bool = True,
     command: str | None = None,
-    compression: str = "gzip",
+    compression: str | None = None,
     **sim_kwargs,
 ) -> Path:
     """Record ``grid x grid`` glances per object of ``world`` into the HDF5 file ``out``; over
@@ -187,15 +187,22 @@ def build_table(
     Resumes from ``out.partial`` when one exists for the same world and grid. ``command`` is
     recorded in the file (the CLI passes its argv; default: the Python program and this call).
     The world, and so any objects file it was built from (name, sha256, text), is recorded too.
-    ``compression`` (version 2 only): gzip, lzf or none (a memory-mappable file).
+    ``compression`` (version 2 only): gzip (``None``: the default), lzf or none (a
+    memory-mappable file); the paper's table (version 1) is stored uncompressed.
     """
     dims = world_pose_dims(world)
     shape = grid_shape_for(grid, dims)
-    if compression not in COMPRESSIONS:
+    if compression is not None and compression not in COMPRESSIONS:
         raise HamError(f"compression = {compression!r}; accepted: {', '.join(COMPRESSIONS)}")
     if not is_paper_layout(dims, shape):
+        compression = compression or "gzip"
         return _build_grid_table(
             world, dims, shape, out, batch, progress, command, compression, sim_kwargs
+        )
+    if compression is not None:  # said, not silently ignored
+        raise HamError(
+            f"compression = {compression!r} for the paper's (x, phi) table, which is stored "
+            "uncompressed; accepted: a compression for a table over other pose dims (format 2)"
         )
     grid = shape[0]
     out, partial, objs, names, world_json, sim = _start_build(world, out, sim_kwargs)
