@@ -449,6 +449,7 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("mujoco-supersample", ["glance", "--simulator", "mujoco", "--object", "box", "--x", "0", "--phi", "0", "--supersample", "8"], "supersample = 8"),
     ("pad-tiny-no-empty-range", ["glance", "--object", "box", "--x", "0", "--phi", "0", "--pitch", "1e-6"], "taxels * pitch > 0.004082 m"),
     # --cache-dir keeps a preset's table: anywhere else it would be ignored
+    ("objects-view-no-out", ["objects", "--set", "paper", "--view", "3d"], "--view applies only with --out"),
     ("build-compression-paper-table", ["table", "build", "--grid", "3", "--out", "t.h5", "--compression", "none"], "compression = 'none'"),
     ("build-compression-preset", ["table", "build", "--world", "paper-gazebo", "--out", "t.h5", "--compression", "lzf"], "--compression lzf with --world"),
     ("build-cache-dir-no-world", ["table", "build", "--grid", "3", "--out", "t.h5", "--cache-dir", "c"], "--cache-dir 'c' without --world"),

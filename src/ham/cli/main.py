@@ -88,6 +88,7 @@ def cmd_objects(args: argparse.Namespace) -> int:
         ("--scale", "--mesh", args.mesh),
         ("--pitch", "--mesh", args.mesh),
         ("--samples", "--export", args.export),
+        ("--view", "--out", args.out),
     ):
         if getattr(args, flag[2:]) is not None and not given:
             raise HamError(f"{flag} applies only with {needs}; accepted: {needs} {flag} ...")
@@ -117,7 +118,7 @@ def cmd_objects(args: argparse.Namespace) -> int:
     if args.out:
         from ham.world.drawing import draw_objects, draw_objects_3d
 
-        view = args.view
+        view = args.view or "auto"
         if view == "auto":
             view = "3d" if any(o.varies_in_y for o in objs) else "side"
         if view == "3d":
@@ -370,8 +371,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.add_argument("--out", help="PNG: side profiles, or shaded 3-D tops (see --view)")
     p.add_argument(
-        "--view", choices=("auto", "side", "3d"), default="auto",
-        help="picture: side profiles or 3-D tops (auto: 3-D when an object varies in y)",
+        "--view", choices=("auto", "side", "3d"), default=None,
+        help="--out picture: side profiles or 3-D tops (auto, the default: 3-D when an object "
+        "varies in y)",
     )  # fmt: skip
     p.add_argument("--image", help="one object from a grey-scale PNG (needs --name)")
     p.add_argument("--mesh", help="one object from the top of an STL/OBJ/PLY mesh (needs --name)")
