@@ -449,6 +449,16 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("mujoco-supersample", ["glance", "--simulator", "mujoco", "--object", "box", "--x", "0", "--phi", "0", "--supersample", "8"], "supersample = 8"),
     ("pad-tiny-no-empty-range", ["glance", "--object", "box", "--x", "0", "--phi", "0", "--pitch", "1e-6"], "taxels * pitch > 0.004082 m"),
     # --cache-dir keeps a preset's table: anywhere else it would be ignored
+    # a training option that the chosen learner, core or setting does not read
+    ("train-hybrid-gae-lambda", ["train", "--out", "r", "--gae-lambda", "0.9"], "gae_lambda = 0.9 with learner 'hybrid'"),
+    ("train-info-beta", ["train", "--out", "r", "--learner", "info", "--beta", "0.7"], "beta = 0.7 with learner 'info'"),
+    ("train-info-replay-size", ["train", "--out", "r", "--learner", "info", "--replay-size", "10"], "replay_size = 10 with learner 'info'"),
+    ("train-clip-one-epoch", ["train", "--out", "r", "--learner", "info", "--clip", "0.1"], "clip = 0.1 where nothing reads it"),
+    ("train-move-cost-on-no-cost", ["train", "--out", "r", "--learner", "info", "--move-cost-on", "reward"], "move_cost_on = 'reward'"),
+    ("train-stop-learner-no-stop", ["train", "--out", "r", "--stop-learner", "hindsight"], "stop_learner = 'hindsight'"),
+    ("train-stop-input-no-stop", ["train", "--out", "r", "--stop-input", "core"], "stop_input = 'core' without a learned stop"),
+    ("train-mlp-forget-bias", ["train", "--out", "r", "--core", "mlp", "--forget-bias", "2"], "forget_bias = 2.0 with core 'mlp'"),
+    ("train-lstm-transformer-heads", ["train", "--out", "r", "--transformer-heads", "8"], "transformer_heads = 8 with core 'lstm'"),
     ("objects-view-no-out", ["objects", "--set", "paper", "--view", "3d"], "--view applies only with --out"),
     ("build-compression-paper-table", ["table", "build", "--grid", "3", "--out", "t.h5", "--compression", "none"], "compression = 'none'"),
     ("build-compression-preset", ["table", "build", "--world", "paper-gazebo", "--out", "t.h5", "--compression", "lzf"], "--compression lzf with --world"),

@@ -31,6 +31,9 @@ def test_a_registered_core_trains(tmp_path):
         register_core("gru_test")(lambda i, h, **_: GRUCore(i, h))
     model = HapticAttentionModel(HamConfig(core="gru_test", hidden_units=32))
     assert isinstance(model.core, GRUCore)
+    # a registered core may read any core option: none is refused as unread (the built-in
+    # cores' unread options are, tests/test_bad_inputs.py)
+    HamConfig(core="gru_test", forget_bias=2.0, transformer_layers=3, lstm_activation="relu")
     config = TrainConfig(
         model=HamConfig(core="gru_test", hidden_units=32, glances=2),
         steps=4, eval_every=2, eval_batches=1, batch_size=8,

@@ -29,7 +29,7 @@ import json
 import math
 import os
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import torch
@@ -66,6 +66,24 @@ CHECKPOINT_FILE = "checkpoint.pt"
 TIMING_FILE = "timing.json"
 DEVICES: tuple[str, ...] = ("cpu", "cuda")
 LEARNERS: tuple[str, ...] = ("hybrid", "info", "sac")
+#: The TrainConfig fields only some learners read (the rest read all or none of them): a value
+#: away from the default with another learner is refused, not ignored.
+LEARNER_OPTIONS: dict[str, tuple[str, ...]] = {
+    "beta": ("hybrid",),
+    "classification_reduction": ("hybrid",),
+    "reinforce_reduction": ("hybrid",),
+    "gamma": ("info", "sac"),
+    "gae_lambda": ("info",),
+    "entropy_coef": ("info",),
+    "normalize_advantage": ("info",),
+    "replay_size": ("sac",),
+    "replay_batch": ("sac",),
+    "sac_updates": ("sac",),
+    "target_tau": ("sac",),
+    "init_alpha": ("sac",),
+    "target_entropy": ("sac",),
+    "critic_trains_core": ("sac",),
+}
 OPTIMIZERS: tuple[str, ...] = ("sgd", "adam")
 #: ``TrainConfig.first_pose_lr_scale``'s default (docs/learners.md, "A learned stop")
 FIRST_POSE_LR_SCALE = 10.0
@@ -324,6 +342,7 @@ class TrainConfig:
         self._check_probe_run()
         self._check_epochs()
         self._check_sac()
+        self._check_unused()
         check_device(self.device, available=False)  # spelling only: a saved GPU run loads on CPU
         if self.env is not None and self.table is not None:
             raise HamError(
@@ -404,6 +423,28 @@ class TrainConfig:
                 f"{self.probe_warmup} + {rounds - 1} rounds x probe_every {self.probe_every}) "
                 f"but the budget gives {self.steps} steps; accepted: a budget of more steps"
             )
+
+    def _check_unused(self) -> None:
+        """A field set away from its default where nothing reads it is refused, not ignored:
+        another learner's options, the move cost's place without a move cost, the stop's
+        learner without a stop, PPO's clip and policy epochs with one epoch."""
+        defaults = {f.name: f.default for f in fields(self)}
+        for name, learners in LEARNER_OPTIONS.items():
+            value = getattr(self, name)
+            if self.learner not in learners and value != defaults[name]:
+                raise HamError(
+                    f"{name} = {value!r} with learner {self.learner!r}, which does not read it; "
+                    f"accepted: {name} with --learner {' or '.join(learners)}"
+                )
+        for name, applies, accepted in (
+            ("move_cost_on", self.move_cost > 0, "with --move-cost > 0"),
+            ("stop_learner", self.model.stop, "with --stop"),
+            ("clip", self.epochs > 1, "with --epochs > 1"),
+            ("policy_epochs", self.epochs > 1, "with --epochs > 1"),
+        ):
+            value = getattr(self, name)
+            if not applies and value != defaults[name]:
+                raise HamError(f"{name} = {value!r} where nothing reads it; accepted: {accepted}")
 
     def _check_epochs(self) -> None:
         if not (isinstance(self.epochs, int) and not isinstance(self.epochs, bool)

@@ -25,7 +25,7 @@ default; where the authors' code differs, the field offers the code's choice as 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 
 import torch
 from torch import nn
@@ -55,6 +55,15 @@ STOP_INPUTS: tuple[str, ...] = ("confidence", "core")
 #: ``phi`` and ``phi_y`` of the pose dims (:data:`ham.world.glance.POSE_DIMS`) are angles, fed to
 #: the tactile network as ``q * phi_scale``.
 ANGLE_DIMS: tuple[str, ...] = ("phi", "phi_y")
+
+
+#: The HamConfig fields each built-in core reads (:mod:`ham.model.core`); a core registered by
+#: :func:`ham.model.core.register_core` may read any of them, so only these are checked.
+CORE_OPTIONS: dict[str, tuple[str, ...]] = {
+    "lstm": ("lstm_activation", "forget_bias", "truncate_bptt"),
+    "mlp": (),
+    "transformer": ("transformer_layers", "transformer_heads"),
+}
 
 
 @dataclass(frozen=True)
@@ -202,6 +211,25 @@ class HamConfig:
         if self.n_objects < 2:
             raise HamError(f"n_objects = {self.n_objects}; accepted: >= 2 objects to classify")
         check_choices(self)
+        self._check_unused()
+
+    def _check_unused(self) -> None:
+        """A field set away from its default where nothing reads it is refused, not ignored:
+        another built-in core's options, the stop head's input without a stop."""
+        defaults = {f.name: f.default for f in fields(self)}
+        if self.core in CORE_OPTIONS:
+            for core, names in CORE_OPTIONS.items():
+                for name in names if core != self.core else ():
+                    value = getattr(self, name)
+                    if value != defaults[name]:
+                        raise HamError(
+                            f"{name} = {value!r} with core {self.core!r}, which does not read "
+                            f"it; accepted: {name} with --core {core}"
+                        )
+        if self.stop_input != defaults["stop_input"] and not self.stop:
+            raise HamError(
+                f"stop_input = {self.stop_input!r} without a learned stop; accepted: with --stop"
+            )
 
     @property
     def location_dim(self) -> int:
