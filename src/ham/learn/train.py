@@ -441,6 +441,7 @@ class TrainConfig:
             ("stop_learner", self.model.stop, "with --stop"),
             ("clip", self.epochs > 1, "with --epochs > 1"),
             ("policy_epochs", self.epochs > 1, "with --epochs > 1"),
+            ("nesterov", self.optimizer == "sgd", "with --optimizer sgd"),
         ):
             value = getattr(self, name)
             if not applies and value != defaults[name]:

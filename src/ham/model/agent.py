@@ -226,6 +226,19 @@ class HamConfig:
                             f"{name} = {value!r} with core {self.core!r}, which does not read "
                             f"it; accepted: {name} with --core {core}"
                         )
+        if self.combine_units != defaults["combine_units"] and self.combiner in ("add", "mul"):
+            raise HamError(
+                f"combine_units = {self.combine_units} with combiner {self.combiner!r}, which "
+                "has no layers after it; accepted: combine_units with --combiner concat2 or concat1"
+            )
+        unsampled = (
+            self.policy in ("random", "grid", "grid-corner") and self.first_glance == "random"
+        )
+        if self.std_activation != defaults["std_activation"] and unsampled:
+            raise HamError(
+                f"std_activation = {self.std_activation!r} with policy {self.policy!r}, which "
+                "has no sigma; accepted: std_activation with --policy learned or squashed"
+            )
         if self.stop_input != defaults["stop_input"] and not self.stop:
             raise HamError(
                 f"stop_input = {self.stop_input!r} without a learned stop; accepted: with --stop"
