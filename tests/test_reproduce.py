@@ -52,6 +52,21 @@ def test_all_writes_tables_figures_and_report(smoke_all):
     assert "| full-concat2 (1 seed(s)) | 3 |" in section
 
 
+def test_figures_of_runs_they_do_not_show_are_not_drawn(tmp_path, ham_cli):
+    """The figures show the full model and random locations: with --variants mlp there is
+    nothing to draw, so no empty picture is written (matplotlib warned of an empty legend on
+    stderr three times) and the report says why."""
+    r = ham_cli("reproduce", "figures", "--profile", "smoke", "--glances", "1", "--variants",
+                "mlp", "--seeds", "1", "--workers", "1", "--quiet", "--out", str(tmp_path))  # fmt: skip
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    assert json.loads((tmp_path / "summary.json").read_text())["figures"] == []
+    assert not list((tmp_path / "figures").glob("*.png"))
+    assert (
+        "## Figures\n\nNone: the figures show the full model"
+        in (tmp_path / "report.md").read_text()
+    )
+
+
 def test_finished_runs_are_skipped(smoke_all, ham_main):
     out, _ = smoke_all
     r = ham_main("reproduce", "table2", "--profile", "smoke", "--quiet", "--out", str(out))

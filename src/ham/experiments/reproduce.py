@@ -618,6 +618,9 @@ def render_report(
         lines += ["## Figures", ""]
         lines += [f"![{Path(f).stem}]({f})" for f in figures]
         lines.append("")
+    elif target in ("figures", "all"):
+        lines += ["## Figures", "", "None: the figures show the full model and random "
+                  "locations, and no finished run of either is in OUT.", ""]  # fmt: skip
     lines += ["## Where and why our numbers differ from the paper's", "", KNOWN_DIFFERENCES, ""]
     if stopped:
         lines += ["## Runs stopped at a perfect evaluation (--stop-at-perfect)", ""]

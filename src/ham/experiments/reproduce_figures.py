@@ -45,6 +45,17 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
+def _save_drawn(fig, ax, path: Path, curves: int, **legend) -> list[Path]:
+    """``[path]`` with the figure saved when ``curves`` were drawn on ``ax``; else ``[]``
+    (closed, not written: ``--variants mlp`` runs neither the full model nor random locations)."""
+    if not curves:
+        plt.close(fig)
+        return []
+    if any(not line.get_label().startswith("_") for line in ax.get_lines()):
+        ax.legend(**legend)  # only labelled curves: random locations alone have none
+    return [_save(fig, path)]
+
+
 def draw_figures(root: Path, jobs, profile) -> list[Path]:
     root = Path(root)
     figs = root / "figures"
@@ -53,41 +64,44 @@ def draw_figures(root: Path, jobs, profile) -> list[Path]:
     colors = plt.cm.viridis(np.linspace(0, 0.9, len(profile.glances)))
 
     fig, ax = plt.subplots(figsize=(6.4, 4))
+    curves = 0
     for c, g in zip(colors, profile.glances, strict=True):
         hs = _histories(root, jobs, "full", g)
         if hs:
             ax.plot(*_mean_curve(hs), color=c, label=f"{g} glance{'s' * (g > 1)}")
+            curves += 1
     ax.set(xlabel="training step", ylabel="accuracy", title="Full model: accuracy during training")
     ax.axhline(0.25, color="0.6", ls=":", lw=1)
-    ax.legend(fontsize=8)
-    written.append(_save(fig, figs / "curves.png"))
+    written += _save_drawn(fig, ax, figs / "curves.png", curves, fontsize=8)
 
     fig, ax = plt.subplots(figsize=(6.4, 4))
+    curves = 0
     for c, g in zip(colors, profile.glances, strict=True):
         for variant, ls in (("full", "-"), ("rloc", "--")):
             hs = _histories(root, jobs, variant, g)
             if hs:
                 label = f"{g} glance{'s' * (g > 1)}" if variant == "full" else None
                 ax.plot(*_mean_curve(hs), color=c, ls=ls, label=label)
+                curves += 1
     ax.set(
         xlabel="training step",
         ylabel="accuracy",
         title="Learned (solid) vs random (dashed) locations",
     )
-    ax.legend(fontsize=8)
-    written.append(_save(fig, figs / "learned_vs_random.png"))
+    written += _save_drawn(fig, ax, figs / "learned_vs_random.png", curves, fontsize=8)
 
     g_max = max(profile.glances)
     fig, ax = plt.subplots(figsize=(6.4, 4))
+    curves = 0
     for variant, style in (("full", "o-"), ("rloc", "s--")):
         hs = _histories(root, jobs, variant, g_max)
         if hs:
             per = np.array([h[-1]["accuracy_per_glance"] for h in hs]).mean(0)
             ax.plot(np.arange(1, len(per) + 1), per, style, label=variant)
+            curves += 1
     ax.set(xlabel="glance within the episode", ylabel="accuracy after this glance",
            title=f"Accuracy of each glance ({g_max}-glance episodes, last evaluation)")  # fmt: skip
-    ax.legend()
-    written.append(_save(fig, figs / "per_glance.png"))
+    written += _save_drawn(fig, ax, figs / "per_glance.png", curves)
 
     written += _heatmaps(root, jobs, profile, figs)
     mu = _mu_evolution(root, jobs, g_max, figs)
