@@ -71,6 +71,32 @@ def _object_from_file(args: argparse.Namespace):
     return [obj]
 
 
+def _exported(objs: list, spec: str, name: str | None) -> list:
+    """The objects ``--export`` writes: a built-in object's copy could never load beside the
+    original (names are unique), so it needs a new name (``--name``, one object)."""
+    from dataclasses import replace
+
+    from ham.world import objects
+
+    if name is not None and [o.name for o in objs] != [name]:  # --image/--mesh: named already
+        if len(objs) != 1:
+            raise HamError(f"--name {name!r} renames the one exported object; --set {spec!r} "
+                           f"has {len(objs)}; accepted: --set of one object")  # fmt: skip
+        if objects.check_name(name) in objects.names():
+            raise HamError(f"--name {name!r} is registered already ({objects.origin(name)}); "
+                           "accepted: a new name")  # fmt: skip
+        objs = [replace(objs[0], name=name)]
+    built_in = [o.name for o in objs if o.name in objects.names()
+                and objects.origin(o.name) == "built-in"]  # fmt: skip
+    if built_in:
+        raise HamError(
+            f"--export of built-in object {built_in[0]!r}: its copy could never load beside it "
+            "(names are unique); accepted: one built-in object with --name NEW, or your own "
+            "objects (--image, --mesh, --objects-file)"
+        )
+    return objs
+
+
 def cmd_objects(args: argparse.Namespace) -> int:
     from ham.world import objects
 
@@ -81,7 +107,7 @@ def cmd_objects(args: argparse.Namespace) -> int:
     if args.image and args.mesh:
         raise HamError("--image and --mesh; accepted: one of them")
     for flag, needs, given in (
-        ("--name", "--image or --mesh", args.image or args.mesh),
+        ("--name", "--image, --mesh or --export", args.image or args.mesh or args.export),
         ("--width", "--image", args.image),
         ("--depth", "--image", args.image),
         ("--height", "--image", args.image),
@@ -127,7 +153,7 @@ def cmd_objects(args: argparse.Namespace) -> int:
             draw_objects(objs, args.out)
     if args.export:
         samples = 129 if args.samples is None else args.samples
-        objects.write_objects_file(objs, args.export, samples=samples)
+        objects.write_objects_file(_exported(objs, spec, args.name), args.export, samples=samples)
     if args.json:
         print_json(rows)
     else:
