@@ -241,3 +241,24 @@ def test_train_from_a_glance_table(tmp_path):
     assert m["steps"] == 2
     run = load_run(tmp_path / "r")
     assert type(run.env.source).__name__ == "TableSource"
+
+
+def test_a_run_is_not_continued_on_another_table_at_its_path(tmp_path):
+    """The checkpoint keeps the table's sha256: a different table of the same shape rebuilt at
+    the run's table path (here: the Gazebo-like blur) is refused by resume and evaluation, not
+    used silently; the run's own table, rebuilt bit-identically, is accepted."""
+    from ham.world.config import WorldConfig
+    from ham.world.sensor import SensorConfig
+    from ham.world.table import build_table
+
+    path = tmp_path / "t.h5"
+    build_table(WorldConfig(), 5, path, progress=False)
+    train(tiny(table=str(path), steps=2), tmp_path / "r", progress=False)
+    blurred = WorldConfig(sensor=SensorConfig(spread_sigma=0.005))
+    build_table(blurred, 5, path, progress=False)  # same objects and grid, other images
+    with pytest.raises(HamError, match=r"glance table .*t\.h5' is not the one this run trained"):
+        resume(tmp_path / "r", steps=4, progress=False)
+    with pytest.raises(HamError, match="is not the one this run trained on"):
+        load_run(tmp_path / "r")
+    build_table(WorldConfig(), 5, path, progress=False)  # the run's own table again
+    assert resume(tmp_path / "r", steps=4, progress=False)["steps"] == 4

@@ -593,6 +593,9 @@ class Run:
     objects: list = field(default_factory=list)
     #: the sac learner's critics, temperature, replay buffer (``None`` for the other learners)
     sac: SacState | None = None
+    #: the sha256 of the glance table's pressures (``None`` without a table): a checkpoint
+    #: keeps it, so that a run is never continued or evaluated on another table at its path
+    table_checksum: str | None = None
 
     @classmethod
     def create(cls, config: TrainConfig, env: HapticEnv | ApGymGlanceEnv | None = None) -> Run:
@@ -622,9 +625,15 @@ class Run:
         policy_generator = torch.Generator(device=device)
         policy_generator.manual_seed(stream_seed(config.seed, 1))
         sac = SacState(agent, config, device) if config.learner == "sac" else None
+        checksum = None
+        if config.table is not None:
+            from ham.world.table import table_info
+
+            checksum = table_info(config.table).checksum
         return cls(
-            config, agent, env, optimizer, policy_generator, objects=list(env.objects), sac=sac
-        )
+            config, agent, env, optimizer, policy_generator, objects=list(env.objects), sac=sac,
+            table_checksum=checksum,
+        )  # fmt: skip
 
     def close(self) -> None:
         """Release the environment (ap_gym's data loaders)."""
@@ -646,9 +655,18 @@ class Run:
         }
         if self.sac is not None:  # only the sac learner's checkpoints carry it
             state["sac"] = self.sac.state_dict()
+        if self.table_checksum is not None:
+            state["table_checksum"] = self.table_checksum
         return state
 
     def load_state_dict(self, state: dict) -> None:
+        saved = state.get("table_checksum")  # absent in checkpoints written before it was kept
+        if saved is not None and self.table_checksum not in (None, saved):
+            raise HamError(
+                f"glance table {self.config.table!r} is not the one this run trained on (its "
+                f"sha256 {self.table_checksum[:12]}..., the run's {saved[:12]}...); accepted: "
+                "the run's own table at that path"
+            )
         self.step = int(state["step"])
         self.agent.load_state_dict(state["model"])
         self.optimizer.load_state_dict(state["optimizer"])
