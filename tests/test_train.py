@@ -262,3 +262,26 @@ def test_a_run_is_not_continued_on_another_table_at_its_path(tmp_path):
         load_run(tmp_path / "r")
     build_table(WorldConfig(), 5, path, progress=False)  # the run's own table again
     assert resume(tmp_path / "r", steps=4, progress=False)["steps"] == 4
+
+
+def test_a_run_moved_with_its_table_finds_it(tmp_path):
+    """A reproduce-like folder (OUT/table.h5, OUT/runs/KEY) moved elsewhere: the runs record the
+    table by absolute path, and find it again by name beside or above them, verified by the
+    sha256 their checkpoint kept; a table of another sha256 there is not taken."""
+    from ham.world.config import WorldConfig
+    from ham.world.sensor import SensorConfig
+    from ham.world.table import build_table
+
+    build_table(WorldConfig(), 5, tmp_path / "a" / "t.h5", progress=False)
+    run = tmp_path / "a" / "runs" / "r"
+    train(tiny(table=str(tmp_path / "a" / "t.h5"), steps=2), run, progress=False)
+    (tmp_path / "a").rename(tmp_path / "b")
+    moved = tmp_path / "b" / "runs" / "r"
+    assert load_run(moved).config.table == str(tmp_path / "b" / "t.h5")
+    assert resume(moved, steps=4, progress=False)["steps"] == 4
+    assert json.loads((moved / "config.json").read_text())["table"] == str(tmp_path / "b" / "t.h5")
+    (tmp_path / "b").rename(tmp_path / "c")
+    build_table(WorldConfig(sensor=SensorConfig(spread_sigma=0.005)), 5,
+                tmp_path / "c" / "t.h5", progress=False)  # fmt: skip
+    with pytest.raises(HamError, match=r"'t\.h5' of this run's sha256 beside the run or above"):
+        load_run(tmp_path / "c" / "runs" / "r")

@@ -833,6 +833,29 @@ def read_run_config(out: Path) -> TrainConfig:
     return TrainConfig.from_dict(d)
 
 
+def locate_table(out: Path, config: TrainConfig) -> TrainConfig:
+    """``config`` with its glance table where config.json says, or, when the run was moved
+    together with its table (a ``ham reproduce`` OUT copied from a cluster: its runs record
+    ``OUT/table_N.h5`` by absolute path), the file of that name beside the run or up to two
+    folders above it whose sha256 is the one the run's checkpoint kept."""
+    if config.table is None or Path(config.table).exists():
+        return config
+    from ham.world.table import table_info
+
+    name = Path(config.table).name
+    saved = None
+    if (out / CHECKPOINT_FILE).exists():
+        saved = load_checkpoint(out).get("table_checksum")
+    for folder in (out, out.parent, out.parent.parent) if saved is not None else ():
+        candidate = folder / name
+        if candidate.is_file() and table_info(candidate).checksum == saved:
+            return replace(config, table=str(candidate.resolve()))
+    raise HamError(
+        f"glance table {config.table!r} does not exist (nor a {name!r} of this run's sha256 "
+        f"beside the run or above it); accepted: the run's table at that path"
+    )
+
+
 def load_checkpoint(out: Path) -> dict:
     path = Path(out) / CHECKPOINT_FILE
     if not path.exists():
@@ -850,7 +873,7 @@ def load_run(out: str | os.PathLike, device: str | None = None, objects: str | N
     ``composite:test``, the held-out instances of a run trained on ``composite:train``); the
     run's world otherwise (online runs only)."""
     out = Path(out)
-    config = read_run_config(out)
+    config = locate_table(out, read_run_config(out))
     if device is not None:
         config = replace(config, device=device)
     if objects is not None:
@@ -898,7 +921,7 @@ def resume(
     """Continue the run in ``out`` from its checkpoint (to ``steps`` in all, or to the budget
     ``env_steps`` in glances, if given)."""
     out = Path(out)
-    config = read_run_config(out)
+    config = locate_table(out, read_run_config(out))
     if steps is not None:  # an explicit step count replaces an env_steps budget
         config = replace(config, steps=steps, env_steps=None)
     elif env_steps is not None:
