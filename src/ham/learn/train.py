@@ -921,7 +921,8 @@ def resume(
     """Continue the run in ``out`` from its checkpoint (to ``steps`` in all, or to the budget
     ``env_steps`` in glances, if given)."""
     out = Path(out)
-    config = locate_table(out, read_run_config(out))
+    recorded = read_run_config(out)
+    config = locate_table(out, recorded)
     if steps is not None:  # an explicit step count replaces an env_steps budget
         config = replace(config, steps=steps, env_steps=None)
     elif env_steps is not None:
@@ -934,7 +935,7 @@ def resume(
                 f"--steps {config.steps}: the run is already at step {run.step}; "
                 f"accepted: >= {run.step}"
             )
-        if steps is not None or env_steps is not None:  # only once accepted: a refused
+        if config != recorded:  # a budget or a moved table, only once accepted: a refused
             _write_json(out / CONFIG_FILE, config.to_dict())  # budget leaves the run as it was
         return train_loop(run, out, progress)
     finally:
