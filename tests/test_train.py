@@ -286,3 +286,35 @@ def test_a_run_moved_with_its_table_finds_it(tmp_path):
                 tmp_path / "c" / "t.h5", progress=False)  # fmt: skip
     with pytest.raises(HamError, match=r"'t\.h5' of this run's sha256 beside the run or above"):
         load_run(tmp_path / "c" / "runs" / "r")
+
+
+def test_table_flag_names_a_runs_moved_table(tmp_path):
+    """A run's table moved alone: `--table` on evaluate, heatmap and --resume names its new path,
+    accepted only with the sha256 the checkpoint kept (another table, or a run without a table,
+    is refused in one line); --resume records the new path."""
+    from ham.world.config import WorldConfig
+    from ham.world.table import build_table
+    from tests.conftest import run_ham_inprocess
+
+    build_table(WorldConfig(), 5, tmp_path / "t.h5", progress=False)
+    train(tiny(table=str(tmp_path / "t.h5"), steps=2), tmp_path / "r", progress=False)
+    (tmp_path / "t.h5").rename(tmp_path / "moved.h5")
+    run = str(tmp_path / "r")
+    r = run_ham_inprocess("evaluate", run, "--batches", "1")
+    assert r.returncode == 2 and "or --table FILE where it is now" in r.stderr
+    r = run_ham_inprocess("evaluate", run, "--batches", "1", "--table", str(tmp_path / "moved.h5"))
+    assert r.returncode == 0, r.stderr
+    build_table(WorldConfig(), 3, tmp_path / "other.h5", progress=False)
+    r = run_ham_inprocess("heatmap", run, "--out", str(tmp_path / "h.png"), "--batches", "1",
+                          "--table", str(tmp_path / "other.h5"))  # fmt: skip
+    assert r.returncode == 2 and "is not the run's table" in r.stderr
+    assert not (tmp_path / "h.png").exists()
+    r = run_ham_inprocess("train", "--resume", run, "--steps", "4", "--no-progress", "--table",
+                          str(tmp_path / "moved.h5"))  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert json.loads((tmp_path / "r" / "config.json").read_text())["table"] == str(
+        tmp_path / "moved.h5"
+    )
+    train(tiny(steps=2), tmp_path / "online", progress=False)
+    with pytest.raises(HamError, match="--table .* for a run without a glance table"):
+        load_run(tmp_path / "online", table=str(tmp_path / "moved.h5"))

@@ -72,6 +72,9 @@ def add_commands(subparsers) -> None:
                    help="evaluate on other objects, one per class in the run's class order "
                    "(e.g. composite:test for a run trained on composite:train: held-out "
                    "instances); online runs only")  # fmt: skip
+    p.add_argument("--table", metavar="FILE",
+                   help="the run's glance table at a new path (accepted only with the sha256 "
+                   "the run's checkpoint kept)")  # fmt: skip
     p.add_argument("--confusion", metavar="PNG",
                    help="also plot the confusion matrix after the last glance")  # fmt: skip
     p.add_argument("--swap-last-pose", action="store_true",
@@ -95,6 +98,9 @@ def add_commands(subparsers) -> None:
     p.add_argument("--objects", metavar="SET",
                    help="on other objects, one per class in the run's class order (e.g. "
                    "composite:test); online runs only")  # fmt: skip
+    p.add_argument("--table", metavar="FILE",
+                   help="the run's glance table at a new path (accepted only with the sha256 "
+                   "the run's checkpoint kept)")  # fmt: skip
     p.set_defaults(func=cmd_heatmap)
 
 
@@ -269,7 +275,6 @@ def cmd_train(args: argparse.Namespace) -> int:
         ignored += [
             f"--{k.replace('_', '-')}"
             for k in (
-                "table",
                 "env",
                 "actions",
                 "max_step_length",
@@ -285,13 +290,14 @@ def cmd_train(args: argparse.Namespace) -> int:
         if ignored:
             raise HamError(
                 f"--resume continues the run with its own config; remove {', '.join(ignored)} "
-                "(only --steps or --env-steps may change)"
+                "(only --steps or --env-steps may change, and --table may name its moved table)"
             )
         _refuse_world_options(args)  # the run brings its own world
         out = Path(args.resume)
         if args.steps is not None and args.env_steps is not None:
             raise HamError("give --steps or --env-steps to --resume, not both")
-        metrics = resume(out, steps=args.steps, env_steps=args.env_steps, progress=progress)
+        metrics = resume(out, steps=args.steps, env_steps=args.env_steps, progress=progress,
+                         table=args.table)  # fmt: skip
     else:
         if not args.out:
             raise HamError("ham train needs --out DIR (or --resume DIR)")
@@ -333,7 +339,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         from ham.world.files import check_output
 
         check_output(args.confusion, (".png",), what="--confusion")
-    run = load_run(args.run, device=args.device, objects=args.objects)
+    run = load_run(args.run, device=args.device, objects=args.objects, table=args.table)
     policy = args.eval_policy or run.config.eval_policy
     try:
         if args.swap_last_pose:  # refused before the evaluation's minutes, not after
@@ -406,7 +412,7 @@ def cmd_heatmap(args: argparse.Namespace) -> int:
     check_output(args.out, (".png",))
     if args.json:
         check_output(args.json, (".json",), what="--json")
-    run = load_run(args.run, device=args.device, objects=args.objects)
+    run = load_run(args.run, device=args.device, objects=args.objects, table=args.table)
     policy = args.eval_policy or run.config.eval_policy
     data = heatmap_data(
         run.agent, run.env, args.batches, args.bins, seed=args.seed, policy=policy, progress=True

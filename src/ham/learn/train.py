@@ -833,15 +833,18 @@ def read_run_config(out: Path) -> TrainConfig:
     return TrainConfig.from_dict(d)
 
 
-def locate_table(out: Path, config: TrainConfig) -> TrainConfig:
-    """``config`` with its glance table where config.json says, or, when the run was moved
-    together with its table (a ``ham reproduce`` OUT copied from a cluster: its runs record
-    ``OUT/table_N.h5`` by absolute path), the file of that name beside the run or up to two
-    folders above it whose sha256 is the one the run's checkpoint kept."""
-    if config.table is None or Path(config.table).exists():
-        return config
+def locate_table(out: Path, config: TrainConfig, table: str | None = None) -> TrainConfig:
+    """``config`` with its glance table: ``table`` when given (the run's table moved: accepted
+    only with the sha256 the run's checkpoint kept), else where config.json says, or, when the
+    run was moved together with its table (a ``ham reproduce`` OUT copied from a cluster: its
+    runs record ``OUT/table_N.h5`` by absolute path), the file of that name beside the run or
+    up to two folders above it whose sha256 is the checkpoint's."""
     from ham.world.table import table_info
 
+    if table is not None:
+        return _moved_table(out, config, table)
+    if config.table is None or Path(config.table).exists():
+        return config
     name = Path(config.table).name
     saved = None
     if (out / CHECKPOINT_FILE).exists():
@@ -852,8 +855,30 @@ def locate_table(out: Path, config: TrainConfig) -> TrainConfig:
             return replace(config, table=str(candidate.resolve()))
     raise HamError(
         f"glance table {config.table!r} does not exist (nor a {name!r} of this run's sha256 "
-        f"beside the run or above it); accepted: the run's table at that path"
+        f"beside the run or above it); accepted: the run's table at that path, or --table FILE "
+        "where it is now"
     )
+
+
+def _moved_table(out: Path, config: TrainConfig, table: str) -> TrainConfig:
+    """``config`` with ``table`` (``--table``), the run's own glance table at a new path."""
+    from ham.world.table import table_info
+
+    if config.table is None:
+        raise HamError(f"--table {table!r} for a run without a glance table; accepted: --table "
+                       "with a run trained on one")  # fmt: skip
+    if not Path(table).is_file():
+        raise HamError(f"glance table {table!r} does not exist")
+    saved = load_checkpoint(out).get("table_checksum")
+    if saved is None:
+        raise HamError(f"--table {table!r}: the run's checkpoint keeps no table sha256 to check "
+                       "it against (written before they were kept); accepted: the table at its "
+                       f"recorded path {config.table!r}")  # fmt: skip
+    if table_info(table).checksum != saved:
+        raise HamError(f"--table {table!r} is not the run's table (sha256 "
+                       f"{table_info(table).checksum[:12]}..., the run's {saved[:12]}...); "
+                       "accepted: the table the run trained on")  # fmt: skip
+    return replace(config, table=str(Path(table).resolve()))
 
 
 def load_checkpoint(out: Path) -> dict:
@@ -866,14 +891,20 @@ def load_checkpoint(out: Path) -> dict:
         raise HamError(f"cannot read checkpoint {str(path)!r}: {exc}") from None
 
 
-def load_run(out: str | os.PathLike, device: str | None = None, objects: str | None = None) -> Run:
+def load_run(
+    out: str | os.PathLike,
+    device: str | None = None,
+    objects: str | None = None,
+    table: str | None = None,
+) -> Run:
     """The run in directory ``out`` at its latest checkpoint (for evaluation and heat maps).
 
     ``objects``: evaluate on other objects of the same number, class ``i`` the ``i``-th (e.g.
     ``composite:test``, the held-out instances of a run trained on ``composite:train``); the
-    run's world otherwise (online runs only)."""
+    run's world otherwise (online runs only). ``table``: the run's glance table at a new path
+    (:func:`locate_table`)."""
     out = Path(out)
-    config = locate_table(out, read_run_config(out))
+    config = locate_table(out, read_run_config(out), table)
     if device is not None:
         config = replace(config, device=device)
     if objects is not None:
@@ -917,12 +948,14 @@ def resume(
     steps: int | None = None,
     env_steps: int | None = None,
     progress: bool = True,
+    table: str | None = None,
 ) -> dict:
     """Continue the run in ``out`` from its checkpoint (to ``steps`` in all, or to the budget
-    ``env_steps`` in glances, if given)."""
+    ``env_steps`` in glances, if given; ``table``: its glance table at a new path,
+    :func:`locate_table`)."""
     out = Path(out)
     recorded = read_run_config(out)
-    config = locate_table(out, recorded)
+    config = locate_table(out, recorded, table)
     if steps is not None:  # an explicit step count replaces an env_steps budget
         config = replace(config, steps=steps, env_steps=None)
     elif env_steps is not None:
