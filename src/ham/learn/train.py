@@ -833,22 +833,21 @@ def read_run_config(out: Path) -> TrainConfig:
     return TrainConfig.from_dict(d)
 
 
-def locate_table(out: Path, config: TrainConfig, table: str | None = None) -> TrainConfig:
+def locate_table(
+    out: Path, config: TrainConfig, saved: str | None, table: str | None = None
+) -> TrainConfig:
     """``config`` with its glance table: ``table`` when given (the run's table moved: accepted
-    only with the sha256 the run's checkpoint kept), else where config.json says, or, when the
-    run was moved together with its table (a ``ham reproduce`` OUT copied from a cluster: its
-    runs record ``OUT/table_N.h5`` by absolute path), the file of that name beside the run or
-    up to two folders above it whose sha256 is the checkpoint's."""
+    only with ``saved``, the sha256 the run's checkpoint kept), else where config.json says, or,
+    when the run was moved together with its table (a ``ham reproduce`` OUT copied from a
+    cluster: its runs record ``OUT/table_N.h5`` by absolute path), the file of that name beside
+    the run or up to two folders above it whose sha256 is ``saved``."""
     from ham.world.table import table_info
 
     if table is not None:
-        return _moved_table(out, config, table)
+        return _moved_table(config, saved, table)
     if config.table is None or Path(config.table).exists():
         return config
     name = Path(config.table).name
-    saved = None
-    if (out / CHECKPOINT_FILE).exists():
-        saved = load_checkpoint(out).get("table_checksum")
     for folder in (out, out.parent, out.parent.parent) if saved is not None else ():
         candidate = folder / name
         if candidate.is_file() and table_info(candidate).checksum == saved:
@@ -860,8 +859,9 @@ def locate_table(out: Path, config: TrainConfig, table: str | None = None) -> Tr
     )
 
 
-def _moved_table(out: Path, config: TrainConfig, table: str) -> TrainConfig:
-    """``config`` with ``table`` (``--table``), the run's own glance table at a new path."""
+def _moved_table(config: TrainConfig, saved: str | None, table: str) -> TrainConfig:
+    """``config`` with ``table`` (``--table``), the run's own glance table at a new path whose
+    sha256 is ``saved``, the checkpoint's."""
     from ham.world.table import table_info
 
     if config.table is None:
@@ -869,14 +869,14 @@ def _moved_table(out: Path, config: TrainConfig, table: str) -> TrainConfig:
                        "with a run trained on one")  # fmt: skip
     if not Path(table).is_file():
         raise HamError(f"glance table {table!r} does not exist")
-    saved = load_checkpoint(out).get("table_checksum")
     if saved is None:
         raise HamError(f"--table {table!r}: the run's checkpoint keeps no table sha256 to check "
                        "it against (written before they were kept); accepted: the table at its "
                        f"recorded path {config.table!r}")  # fmt: skip
-    if table_info(table).checksum != saved:
+    checksum = table_info(table).checksum
+    if checksum != saved:
         raise HamError(f"--table {table!r} is not the run's table (sha256 "
-                       f"{table_info(table).checksum[:12]}..., the run's {saved[:12]}...); "
+                       f"{checksum[:12]}..., the run's {saved[:12]}...); "
                        "accepted: the table the run trained on")  # fmt: skip
     return replace(config, table=str(Path(table).resolve()))
 
@@ -904,7 +904,9 @@ def load_run(
     run's world otherwise (online runs only). ``table``: the run's glance table at a new path
     (:func:`locate_table`)."""
     out = Path(out)
-    config = locate_table(out, read_run_config(out), table)
+    config = read_run_config(out)
+    state = load_checkpoint(out)  # read once: its table sha256 locates a moved table
+    config = locate_table(out, config, state.get("table_checksum"), table)
     if device is not None:
         config = replace(config, device=device)
     if objects is not None:
@@ -923,7 +925,7 @@ def load_run(
             )
         config = replace(config, world=world)
     run = Run.create(config)
-    run.load_state_dict(load_checkpoint(out))
+    run.load_state_dict(state)
     return run
 
 
@@ -955,14 +957,15 @@ def resume(
     :func:`locate_table`)."""
     out = Path(out)
     recorded = read_run_config(out)
-    config = locate_table(out, recorded, table)
+    state = load_checkpoint(out)  # read once: its table sha256 locates a moved table
+    config = locate_table(out, recorded, state.get("table_checksum"), table)
     if steps is not None:  # an explicit step count replaces an env_steps budget
         config = replace(config, steps=steps, env_steps=None)
     elif env_steps is not None:
         config = replace(config, env_steps=env_steps)
     run = Run.create(config)
     try:
-        run.load_state_dict(load_checkpoint(out))
+        run.load_state_dict(state)
         if run.step > config.steps:
             raise HamError(
                 f"--steps {config.steps}: the run is already at step {run.step}; "
