@@ -28,12 +28,14 @@ def run_ham_inprocess(*args: str, cwd=None) -> subprocess.CompletedProcess:
     """The CLI's ``main`` in this process, answered as :func:`run_ham` answers: for the second
     and later commands of a test whose command is already run once in a subprocess elsewhere
     (a subprocess costs 3-4 s, most of it importing torch). The thread count and the working
-    directory are restored after the call, and so is the object registry (an objects file the
-    command loads stays out of the other tests of this process)."""
+    directory are restored after the call, and so are the registries of objects, cores and
+    policies (an objects file or plugin the command loads stays out of the other tests)."""
     from ham.cli.main import main
+    from ham.model import core, plugin, policy
     from ham.world import objects
 
-    registry = (objects._REGISTRY, objects._ORDER, objects._ORIGIN, objects._FILES, objects._LAZY)
+    registry = (objects._REGISTRY, objects._ORDER, objects._ORIGIN, objects._FILES, objects._LAZY,
+                core.CORES, policy.POLICIES, plugin._LOADED)  # fmt: skip
     saved = [r.copy() for r in registry]
     out, err = io.StringIO(), io.StringIO()
     threads = torch.get_num_threads()

@@ -526,6 +526,9 @@ def test_stop_at_perfect(tmp_path):
 def test_refused_configs(tmp_path):
     with pytest.raises(HamError, match="learner 'info' cannot be batched; accepted: hybrid"):
         train_batched([tiny(0, learner="info")], [tmp_path / "a"])
+    # the stacked HAM has the lstm and mlp cores only (the transformer was a KeyError)
+    with pytest.raises(HamError, match="core 'transformer' cannot be batched; accepted: lstm"):
+        train_batched([tiny(0, model=HamConfig(core="transformer"))], [tmp_path / "a"])
     one = {"model": HamConfig(glances=1)}  # no pose to choose: not with runs of 3 glances
     for kw in ({"optimizer": "adam"}, {"batch_size": 4}, {"beta": 0.0}, one):  # one per group
         with pytest.raises(HamError, match="differ in more than seed, steps, lr, lr_decay"):

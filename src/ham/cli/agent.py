@@ -36,8 +36,14 @@ def add_commands(subparsers) -> None:
     add_config_options(hyper, TrainConfig, skip={"model", "world", "table", "env"})
     net = p.add_argument_group("network (HamConfig; paper defaults)")
     add_config_options(
-        net, HamConfig, skip={"n_objects", "pressure_dim", "pose_dims", "moves", "move_length"}
+        net,
+        HamConfig,
+        skip={"n_objects", "pressure_dim", "pose_dims", "moves", "move_length", "plugin"},
     )
+    net.add_argument("--plugin", metavar="FILE.py",
+                     help="a Python file that registers your own cores or location policies "
+                     "(ham.model.core.register_core, ham.model.policy.register_policy) for "
+                     "--core/--policy; the run records its text (docs/agent.md)")  # fmt: skip
     src = p.add_mutually_exclusive_group()
     src.add_argument("--table", metavar="FILE", help="glance table (HDF5) to look glances up in")
     src.add_argument("--online", action="store_true",
@@ -169,7 +175,8 @@ def _config_from_args(args: argparse.Namespace):
         table = table or preset.get("table")
         train_changes.setdefault("eval_policy", preset["eval_policy"])
     # The input size (taxels^2) and the classes come from the table or the online world.
-    model = model_for_source(HamConfig(**overrides(args, HamConfig)), table, world)
+    model = HamConfig(**overrides(args, HamConfig), plugin=_plugin_from_args(args))
+    model = model_for_source(model, table, world)
     config = TrainConfig(model=model, table=table, world=world, **train_changes)
     if not args.env:
         stray = [f"--{k.replace('_', '-')}" for k in ("actions", "max_step_length", "eval_env", "glimpse")
@@ -190,6 +197,17 @@ def _config_from_args(args: argparse.Namespace):
         )
         config = fit_to_ap_gym(config, env)
     return config
+
+
+def _plugin_from_args(args: argparse.Namespace) -> dict | None:
+    """The record of ``--plugin FILE.py``, its cores and policies registered (None without)."""
+    if args.plugin is None:
+        return None
+    from ham.model.plugin import load_plugin, read_plugin
+
+    record = read_plugin(args.plugin)
+    load_plugin(record)
+    return record
 
 
 def _preset_defaults(args: argparse.Namespace, world) -> dict | None:
@@ -284,6 +302,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                 "pitch",
                 "objects",
                 "objects_file",
+                "plugin",
             )  # fmt: skip
             if getattr(args, k, None) is not None
         ]

@@ -116,7 +116,9 @@ def add_config_options(
         else:
             kwargs["type"] = {int: _integer, float: _finite}.get(kind, str)
             kwargs["metavar"] = "{" + ",".join(choices) + "}" if choices else kind.__name__.upper()
-            if choices:
+            # a registry (a dict: cores, policies) grows with --plugin after parsing: the
+            # config checks those values, once the plugin has registered its names
+            if choices and not isinstance(choices, dict):
                 kwargs["choices"] = tuple(choices)
         parser.add_argument(option_name(f.name), **kwargs)
         added.append(f.name)

@@ -366,9 +366,20 @@ class BatchedOptions:
 
 
 def check_batched_options(
-    executor: str, options: BatchedOptions, devices: Iterable[str] = ()
+    executor: str, options: BatchedOptions, devices: Iterable[str] = (), jobs: Iterable = ()
 ) -> None:
-    """``options`` need a batched executor, and a CUDA graph the runs' ``devices`` all CUDA."""
+    """``options`` need a batched executor, and a CUDA graph the runs' ``devices`` all CUDA;
+    with a batched executor every one of ``jobs`` (``.key``, ``.config``) must be batchable,
+    refused before a table is built or a run starts."""
+    if executor in BATCHED_EXECUTORS:
+        from ham.learn.batched import check_batchable
+        from ham.learn.train import TrainConfig
+
+        for job in jobs:
+            try:
+                check_batchable(TrainConfig.from_dict(job.config))
+            except HamError as exc:
+                raise HamError(f"run {job.key}: {exc}") from None
     if executor not in BATCHED_EXECUTORS:
         given = options.given()
         if given:

@@ -52,13 +52,14 @@ from ham.errors import HamError
 
 #: Top-level keys of a grid file.
 GRID_KEYS = ("name", "description", "seeds", "key", "base", "axes", "cells", "world", "table",
-             "evaluate")  # fmt: skip
+             "evaluate", "plugin")  # fmt: skip
 #: TrainConfig fields a grid sets itself rather than through overrides.
 RESERVED = {
     "seed": "the grid's seeds",
     "table": "the grid's [table]",
     "world": "the grid's [world]",
     "model.n_objects": "the number of the world's objects",
+    "model.plugin": "the grid's plugin = FILE.py",
 }
 EVAL_SEED = 12345  # the default seed of `ham evaluate`
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._=,+-]*$")
@@ -181,6 +182,8 @@ class Grid:
         world: the :class:`ham.world.config.WorldConfig` dict every run uses.
         table_grid: ``N`` trains on an N x N glance table built from ``world``; ``None`` online.
         evaluate: re-evaluations of each run's final checkpoint: ``policy``, ``batches``, ``seed``.
+        plugin: the record of a plugin file (:mod:`ham.model.plugin`) whose cores and policies
+            the cells may name; the runs that use them keep it in their config.
     """
 
     name: str
@@ -195,6 +198,7 @@ class Grid:
     description: str = ""
     #: take the glance tables from the table cache (:mod:`ham.world.cache`) instead of DIR
     table_cache: bool = False
+    plugin: dict | None = None
 
     # ------------------------------------------------------------------ validation
     def __post_init__(self) -> None:
@@ -205,6 +209,13 @@ class Grid:
             raise HamError(
                 f"grid name {self.name!r}; accepted: letters, digits and . _ = , + - (not empty)"
             )
+        if self.plugin is not None:
+            from ham.model.plugin import load_plugin
+
+            try:
+                object.__setattr__(self, "_plugin_names", set(load_plugin(self.plugin)))
+            except HamError as exc:
+                raise HamError(f"{w}: {exc}") from None
         if not isinstance(self.base, Mapping):
             raise HamError(f"{w}: base = {self.base!r}; accepted: a table of overrides")
         object.__setattr__(self, "base", flatten(self.base, where=f"{w} base"))
@@ -446,6 +457,10 @@ class Grid:
                 model[k[len("model.") :]] = v
             else:
                 train[k] = v
+        if self.plugin is not None:  # only the runs that use its core or policy keep it
+            uses = {f"core {model.get('core')}", f"policy {model.get('policy')}"}
+            if uses & self._plugin_names:
+                model["plugin"] = self.plugin
         return TrainConfig(
             model=HamConfig(**model),
             world=WorldConfig.from_dict(world),
@@ -507,6 +522,8 @@ class Grid:
                 d["table"]["cache"] = True
         if self.evaluate:
             d["evaluate"] = list(self.evaluate)
+        if self.plugin is not None:
+            d["plugin"] = dict(self.plugin)
         return d
 
     @classmethod
@@ -542,7 +559,23 @@ class Grid:
             table_grid=table,
             evaluate=d.get("evaluate", []),
             table_cache=cache,
+            plugin=_plugin(d.get("plugin"), source),
         )
+
+
+def _plugin(value, source: str) -> dict | None:
+    """``plugin``: a path to the plugin file (relative to the grid file's folder) or its record."""
+    if value is None or isinstance(value, Mapping):
+        return None if value is None else dict(value)
+    if not isinstance(value, str):
+        raise HamError(f"{source}: plugin = {value!r}; accepted: the path of a .py plugin file")
+    from ham.model.plugin import read_plugin
+
+    folder = Path(source).parent if source != "grid" else Path()
+    try:
+        return read_plugin(folder / value)
+    except HamError as exc:
+        raise HamError(f"{source}: {exc}") from None
 
 
 def _raw_world(v):

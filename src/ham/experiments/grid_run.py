@@ -95,7 +95,7 @@ def run_grid(
     root = Path(out).resolve()
     tables = grid.table_paths(root, cache_dir)
     jobs = grid.jobs(tables)
-    check_batched_options(executor, batched, [j.config.get("device", "cpu") for j in jobs])
+    check_batched_options(executor, batched, [j.config.get("device", "cpu") for j in jobs], jobs)
     root.mkdir(parents=True, exist_ok=True)
     _check_existing_runs(root, jobs)
     for world, table in (tables or {}).items():  # one table per world, built before any run

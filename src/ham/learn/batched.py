@@ -127,6 +127,11 @@ def check_batchable(config: TrainConfig) -> None:
             f"env {config.env.env!r} cannot be batched; accepted: the haptic world "
             "(train it with ham train or --executor local)"
         )
+    if config.model.core not in ("lstm", "mlp"):
+        raise HamError(
+            f"core {config.model.core!r} cannot be batched; accepted: lstm, mlp "
+            "(train it with ham train or --executor local)"
+        )
     if config.model.policy not in ("learned", "random"):
         raise HamError(
             f"policy {config.model.policy!r} cannot be batched; accepted: learned, random "

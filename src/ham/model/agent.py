@@ -35,6 +35,7 @@ from ham.model.baseline import Baseline
 from ham.model.classifier import Classifier
 from ham.model.core import ACTIVATIONS, CORES, State, make_core
 from ham.model.location_net import STD_ACTIVATIONS, uniform_locations
+from ham.model.plugin import load_plugin
 from ham.model.policy import (
     POLICIES,
     FirstPose,
@@ -100,6 +101,9 @@ class HamConfig:
             ``grid-corner``).
         move_length: the sensor's full step per move (set with ``moves`` for ``grid-corner``,
             which plans its walk in it; 0: unused).
+        plugin: the record ``{"name", "sha256", "source"}`` of the user's plugin file that
+            registers ``core`` or ``policy`` (``--plugin FILE.py``, :mod:`ham.model.plugin`): run
+            before the config is checked, so a saved config loads anywhere.
         std_activation: ``softplus`` (paper) or ``sigmoid`` (authors' code) for ``sigma``.
         sigma_min: floor added to ``sigma`` for numerical safety (not in the paper).
         phi_scale: the pose fed to the tactile network is ``(q_x, q_phi * phi_scale)`` (pi/2).
@@ -166,8 +170,17 @@ class HamConfig:
     height_input: bool = False
     moves: bool = False
     move_length: float = 0.0
+    plugin: dict | None = None
 
     def __post_init__(self) -> None:
+        if self.plugin is not None:
+            registered = load_plugin(self.plugin)
+            if not {f"core {self.core}", f"policy {self.policy}"} & set(registered):
+                raise HamError(
+                    f"plugin {self.plugin['name']!r} with core {self.core!r} and policy "
+                    f"{self.policy!r}, neither of which it registers; accepted: --core or "
+                    f"--policy of the plugin's ({', '.join(registered)})"
+                )
         # frozen: a JSON list (a saved config) becomes the tuple
         object.__setattr__(self, "pose_dims", check_pose_dims(self.pose_dims))
         if not isinstance(self.height_input, bool):
@@ -210,6 +223,13 @@ class HamConfig:
             )
         if self.n_objects < 2:
             raise HamError(f"n_objects = {self.n_objects}; accepted: >= 2 objects to classify")
+        for name, registry in (("core", CORES), ("policy", POLICIES)):
+            if getattr(self, name) not in registry:  # a name of the user's own: say how
+                raise HamError(
+                    f"{name} = {getattr(self, name)!r}; accepted: {', '.join(registry)}, or a "
+                    f"{name} of your own registered by a plugin (--plugin FILE.py, "
+                    "HamConfig(plugin=ham.model.plugin.read_plugin(FILE)))"
+                )
         check_choices(self)
         self._check_unused()
 
@@ -357,6 +377,8 @@ class HapticAttentionModel(nn.Module):
     def __init__(self, config: HamConfig | None = None) -> None:
         super().__init__()
         self.config = c = config or HamConfig()
+        if c.plugin is not None:  # a config unpickled in a worker has not run its __post_init__
+            load_plugin(c.plugin)
         self.tactile = TactileNetwork(
             c.pressure_dim,
             c.location_dim,

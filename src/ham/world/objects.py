@@ -40,7 +40,6 @@ re-registers the same objects wherever it is loaded (:func:`load_objects`), in a
 from __future__ import annotations
 
 import functools
-import hashlib
 import itertools
 import json
 import math
@@ -53,6 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from ham.errors import HamError
+from ham.world import recorded_file
 
 #: Edge length of every block (m): "Building blocks ... 9 x 9 cm each".
 BLOCK_SIZE = 0.09
@@ -307,7 +307,7 @@ class HapticObject:
         except Exception as exc:  # noqa: BLE001 - the user's function: any failure is bad input
             raise HamError(
                 f"object {name!r}: surface h(x, y) failed on arrays of shape {gx.shape}: "
-                f"{type(exc).__name__}: {_one_line(exc)}"
+                f"{type(exc).__name__}: {recorded_file.one_line(exc)}"
             ) from None
         if hs.shape != gx.shape:
             raise HamError(
@@ -495,7 +495,7 @@ def _read_png(name: str, path: Path) -> np.ndarray:
         pixels = mpimg.imread(path, format="png")
     except Exception as exc:  # noqa: BLE001 - any failure of the reader is a bad file
         raise HamError(
-            f"object {name!r}: cannot read image {str(path)!r} as a PNG: {_one_line(exc)}"
+            f"object {name!r}: cannot read image {str(path)!r} as a PNG: {recorded_file.one_line(exc)}"
         ) from None
     # matplotlib reads every PNG (8- or 16-bit, grey or colour) as floats in [0, 1]
     return np.asarray(pixels, dtype=np.float64)
@@ -550,7 +550,9 @@ def _mesh_triangles(name: str, mesh: object) -> np.ndarray:
         try:
             mesh = trimesh.load(path, force="mesh")
         except Exception as exc:  # noqa: BLE001 - any failure of the reader is a bad file
-            raise HamError(f"object {name!r}: cannot read {what}: {_one_line(exc)}") from None
+            raise HamError(
+                f"object {name!r}: cannot read {what}: {recorded_file.one_line(exc)}"
+            ) from None
     if not isinstance(mesh, trimesh.Trimesh):
         raise HamError(
             f"object {name!r}: mesh of type {type(mesh).__name__}; accepted: an "
@@ -949,6 +951,17 @@ def register(obj: HapticObject, *, replace: bool = False) -> int:
     return _ORDER.index(obj.name)
 
 
+def unregister_since(before: set[str]) -> None:
+    """Remove every object registered after :func:`names` was ``before`` (a failed plugin's)."""
+    added = [n for n in _ORDER if n not in before]
+    for n in added:
+        _REGISTRY.pop(n, None)
+        _ORIGIN.pop(n, None)
+        _ORDER.remove(n)
+    for sha in [s for s, got in _FILES.items() if set(got) & set(added)]:
+        del _FILES[sha]
+
+
 def origin(name: str) -> str:
     """Where the registered object ``name`` came from: ``built-in``, an objects file, ..."""
     get(name)
@@ -1060,42 +1073,15 @@ def read_objects_file(path: str | Path) -> dict:
     The record is what a world keeps (:attr:`ham.world.config.WorldConfig.objects_file`): the
     file's text itself, so that any process can register the same objects with :func:`load_objects`.
     """
-    p = Path(path)
-    if p.suffix.lower() not in OBJECTS_FILE_SUFFIXES:
-        raise HamError(
-            f"objects file {str(p)!r}: accepted: a .py file that registers objects, or a "
-            ".json/.toml list of polylines and heightmaps"
-        )
-    try:
-        source = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise HamError(f"objects file {str(p)!r} does not exist") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        msg = " ".join(str(exc).split())
-        raise HamError(f"cannot read objects file {str(p)!r}: {msg}") from None
-    sha = hashlib.sha256(source.encode("utf-8")).hexdigest()
-    return {"name": p.name, "sha256": sha, "source": source}
+    return recorded_file.read_record(
+        path, "objects file", OBJECTS_FILE_SUFFIXES,
+        "a .py file that registers objects, or a .json/.toml list of polylines and heightmaps",
+    )  # fmt: skip
 
 
 def check_record(record: object) -> dict:
     """``record`` if it is a complete objects-file record whose text has its sha256, else an error."""
-    keys = ("name", "sha256", "source")
-    if not (
-        isinstance(record, dict)
-        and set(record) == set(keys)
-        and all(isinstance(record[k], str) for k in keys)
-    ):
-        got = sorted(record) if isinstance(record, dict) else type(record).__name__
-        raise HamError(f"objects_file record {got}; accepted: a dict of strings {list(keys)}")
-    sha = hashlib.sha256(record["source"].encode("utf-8")).hexdigest()
-    if sha != record["sha256"]:
-        raise HamError(
-            f"objects file {record['name']!r}: recorded sha256 {record['sha256'][:16]}... does "
-            f"not match its recorded text ({sha[:16]}...); the record was altered"
-        )
-    if Path(record["name"]).suffix.lower() not in OBJECTS_FILE_SUFFIXES:
-        raise HamError(f"objects_file name {record['name']!r}; accepted: *.py, *.json, *.toml")
-    return record
+    return recorded_file.check_record(record, "objects file", "objects_file", OBJECTS_FILE_SUFFIXES)
 
 
 def load_objects(record: dict) -> list[str]:
@@ -1145,32 +1131,8 @@ def load_objects_file(path: str | Path) -> dict:
     return record
 
 
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split())
-
-
 def _run_python(name: str, source: str) -> None:
-    try:
-        code = compile(source, name, "exec")
-    except SyntaxError as exc:
-        raise HamError(
-            f"objects file {name!r} has a syntax error at line {exc.lineno}: {exc.msg}"
-        ) from None
-    namespace = {"__name__": "ham_objects_file", "__file__": name}
-    try:
-        exec(code, namespace)  # noqa: S102 - running the user's own objects file is the point
-    except HamError as exc:
-        raise HamError(f"objects file {name!r}: {_one_line(exc)}") from None
-    except (Exception, SystemExit) as exc:  # noqa: BLE001 - any failure of the user's file
-        tb, line = exc.__traceback__, None
-        while tb is not None:  # the innermost line of the file itself
-            if tb.tb_frame.f_code.co_filename == name:
-                line = tb.tb_lineno
-            tb = tb.tb_next
-        where = f" at line {line}" if line else ""
-        raise HamError(
-            f"objects file {name!r} raised {type(exc).__name__}{where}: {_one_line(exc)}"
-        ) from None
+    recorded_file.run_python("objects file", name, source, "ham_objects_file")
 
 
 def _register_data(name: str, source: str) -> None:
@@ -1179,7 +1141,9 @@ def _register_data(name: str, source: str) -> None:
     try:
         data = json.loads(source) if name.lower().endswith(".json") else tomllib.loads(source)
     except (ValueError, tomllib.TOMLDecodeError) as exc:
-        raise HamError(f"objects file {name!r} is not valid: {_one_line(exc)}") from None
+        raise HamError(
+            f"objects file {name!r} is not valid: {recorded_file.one_line(exc)}"
+        ) from None
     entries = data.get("objects") if isinstance(data, dict) else None
     shapes = ("polyline", "heightmap", "height_field")
     if not isinstance(entries, list):

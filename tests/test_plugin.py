@@ -1,0 +1,220 @@
+"""Plugins: a user's own core and location policy from a file, with no edit of the package.
+
+``ham train --plugin FILE.py`` registers them; the run keeps the file's text, so the real CLI in
+other processes (evaluate, heatmap, --resume) loads the run after the file is gone.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from ham.errors import HamError
+from ham.model import core, plugin, policy
+from ham.world import objects
+from tests.conftest import ok, one_line_error, run_ham, run_ham_inprocess
+
+PLUGIN = """
+import torch
+from torch import nn
+
+from ham.model.core import register_core
+from ham.model.policy import LocationPolicy, TruncatedGaussian, register_policy
+
+
+class GRUCore(nn.Module):
+    def __init__(self, input_size, hidden_size):
+        super().__init__()
+        self.hidden_size = hidden_size
+        self.cell = nn.GRUCell(input_size, hidden_size)
+
+    def initial_state(self, batch, like):
+        return (like.new_zeros(batch, self.hidden_size),)
+
+    def forward(self, g, state):
+        h = self.cell(g, state[0])
+        return h, (h,)
+
+
+@register_core("plugin_gru")
+def _gru(input_size, hidden_size, **_):
+    return GRUCore(input_size, hidden_size)
+
+
+@register_policy("plugin_state_free")
+class StateFree(LocationPolicy):
+    @classmethod
+    def from_config(cls, config):
+        return cls(len(config.pose_dims))
+
+    def __init__(self, k):
+        super().__init__()
+        self.mu = nn.Parameter(torch.zeros(k))
+        self.log_sigma = nn.Parameter(torch.full((k,), -0.5))
+
+    def distribution(self, tau):
+        shape = (tau.shape[0], self.mu.shape[0])
+        return TruncatedGaussian(torch.tanh(self.mu).expand(shape),
+                                 self.log_sigma.exp().expand(shape))
+"""
+
+TRAIN = ("--glances", "2", "--steps", "4", "--batch-size", "8", "--eval-every", "2",
+         "--eval-batches", "2", "--seed", "3", "--no-progress")  # fmt: skip
+
+
+def test_a_plugin_core_and_policy_train_and_the_run_loads_without_the_file(tmp_path):
+    (tmp_path / "mine.py").write_text(PLUGIN)
+    ok(run_ham("train", "--plugin", "mine.py", "--core", "plugin_gru", "--policy",
+               "plugin_state_free", *TRAIN, "--out", "r", cwd=tmp_path))  # fmt: skip
+    (tmp_path / "mine.py").unlink()  # the run keeps the text
+    saved = json.loads((tmp_path / "r" / "config.json").read_text())["model"]
+    assert (saved["core"], saved["policy"], saved["plugin"]["name"]) == (
+        "plugin_gru", "plugin_state_free", "mine.py")  # fmt: skip
+    # other processes: the real CLI
+    r = ok(run_ham("evaluate", "r", "--batches", "2", "--json", cwd=tmp_path))
+    assert 0 <= json.loads(r.stdout)["accuracy"] <= 1
+    ok(run_ham_inprocess("heatmap", "r", "--out", "h.png", "--batches", "2", cwd=tmp_path))
+    assert (tmp_path / "h.png").read_bytes()[:4] == b"\x89PNG"
+    r = ok(run_ham_inprocess("train", "--resume", "r", "--steps", "6", "--no-progress",
+                             cwd=tmp_path))  # fmt: skip
+    assert json.loads((tmp_path / "r" / "metrics.json").read_text())["steps"] == 6
+    # the registries of this process are as before (the in-process runs restore them)
+    assert "plugin_gru" not in core.CORES and "plugin_state_free" not in policy.POLICIES
+
+
+def test_the_same_plugin_and_seed_give_the_same_numbers(tmp_path):
+    (tmp_path / "mine.py").write_text(PLUGIN)
+    for out in ("a", "b"):
+        ok(run_ham_inprocess("train", "--plugin", "mine.py", "--core", "plugin_gru", *TRAIN,
+                             "--out", out, cwd=tmp_path))  # fmt: skip
+    a, b = (json.loads((tmp_path / d / "metrics.json").read_text())["history"] for d in "ab")
+    assert a == b
+
+
+def test_an_altered_plugin_record_is_refused(tmp_path):
+    (tmp_path / "mine.py").write_text(PLUGIN)
+    ok(run_ham_inprocess("train", "--plugin", "mine.py", "--policy", "plugin_state_free", *TRAIN,
+                         "--out", "r", cwd=tmp_path))  # fmt: skip
+    path = tmp_path / "r" / "config.json"
+    config = json.loads(path.read_text())
+    config["model"]["plugin"]["source"] += "\nimport os\n"
+    path.write_text(json.dumps(config))
+    line = one_line_error(run_ham_inprocess("evaluate", "r", "--batches", "1", cwd=tmp_path))
+    assert "plugin 'mine.py': recorded sha256" in line and "altered" in line
+
+
+def test_a_run_of_an_unregistered_policy_says_how_to_register_it(tmp_path):
+    line = one_line_error(run_ham_inprocess("train", "--policy", "mine", *TRAIN, "--out", "r",
+                                            cwd=tmp_path))  # fmt: skip
+    assert "policy = 'mine'" in line and "--plugin FILE.py" in line
+    assert not (tmp_path / "r").exists()
+
+
+BAD = {
+    "missing.py": (None, "plugin 'missing.py' does not exist"),
+    "mine.txt": ("x = 1\n", "accepted: a .py file that registers cores or location policies"),
+    "empty.py": ("x = 1\n", "registers no core or location policy"),
+    "syntax.py": ("def f(:\n", "syntax error at line 1"),
+    "raises.py": ("x = 1\nraise ValueError('no\\nway')\n", "raised ValueError at line 2: no way"),
+    "clash.py": (
+        "from ham.model.core import register_core\nregister_core('lstm')(print)\n",
+        "core 'lstm' is registered already",
+    ),  # fmt: skip
+    "objects.py": (
+        "from ham.model.core import register_core\nregister_core('plugin_x')(print)\n"
+        "from ham.world.objects import HapticObject, register\n"
+        "register(HapticObject.from_polyline('plugin_obj', [(-0.045, 0.0), (0.045, 0.04)]))\n",
+        "registers objects ['plugin_obj']; accepted: objects in an objects file",
+    ),
+    "half.py": (
+        "from ham.model.core import register_core\nregister_core('plugin_y')(print)\n1 / 0\n",
+        "raised ZeroDivisionError at line 3",
+    ),  # fmt: skip
+}
+
+
+@pytest.mark.parametrize("name", list(BAD))
+def test_a_bad_plugin_is_one_line_and_registers_nothing(tmp_path, name):
+    text, expected = BAD[name]
+    if text is not None:
+        (tmp_path / name).write_text(text)
+    before = (dict(core.CORES), dict(policy.POLICIES), objects.names(), dict(plugin._LOADED))
+    line = one_line_error(run_ham_inprocess("train", "--plugin", name, *TRAIN, "--out", "r",
+                                            cwd=tmp_path))  # fmt: skip
+    assert expected in line, line
+    assert not (tmp_path / "r").exists()
+    # the Python API rolls back too (run_ham_inprocess would restore the registries anyway)
+    if text is not None and name.endswith(".py"):
+        with pytest.raises(HamError):
+            plugin.load_plugin(plugin.read_plugin(tmp_path / name))
+    assert (
+        dict(core.CORES),
+        dict(policy.POLICIES),
+        objects.names(),
+        dict(plugin._LOADED),
+    ) == before
+
+
+def test_a_plugin_must_be_used(tmp_path):
+    (tmp_path / "mine.py").write_text(PLUGIN)
+    line = one_line_error(run_ham_inprocess("train", "--plugin", "mine.py", *TRAIN, "--out", "r",
+                                            cwd=tmp_path))  # fmt: skip
+    assert "neither of which it registers" in line and "policy plugin_state_free" in line
+    line = one_line_error(run_ham_inprocess("train", "--resume", "r", "--plugin", "mine.py",
+                                            cwd=tmp_path))  # fmt: skip
+    assert "remove --plugin" in line
+
+
+GRID = """
+name = "plugged"
+plugin = "plugins/mine.py"
+[base]
+steps = 2
+batch_size = 8
+eval_every = 2
+eval_batches = 1
+[axes]
+"model.core" = ["lstm", "plugin_gru"]
+"""
+
+
+def test_a_grid_names_its_plugin_and_only_the_runs_that_use_it_keep_it(tmp_path):
+    (tmp_path / "plugins").mkdir()
+    (tmp_path / "plugins" / "mine.py").write_text(PLUGIN)  # beside the grid file, not the cwd
+    (tmp_path / "g.toml").write_text(GRID)
+    cwd = tmp_path / "elsewhere"
+    cwd.mkdir()
+    # the local executor's worker processes load the plugin from the grid's record
+    r = run_ham_inprocess("reproduce", "grid", "../g.toml", "--out", "out", "--workers", "1",
+                          "--quiet", cwd=cwd)  # fmt: skip
+    ok(r)
+    runs = cwd / "out" / "runs"
+    model = {d.name: json.loads((d / "config.json").read_text())["model"] for d in runs.iterdir()}
+    assert model["core=lstm-s0"]["plugin"] is None
+    assert model["core=plugin_gru-s0"]["plugin"]["name"] == "mine.py"
+    assert json.loads((runs / "core=plugin_gru-s0" / "metrics.json").read_text())["steps"] == 2
+    # the batched executor cannot stack a core of the user's: refused before anything is made
+    line = one_line_error(run_ham_inprocess("reproduce", "grid", "../g.toml", "--out", "b",
+                                            "--executor", "batched", cwd=cwd))  # fmt: skip
+    assert "run core=plugin_gru-s0: core 'plugin_gru' cannot be batched" in line
+    assert not (cwd / "b").exists()
+
+
+@pytest.mark.parametrize(
+    ("edit", "expected"),
+    [
+        ('plugin = "plugins/gone.py"', "plugin 'plugins/gone.py' does not exist"),
+        ("plugin = 3", "plugin = 3; accepted: the path of a .py plugin file"),
+        ('"model.plugin" = "x.py"', "key 'model.plugin' is set by the grid's plugin = FILE.py"),
+    ],
+)
+def test_a_grid_with_a_bad_plugin_is_refused(tmp_path, edit, expected):
+    text = GRID.replace('plugin = "plugins/mine.py"', "" if "model" in edit else edit)
+    if "model" in edit:
+        text = text.replace("[base]", "[base]\n" + edit)
+    (tmp_path / "g.toml").write_text(text)
+    line = one_line_error(run_ham_inprocess("reproduce", "grid", "g.toml", "--out", "o",
+                                            cwd=tmp_path))  # fmt: skip
+    assert expected in line, line
+    assert not (tmp_path / "o").exists()
