@@ -207,12 +207,21 @@ def test_a_grid_names_its_plugin_and_only_the_runs_that_use_it_keep_it(tmp_path)
         ('plugin = "plugins/gone.py"', "plugin 'plugins/gone.py' does not exist"),
         ("plugin = 3", "plugin = 3; accepted: the path of a .py plugin file"),
         ('"model.plugin" = "x.py"', "key 'model.plugin' is set by the grid's plugin = FILE.py"),
+        (
+            '"model.core" = ["lstm", "mlp"]',
+            "registers core plugin_gru, policy plugin_state_free, which no cell uses",
+        ),  # fmt: skip
     ],
 )
 def test_a_grid_with_a_bad_plugin_is_refused(tmp_path, edit, expected):
-    text = GRID.replace('plugin = "plugins/mine.py"', "" if "model" in edit else edit)
-    if "model" in edit:
-        text = text.replace("[base]", "[base]\n" + edit)
+    (tmp_path / "plugins").mkdir()
+    (tmp_path / "plugins" / "mine.py").write_text(PLUGIN)
+    if edit.startswith('"model.core"'):  # the plugin's core named by no cell
+        text = GRID.replace('"model.core" = ["lstm", "plugin_gru"]', edit)
+    elif edit.startswith('"model.plugin"'):
+        text = GRID.replace('plugin = "plugins/mine.py"', "").replace("[base]", "[base]\n" + edit)
+    else:
+        text = GRID.replace('plugin = "plugins/mine.py"', edit)
     (tmp_path / "g.toml").write_text(text)
     line = one_line_error(run_ham_inprocess("reproduce", "grid", "g.toml", "--out", "o",
                                             cwd=tmp_path))  # fmt: skip

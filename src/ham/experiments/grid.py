@@ -272,6 +272,7 @@ class Grid:
         # build every cell's config now: a bad value stops the grid before any run starts
         names: dict[str, Cell] = {}
         seen: dict[str, str] = {}
+        used = False
         for cell in self.expand():
             if not _NAME.match(cell.name):
                 raise HamError(
@@ -290,6 +291,13 @@ class Grid:
                 )
             names[cell.name] = cell
             seen[same] = cell.name
+            used = used or config.model.plugin is not None
+        if self.plugin is not None and not used:  # nothing reads it: refused, not ignored
+            raise HamError(
+                f"{w}: plugin {self.plugin['name']!r} registers "
+                f"{', '.join(sorted(self._plugin_names))}, which no cell uses; accepted: a grid "
+                "whose cells name the plugin's core or policy (model.core, model.policy)"
+            )
 
     def _checked_axes(self, w: str) -> dict:
         if not isinstance(self.axes, Mapping):
