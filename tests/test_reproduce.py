@@ -13,7 +13,7 @@ import pytest
 
 from ham.errors import HamError
 from ham.experiments.reproduce import PROFILES, plan, reproduce
-from tests.conftest import ham_command
+from tests.conftest import ham_command, one_line_error, run_ham_inprocess
 
 
 @pytest.fixture(scope="module")
@@ -291,31 +291,98 @@ def test_a_stopped_reproduce_takes_its_workers_with_it(tmp_path, how):
         assert len(list(out.glob("runs/*"))) == 2  # the third run never started
 
 
-def test_ray_address_must_be_a_grpc_server():
-    """A ``--ray-address`` where a server answers that is not gRPC (a web server) is refused at
-    once; Ray would wait there for a GCS for minutes, logging each try. A real gRPC server
-    (grpcio, which Ray's own GCS uses) passes the check."""
+def _grpc_server(answers: dict[str, str]):
+    """A real gRPC server (grpcio, which Ray's GCS and Ray Client server use) whose methods
+    ``answers`` answer: ``"OK"`` (an empty reply) or a status name. What a Ray head answers to
+    the methods the check calls was read off a real one (Ray 2.60, ``ray start --head``):
+    UNAUTHENTICATED from both its GCS and its Ray Client server, asking for the token."""
+    import grpc
+
+    def handler(method):
+        def answer(request, context):
+            if answers[method] != "OK":
+                context.abort(getattr(grpc.StatusCode, answers[method]), "no")
+            return b""
+
+        return grpc.unary_unary_rpc_method_handler(answer)
+
+    class Handler(grpc.GenericRpcHandler):
+        def service(self, details):
+            return handler(details.method) if details.method in answers else None
+
+    server = grpc.server(concurrent.futures.ThreadPoolExecutor(max_workers=1))
+    server.add_generic_rpc_handlers((Handler(),))
+    port = server.add_insecure_port("127.0.0.1:0")
+    server.start()
+    return server, port
+
+
+GCS = "/ray.rpc.NodeInfoGcsService/GetClusterId"
+CLIENT = "/ray.rpc.RayletDriver/ClusterInfo"
+
+
+def test_ray_address_must_be_a_ray_head(monkeypatch):
+    """A ``--ray-address`` where a server answers that is not a Ray head is refused at once;
+    Ray would wait there for a GCS for minutes (a web server: logging each try; another gRPC
+    server: without end). A head that asks for a token without RAY_AUTH_MODE=token here is
+    refused at once too (Ray logged InvalidAuthToken for 20-30 s, then failed without why)."""
     import http.server
     import threading
 
-    import grpc
-
     from ham.experiments.executors import check_ray_address
 
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
     web = http.server.HTTPServer(("127.0.0.1", 0), http.server.BaseHTTPRequestHandler)
     threading.Thread(target=web.serve_forever, daemon=True).start()
-    rpc = grpc.server(concurrent.futures.ThreadPoolExecutor(max_workers=1))
-    port = rpc.add_insecure_port("127.0.0.1:0")
-    rpc.start()
+    other, other_port = _grpc_server({})  # a gRPC server of another service
+    head, head_port = _grpc_server({GCS: "UNAUTHENTICATED", CLIENT: "UNAUTHENTICATED"})
+    open_head, open_port = _grpc_server({GCS: "OK", CLIENT: "OK"})  # RAY_AUTH_MODE=disabled
     try:
         address = f"127.0.0.1:{web.server_address[1]}"
         with pytest.raises(HamError, match=rf"'{address}': something answers there, but not a Ray"):
             check_ray_address("ray", address)
-        check_ray_address("ray", f"127.0.0.1:{port}")
-        check_ray_address("ray-batched", f"ray://127.0.0.1:{port}")
+        for address, method in ((f"127.0.0.1:{other_port}", GCS),
+                                (f"ray://127.0.0.1:{other_port}", CLIENT)):  # fmt: skip
+            with pytest.raises(HamError, match=f"a gRPC server answers there, but not a Ray head "
+                               f"\\(its {method}: UNIMPLEMENTED\\)"):  # fmt: skip
+                check_ray_address("ray", address)
+        for address in (f"127.0.0.1:{head_port}", f"ray://127.0.0.1:{head_port}"):
+            with pytest.raises(HamError, match="asks for its auth token .* RAY_AUTH_MODE=token"):
+                check_ray_address("ray-batched", address)
+        check_ray_address("ray", f"127.0.0.1:{open_port}")
+        check_ray_address("ray-batched", f"ray://127.0.0.1:{open_port}")
+        monkeypatch.setenv("RAY_AUTH_MODE", "token")  # Ray then sends the token itself
+        check_ray_address("ray", f"127.0.0.1:{head_port}")
+        check_ray_address("ray", f"ray://127.0.0.1:{head_port}")
+        # Ray reads RAY_ADDRESS before --ray-address (and instead of starting a Ray here)
+        monkeypatch.setenv("RAY_ADDRESS", f"127.0.0.1:{other_port}")
+        for given in (None, "auto", f"127.0.0.1:{open_port}"):
+            with pytest.raises(HamError, match="RAY_ADDRESS='127.0.0.1:.*' \\(the environment's"):
+                check_ray_address("ray", given)
+        check_ray_address("ray", f"ray://127.0.0.1:{open_port}")  # a ray:// address wins
     finally:
         web.shutdown()
-        rpc.stop(None)
+        for server in (other, head, open_head):
+            server.stop(None)
+
+
+def test_a_ray_cluster_that_cannot_be_joined_leaves_nothing(tmp_path, monkeypatch):
+    """Ray is joined before the table, the plan or the folder is made. A cluster that passes the
+    address check and then refuses the connection costs 30 s or more with a real Ray (a Ray
+    Client server that times out): here ``ray.init`` raises what Ray raises then."""
+    ray = pytest.importorskip("ray")
+
+    def refuse(*args, **kwargs):
+        raise ConnectionError("ray client connection timeout. The cluster may be down")
+
+    monkeypatch.setattr(ray, "init", refuse)
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    for argv in (["reproduce", "table1", "--profile", "smoke", "--glances", "1"],
+                 ["reproduce", "grid", str(Path(__file__).parents[1] / "docs/grids/example.toml")]):  # fmt: skip
+        r = run_ham_inprocess(*argv, "--executor", "ray", "--out", "o", cwd=tmp_path)
+        assert "ray client connection timeout" in one_line_error(r)
+        assert list(tmp_path.iterdir()) == []
 
 
 def test_ray_tasks_on_cuda_take_a_share_of_a_gpu():

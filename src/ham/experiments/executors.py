@@ -18,12 +18,13 @@ Used by ``ham reproduce`` (:mod:`ham.experiments.reproduce`) and ``ham reproduce
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import sys
 import time
 import traceback
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import NamedTuple, Protocol
@@ -246,6 +247,47 @@ def _ray_options(ray, jobs: list[Job]) -> dict:
     return options
 
 
+def _connect_ray(address: str | None, cpus: int | None):
+    """Ray, joined to the cluster at ``address`` or started here with ``cpus`` CPUs (default:
+    all) unless this process is connected already; and whether it was started by this call."""
+    try:
+        import ray
+    except ImportError:
+        raise HamError("the ray executors need Ray: pip install 'ham[cluster]'") from None
+    if ray.is_initialized():
+        return ray, False
+    kwargs = {"address": address} if address else {"num_cpus": cpus or os.cpu_count() or 1}
+    try:
+        ray.init(**kwargs, include_dashboard=False, log_to_driver=False,
+                 logging_level="ERROR")  # fmt: skip
+    except ConnectionError as exc:  # --ray-address auto with no cluster running
+        reason = str(exc).split(". ")[0]
+        if address not in (None, "auto") and os.environ.get("RAY_AUTH_MODE") != "token":
+            # Ray's error does not say why; since 2.59 `ray start --head` asks for a token
+            reason += (
+                " (a head started with token authentication, the default of `ray start` "
+                "since Ray 2.59, also needs RAY_AUTH_MODE=token here: docs/batched.md)"
+            )
+        raise HamError(f"--ray-address {address!r}: {reason}; accepted: {_RAY_ADDRESSES}") from None
+    return ray, True
+
+
+@contextlib.contextmanager
+def ray_session(executor: str, address: str | None, cpus: int | None) -> Iterator[None]:
+    """With a Ray executor: Ray connected (or started here) before the caller writes anything,
+    so that a cluster that cannot be joined leaves no table, plan or folder behind; the Ray
+    started here is shut down on leaving. Other executors: nothing."""
+    if executor not in RAY_EXECUTORS:
+        yield
+        return
+    ray, started_here = _connect_ray(address, cpus)
+    try:
+        yield
+    finally:
+        if started_here:
+            ray.shutdown()
+
+
 def _on_ray(
     address: str | None,
     jobs: list[Job],
@@ -256,27 +298,7 @@ def _on_ray(
     """Start Ray with ``cpus`` CPUs (default: all; tasks take one each, :func:`_ray_options`
     for the ``jobs``), or join the cluster at ``address``; run the tasks as Ray tasks, hand each
     result to ``on_result`` as it arrives, and shut down the Ray started here."""
-    try:
-        import ray
-    except ImportError:
-        raise HamError("the ray executors need Ray: pip install 'ham[cluster]'") from None
-    started_here = not ray.is_initialized()
-    if started_here:
-        kwargs = {"address": address} if address else {"num_cpus": cpus or os.cpu_count() or 1}
-        try:
-            ray.init(**kwargs, include_dashboard=False, log_to_driver=False,
-                     logging_level="ERROR")  # fmt: skip
-        except ConnectionError as exc:  # --ray-address auto with no cluster running
-            reason = str(exc).split(". ")[0]
-            if address not in (None, "auto") and os.environ.get("RAY_AUTH_MODE") != "token":
-                # Ray's error does not say why; since 2.59 `ray start --head` asks for a token
-                reason += (
-                    " (a head started with token authentication, the default of `ray start` "
-                    "since Ray 2.59, also needs RAY_AUTH_MODE=token here: docs/batched.md)"
-                )
-            raise HamError(
-                f"--ray-address {address!r}: {reason}; accepted: {_RAY_ADDRESSES}"
-            ) from None
+    ray, started_here = _connect_ray(address, cpus)
     try:
         options = _ray_options(ray, jobs)
         remotes: dict[Callable, object] = {}
@@ -398,17 +420,27 @@ _RAY_ADDRESSES = "auto, HOST:PORT or ray://HOST:PORT of a running Ray head (ray 
 
 def check_ray_address(executor: str, ray_address: str | None) -> None:
     """``ray_address`` goes with the Ray executors only, and a ``HOST:PORT`` must answer: Ray
-    itself would retry an address where nothing listens for minutes, logging each try."""
-    if ray_address is None:
-        return
-    if executor not in RAY_EXECUTORS:
+    itself would retry an address where nothing listens for minutes, logging each try.
+
+    Ray reads the environment's ``RAY_ADDRESS`` before the address it is given (unless that is
+    a ``ray://`` one) and without one instead of starting a Ray here: that address is checked
+    then, and named as the environment's."""
+    if ray_address is not None and executor not in RAY_EXECUTORS:
         raise HamError(f"--ray-address {ray_address!r}: accepted only with --executor "
                        f"{' or '.join(RAY_EXECUTORS)}")  # fmt: skip
-    if ray_address == "auto":
+    if executor not in RAY_EXECUTORS:
         return
-    host, _, port = ray_address.removeprefix("ray://").rpartition(":")
+    env = os.environ.get("RAY_ADDRESS") or None
+    if env is not None and not (ray_address or "").startswith("ray://"):
+        address, what = env, f"RAY_ADDRESS={env!r} (the environment's, which Ray reads first)"
+        accepted = f"unset RAY_ADDRESS, or set it to {_RAY_ADDRESSES}"
+    else:
+        address, what, accepted = ray_address, f"--ray-address {ray_address!r}", _RAY_ADDRESSES
+    if address is None or address == "auto":
+        return
+    host, _, port = address.removeprefix("ray://").rpartition(":")
     if not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise HamError(f"--ray-address {ray_address!r}; accepted: {_RAY_ADDRESSES}")
+        raise HamError(f"{what}; accepted: {accepted}")
     import socket
 
     try:
@@ -416,13 +448,27 @@ def check_ray_address(executor: str, ray_address: str | None) -> None:
             grpc = _speaks_http2(conn)
     except OSError as exc:
         raise HamError(
-            f"--ray-address {ray_address!r}: nothing answers there ({exc.strerror or exc}); "
-            f"accepted: {_RAY_ADDRESSES}"
+            f"{what}: nothing answers there ({exc.strerror or exc}); accepted: {accepted}"
         ) from None
     if not grpc:  # e.g. a web server: Ray would wait for a GCS there for minutes, logging
         raise HamError(
-            f"--ray-address {ray_address!r}: something answers there, but not a Ray head (it "
-            f"does not speak gRPC); accepted: {_RAY_ADDRESSES}"
+            f"{what}: something answers there, but not a Ray head (it does not speak gRPC); "
+            f"accepted: {accepted}"
+        )
+    code = _ray_service(address)
+    if code == "UNAUTHENTICATED" and os.environ.get("RAY_AUTH_MODE") != "token":
+        # Ray itself would log InvalidAuthToken for 20-30 s, then fail without saying why
+        raise HamError(
+            f"{what}: a Ray head answers there and asks for its auth token (token "
+            "authentication, the default of `ray start` since Ray 2.59); accepted: "
+            "RAY_AUTH_MODE=token in this environment (docs/batched.md)"
+        )
+    if code in ("UNIMPLEMENTED", "DEADLINE_EXCEEDED", "UNAVAILABLE"):
+        # another gRPC server: Ray's GCS client would wait for it without end
+        raise HamError(
+            f"{what}: a gRPC server answers there, but not a Ray head (its "
+            f"{_RAY_METHODS['client' if address.startswith('ray://') else 'gcs']}: {code}); "
+            f"accepted: {accepted}"
         )
 
 
@@ -444,6 +490,31 @@ def _speaks_http2(conn) -> bool:
     except OSError:  # a timeout too
         return False
     return len(head) == 9 and head[3] == 4
+
+
+#: A method each kind of Ray head serves: the GCS (``HOST:PORT``) and the Ray Client server
+#: (``ray://HOST:PORT``); their request messages may be empty.
+_RAY_METHODS = {
+    "gcs": "/ray.rpc.NodeInfoGcsService/GetClusterId",
+    "client": "/ray.rpc.RayletDriver/ClusterInfo",
+}
+
+
+def _ray_service(address: str) -> str | None:
+    """The gRPC status name of the Ray method of its kind called at ``address`` with an empty
+    request (``None``: answered, or grpcio missing): a Ray head answers it, or refuses it with
+    UNAUTHENTICATED when it asks for a token; a server of another service says UNIMPLEMENTED."""
+    try:
+        import grpc  # Ray's own dependency, there wherever the Ray executors can run
+    except ImportError:  # pragma: no cover - Ray's executors then say they need Ray
+        return None
+    method = _RAY_METHODS["client" if address.startswith("ray://") else "gcs"]
+    with grpc.insecure_channel(address.removeprefix("ray://")) as channel:
+        try:
+            channel.unary_unary(method)(b"", timeout=10)
+        except grpc.RpcError as exc:
+            return exc.code().name
+    return None
 
 
 # Runs per batched model by default: the paper's seeds of a cell, and the N the batched step was

@@ -26,6 +26,7 @@ from ham.experiments.executors import (
     check_batched_options,
     check_ray_address,
     execute,
+    ray_session,
 )
 from ham.experiments.grid import Grid, GridJob, load_grid, settings_text
 from ham.experiments.reproduce import _environment, _fmt, _write_json, mean_sem
@@ -96,26 +97,27 @@ def run_grid(
     tables = grid.table_paths(root, cache_dir)
     jobs = grid.jobs(tables)
     check_batched_options(executor, batched, [j.config.get("device", "cpu") for j in jobs], jobs)
-    root.mkdir(parents=True, exist_ok=True)
     _check_existing_runs(root, jobs)
-    for world, table in (tables or {}).items():  # one table per world, built before any run
-        if not Path(table).exists():
-            world = WorldConfig.from_dict(json.loads(world))
-            if grid.table_cache:
-                cached_table(world, grid.table_grid, cache_dir, progress=progress,
-                             command="ham reproduce grid")  # fmt: skip
-            else:
-                build_table(world, grid.table_grid, table, progress=progress,
-                            command="ham reproduce grid")  # fmt: skip
-    _write_json(root / "grid.json", grid.to_dict())
-    _write_json(root / "plan.json", [j.to_dict() for j in jobs])
+    with ray_session(executor, ray_address, workers):  # before anything is written
+        root.mkdir(parents=True, exist_ok=True)
+        for world, table in (tables or {}).items():  # one table per world, before any run
+            if not Path(table).exists():
+                world = WorldConfig.from_dict(json.loads(world))
+                if grid.table_cache:
+                    cached_table(world, grid.table_grid, cache_dir, progress=progress,
+                                 command="ham reproduce grid")  # fmt: skip
+                else:
+                    build_table(world, grid.table_grid, table, progress=progress,
+                                command="ham reproduce grid")  # fmt: skip
+        _write_json(root / "grid.json", grid.to_dict())
+        _write_json(root / "plan.json", [j.to_dict() for j in jobs])
 
-    todo = [j for j in jobs if not _complete(root, j)]
-    results, failures = execute(
-        jobs, todo, root, grid.world, grid.table_grid,
-        executor=executor, workers=workers, ray_address=ray_address, retries=retries,
-        progress=progress, desc=f"grid {grid.name}", batched=batched,
-    )  # fmt: skip
+        todo = [j for j in jobs if not _complete(root, j)]
+        results, failures = execute(
+            jobs, todo, root, grid.world, grid.table_grid,
+            executor=executor, workers=workers, ray_address=ray_address, retries=retries,
+            progress=progress, desc=f"grid {grid.name}", batched=batched,
+        )  # fmt: skip
     summary = write_report(root, grid, jobs, failures, command=command, executor=executor)
     summary["skipped"] = len(jobs) - len(todo)
     summary["ran"] = sum(r["status"] == "done" for r in results.values())
