@@ -24,23 +24,36 @@ def run_ham(*args: str, cwd=None, timeout: float = 300) -> subprocess.CompletedP
     return subprocess.run(argv, capture_output=True, text=True, cwd=cwd, env=env, timeout=timeout)
 
 
-def run_ham_inprocess(*args: str, cwd=None) -> subprocess.CompletedProcess:
-    """The CLI's ``main`` in this process, answered as :func:`run_ham` answers: for the second
-    and later commands of a test whose command is already run once in a subprocess elsewhere
-    (a subprocess costs 3-4 s, most of it importing torch). The thread count and the working
-    directory are restored after the call, and so are the registries of objects, cores and
-    policies (an objects file or plugin the command loads stays out of the other tests)."""
-    from ham.cli.main import main
+@contextlib.contextmanager
+def registries_restored():
+    """The registries of objects, cores and policies (and the loaded plugins) as they were
+    before the block: an objects file or plugin it loads stays out of the other tests."""
     from ham.model import core, plugin, policy
     from ham.world import objects
 
     registry = (objects._REGISTRY, objects._ORDER, objects._ORIGIN, objects._FILES, objects._LAZY,
                 core.CORES, policy.POLICIES, plugin._LOADED)  # fmt: skip
     saved = [r.copy() for r in registry]
+    try:
+        yield
+    finally:
+        for live, before in zip(registry, saved, strict=True):
+            live.clear()
+            live.extend(before) if isinstance(live, list) else live.update(before)
+
+
+def run_ham_inprocess(*args: str, cwd=None) -> subprocess.CompletedProcess:
+    """The CLI's ``main`` in this process, answered as :func:`run_ham` answers: for the second
+    and later commands of a test whose command is already run once in a subprocess elsewhere
+    (a subprocess costs 3-4 s, most of it importing torch). The thread count and the working
+    directory are restored after the call, and so are the registries
+    (:func:`registries_restored`)."""
+    from ham.cli.main import main
+
     out, err = io.StringIO(), io.StringIO()
     threads = torch.get_num_threads()
     try:
-        with contextlib.chdir(cwd or os.getcwd()):
+        with registries_restored(), contextlib.chdir(cwd or os.getcwd()):
             with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
                 try:
                     rc = main(list(args))
@@ -48,9 +61,6 @@ def run_ham_inprocess(*args: str, cwd=None) -> subprocess.CompletedProcess:
                     rc = exc.code if isinstance(exc.code, int) else 1
     finally:
         torch.set_num_threads(threads)
-        for live, before in zip(registry, saved, strict=True):
-            live.clear()
-            live.extend(before) if isinstance(live, list) else live.update(before)
     return subprocess.CompletedProcess(["ham", *args], rc, out.getvalue(), err.getvalue())
 
 
