@@ -113,6 +113,8 @@ def test_a_run_of_an_unregistered_policy_says_how_to_register_it(tmp_path):
 
 BAD = {
     "missing.py": (None, "plugin 'missing.py' does not exist"),
+    "": (None, "plugin '': accepted: a .py file"),
+    "latin1.py": (b"# \xe9\n", "cannot read plugin 'latin1.py': 'utf-8' codec can't decode"),
     "mine.txt": ("x = 1\n", "accepted: a .py file that registers cores or location policies"),
     "empty.py": ("x = 1\n", "registers no core or location policy"),
     "syntax.py": ("def f(:\n", "syntax error at line 1"),
@@ -137,7 +139,9 @@ BAD = {
 @pytest.mark.parametrize("name", list(BAD))
 def test_a_bad_plugin_is_one_line_and_registers_nothing(tmp_path, name):
     text, expected = BAD[name]
-    if text is not None:
+    if isinstance(text, bytes):
+        (tmp_path / name).write_bytes(text)
+    elif text is not None:
         (tmp_path / name).write_text(text)
     before = (dict(core.CORES), dict(policy.POLICIES), objects.names(), dict(plugin._LOADED))
     line = one_line_error(run_ham_inprocess("train", "--plugin", name, *TRAIN, "--out", "r",
@@ -145,7 +149,7 @@ def test_a_bad_plugin_is_one_line_and_registers_nothing(tmp_path, name):
     assert expected in line, line
     assert not (tmp_path / "r").exists()
     # the Python API rolls back too (run_ham_inprocess would restore the registries anyway)
-    if text is not None and name.endswith(".py"):
+    if isinstance(text, str) and name.endswith(".py"):
         with pytest.raises(HamError):
             plugin.load_plugin(plugin.read_plugin(tmp_path / name))
     assert (

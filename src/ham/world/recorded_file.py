@@ -23,15 +23,15 @@ def one_line(exc: BaseException) -> str:
 
 def read_record(path: str | Path, what: str, suffixes: tuple[str, ...], accepted: str) -> dict:
     """The record of the file ``path`` (``what``: "objects file", "plugin"); nothing is run."""
-    p = Path(path)
+    p, shown = Path(path), str(path)  # as given: Path("") reads "."
     if p.suffix.lower() not in suffixes:
-        raise HamError(f"{what} {str(p)!r}: accepted: {accepted}")
+        raise HamError(f"{what} {shown!r}: accepted: {accepted}")
     try:
         source = p.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise HamError(f"{what} {str(p)!r} does not exist") from None
+        raise HamError(f"{what} {shown!r} does not exist") from None
     except (OSError, UnicodeDecodeError) as exc:
-        raise HamError(f"cannot read {what} {str(p)!r}: {one_line(exc)}") from None
+        raise HamError(f"cannot read {what} {shown!r}: {one_line(exc)}") from None
     sha = hashlib.sha256(source.encode("utf-8")).hexdigest()
     return {"name": p.name, "sha256": sha, "source": source}
 
