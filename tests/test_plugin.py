@@ -7,6 +7,7 @@ other processes (evaluate, heatmap, --resume) loads the run after the file is go
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -15,31 +16,13 @@ from ham.model import core, plugin, policy
 from ham.world import objects
 from tests.conftest import ok, one_line_error, run_ham, run_ham_inprocess
 
-PLUGIN = """
+# the GRU core that ships as the docs' example (registered as "gru"), plus a policy
+PLUGIN = (
+    (Path(__file__).parents[1] / "docs/plugins/gru_core.py").read_text()
+    + """
 import torch
-from torch import nn
 
-from ham.model.core import register_core
 from ham.model.policy import LocationPolicy, TruncatedGaussian, register_policy
-
-
-class GRUCore(nn.Module):
-    def __init__(self, input_size, hidden_size):
-        super().__init__()
-        self.hidden_size = hidden_size
-        self.cell = nn.GRUCell(input_size, hidden_size)
-
-    def initial_state(self, batch, like):
-        return (like.new_zeros(batch, self.hidden_size),)
-
-    def forward(self, g, state):
-        h = self.cell(g, state[0])
-        return h, (h,)
-
-
-@register_core("plugin_gru")
-def _gru(input_size, hidden_size, **_):
-    return GRUCore(input_size, hidden_size)
 
 
 @register_policy("plugin_state_free")
@@ -58,6 +41,7 @@ class StateFree(LocationPolicy):
         return TruncatedGaussian(torch.tanh(self.mu).expand(shape),
                                  self.log_sigma.exp().expand(shape))
 """
+)
 
 TRAIN = ("--glances", "2", "--steps", "4", "--batch-size", "8", "--eval-every", "2",
          "--eval-batches", "2", "--seed", "3", "--no-progress")  # fmt: skip
@@ -65,12 +49,12 @@ TRAIN = ("--glances", "2", "--steps", "4", "--batch-size", "8", "--eval-every", 
 
 def test_a_plugin_core_and_policy_train_and_the_run_loads_without_the_file(tmp_path):
     (tmp_path / "mine.py").write_text(PLUGIN)
-    ok(run_ham("train", "--plugin", "mine.py", "--core", "plugin_gru", "--policy",
+    ok(run_ham("train", "--plugin", "mine.py", "--core", "gru", "--policy",
                "plugin_state_free", *TRAIN, "--out", "r", cwd=tmp_path))  # fmt: skip
     (tmp_path / "mine.py").unlink()  # the run keeps the text
     saved = json.loads((tmp_path / "r" / "config.json").read_text())["model"]
     assert (saved["core"], saved["policy"], saved["plugin"]["name"]) == (
-        "plugin_gru", "plugin_state_free", "mine.py")  # fmt: skip
+        "gru", "plugin_state_free", "mine.py")  # fmt: skip
     # other processes: the real CLI
     r = ok(run_ham("evaluate", "r", "--batches", "2", "--json", cwd=tmp_path))
     assert 0 <= json.loads(r.stdout)["accuracy"] <= 1
@@ -80,13 +64,13 @@ def test_a_plugin_core_and_policy_train_and_the_run_loads_without_the_file(tmp_p
                              cwd=tmp_path))  # fmt: skip
     assert json.loads((tmp_path / "r" / "metrics.json").read_text())["steps"] == 6
     # the registries of this process are as before (the in-process runs restore them)
-    assert "plugin_gru" not in core.CORES and "plugin_state_free" not in policy.POLICIES
+    assert "gru" not in core.CORES and "plugin_state_free" not in policy.POLICIES
 
 
 def test_the_same_plugin_and_seed_give_the_same_numbers(tmp_path):
     (tmp_path / "mine.py").write_text(PLUGIN)
     for out in ("a", "b"):
-        ok(run_ham_inprocess("train", "--plugin", "mine.py", "--core", "plugin_gru", *TRAIN,
+        ok(run_ham_inprocess("train", "--plugin", "mine.py", "--core", "gru", *TRAIN,
                              "--out", out, cwd=tmp_path))  # fmt: skip
     a, b = (json.loads((tmp_path / d / "metrics.json").read_text())["history"] for d in "ab")
     assert a == b
@@ -179,7 +163,7 @@ batch_size = 8
 eval_every = 2
 eval_batches = 1
 [axes]
-"model.core" = ["lstm", "plugin_gru"]
+"model.core" = ["lstm", "gru"]
 """
 
 
@@ -196,12 +180,12 @@ def test_a_grid_names_its_plugin_and_only_the_runs_that_use_it_keep_it(tmp_path)
     runs = cwd / "out" / "runs"
     model = {d.name: json.loads((d / "config.json").read_text())["model"] for d in runs.iterdir()}
     assert model["core=lstm-s0"]["plugin"] is None
-    assert model["core=plugin_gru-s0"]["plugin"]["name"] == "mine.py"
-    assert json.loads((runs / "core=plugin_gru-s0" / "metrics.json").read_text())["steps"] == 2
+    assert model["core=gru-s0"]["plugin"]["name"] == "mine.py"
+    assert json.loads((runs / "core=gru-s0" / "metrics.json").read_text())["steps"] == 2
     # the batched executor cannot stack a core of the user's: refused before anything is made
     line = one_line_error(run_ham_inprocess("reproduce", "grid", "../g.toml", "--out", "b",
                                             "--executor", "batched", cwd=cwd))  # fmt: skip
-    assert "run core=plugin_gru-s0: core 'plugin_gru' cannot be batched" in line
+    assert "run core=gru-s0: core 'gru' cannot be batched" in line
     assert not (cwd / "b").exists()
 
 
@@ -213,7 +197,7 @@ def test_a_grid_names_its_plugin_and_only_the_runs_that_use_it_keep_it(tmp_path)
         ('"model.plugin" = "x.py"', "key 'model.plugin' is set by the grid's plugin = FILE.py"),
         (
             '"model.core" = ["lstm", "mlp"]',
-            "registers core plugin_gru, policy plugin_state_free, which no cell uses",
+            "registers core gru, policy plugin_state_free, which no cell uses",
         ),  # fmt: skip
     ],
 )
@@ -221,7 +205,7 @@ def test_a_grid_with_a_bad_plugin_is_refused(tmp_path, edit, expected):
     (tmp_path / "plugins").mkdir()
     (tmp_path / "plugins" / "mine.py").write_text(PLUGIN)
     if edit.startswith('"model.core"'):  # the plugin's core named by no cell
-        text = GRID.replace('"model.core" = ["lstm", "plugin_gru"]', edit)
+        text = GRID.replace('"model.core" = ["lstm", "gru"]', edit)
     elif edit.startswith('"model.plugin"'):
         text = GRID.replace('plugin = "plugins/mine.py"', "").replace("[base]", "[base]\n" + edit)
     else:
