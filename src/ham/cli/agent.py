@@ -200,14 +200,12 @@ def _config_from_args(args: argparse.Namespace):
 
 
 def _plugin_from_args(args: argparse.Namespace) -> dict | None:
-    """The record of ``--plugin FILE.py``, its cores and policies registered (None without)."""
+    """The record of ``--plugin FILE.py`` (None without); HamConfig runs it."""
     if args.plugin is None:
         return None
-    from ham.model.plugin import load_plugin, read_plugin
+    from ham.model.plugin import read_plugin
 
-    record = read_plugin(args.plugin)
-    load_plugin(record)
-    return record
+    return read_plugin(args.plugin)
 
 
 def _preset_defaults(args: argparse.Namespace, world) -> dict | None:

@@ -402,7 +402,7 @@ def check_batched_options(
                 check_batchable(TrainConfig.from_dict(job.config))
             except HamError as exc:
                 raise HamError(f"run {job.key}: {exc}") from None
-    if executor not in BATCHED_EXECUTORS:
+    else:
         given = options.given()
         if given:
             verb = "needs" if len(given) == 1 else "need"

@@ -953,7 +953,11 @@ def register(obj: HapticObject, *, replace: bool = False) -> int:
 
 def unregister_since(before: set[str]) -> None:
     """Remove every object registered after :func:`names` was ``before`` (a failed plugin's)."""
-    added = [n for n in _ORDER if n not in before]
+    _unregister([n for n in _ORDER if n not in before])
+
+
+def _unregister(added: list[str]) -> None:
+    """Leave the registry as it was before ``added`` (the last ids) were registered."""
     for n in added:
         _REGISTRY.pop(n, None)
         _ORIGIN.pop(n, None)
@@ -1111,10 +1115,7 @@ def load_objects(record: dict) -> list[str]:
                 "from_heightmap(...))"
             )
     except BaseException:
-        for n in added:  # leave the registry as it was: the added names are the last ids
-            _REGISTRY.pop(n, None)
-            _ORIGIN.pop(n, None)
-            _ORDER.remove(n)
+        _unregister(added)
         raise
     finally:
         _LOADING = None
