@@ -271,8 +271,9 @@ def _world_changes(world) -> list[str]:
         return out
 
     d = world.to_dict()
-    if d.get("objects_file"):  # name the file, not its recorded text
-        d["objects_file"] = d["objects_file"]["name"]
+    for key in ("objects_file", "simulator_file"):  # name the file, not its recorded text
+        if d.get(key):
+            d[key] = d[key]["name"]
     new, old = flat(d), flat(WorldConfig().to_dict())
     return [f"{k}={v!r}" for k, v in new.items() if old.get(k, object()) != v]
 
@@ -300,6 +301,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                 "pitch",
                 "objects",
                 "objects_file",
+                "simulator_file",
                 "plugin",
             )  # fmt: skip
             if getattr(args, k, None) is not None

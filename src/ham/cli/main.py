@@ -273,9 +273,11 @@ def cmd_table_info(args: argparse.Namespace) -> int:
 
     print(f"  sensor:    {SensorConfig(**info.sensor).describe()}")
     print(f"  pose:      {info.world.get('pose')}")
-    record = info.world.get("objects_file")
-    if record:
-        print(f"  objects file: {record.get('name')} (sha256 {record.get('sha256')})")
+    for key in ("objects_file", "simulator_file"):
+        record = info.world.get(key)
+        if record:
+            what = key.replace("_", " ") + ":"
+            print(f"  {what} {record.get('name')} (sha256 {record.get('sha256')})")
     print(f"  ham {info.ham_version}, created {info.created}")
     print(f"  command:   {info.command}")
     print(f"  checksum:  sha256 {info.checksum} (verified)")

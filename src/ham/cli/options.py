@@ -80,7 +80,18 @@ def add_world_options(
         )
         add_objects_file_option(p)
     add_world_preset_option(p, cache=cache)
-    p.add_argument("--simulator", default=None, help="fast (default) or mujoco")
+    p.add_argument(
+        "--simulator",
+        default=None,
+        help="fast (default), mujoco, or one a --simulator-file registers (default with a file: "
+        "its simulator)",
+    )
+    p.add_argument(
+        "--simulator-file",
+        metavar="FILE",
+        help="a .py file that registers your own simulator (ham.world.simulators."
+        "register_simulator), e.g. a sensor of your own; recorded in tables and runs (docs/world.md)",
+    )
     p.add_argument(
         "--sensor",
         default=None,
@@ -178,7 +189,8 @@ def world_from_args(args: argparse.Namespace, objects: str | None = None):
     objects, record = objects_from_args(args, objects)
     preset = preset_from_args(args)
     base = preset["world"] if preset else {}
-    simulator = args.simulator or base.get("simulator", "fast")
+    sim_record, simulator = simulator_from_args(args)
+    simulator = simulator or base.get("simulator", "fast")
     readout = args.sensor or base.get("mujoco", {}).get("readout", "taxels")
     pose = args.pose or base.get("pose", "paper")
     mujoco = {}
@@ -197,12 +209,42 @@ def world_from_args(args: argparse.Namespace, objects: str | None = None):
         "pose": pose,
         "mujoco": mujoco,
         "objects_file": record,
+        "simulator_file": sim_record,
     }
     dims = getattr(args, "pose_dims", None)
     if dims is not None:
         table["pose_dims"] = list(check_pose_dims(dims, "--pose-dims"))
     world = world_from_table(table)
     return replace(world, sensor=sensor_from_args(args))
+
+
+def simulator_from_args(args: argparse.Namespace) -> tuple[dict | None, str | None]:
+    """``--simulator-file``'s record (its simulators registered) and the simulator to use: the
+    ``--simulator`` given, else the file's one simulator, else ``None`` (the default's).
+
+    An unknown ``--simulator`` is refused here, before anything is written."""
+    from ham.world import simulators
+
+    path = getattr(args, "simulator_file", None)
+    name = getattr(args, "simulator", None)
+    record, names = None, []
+    if path is not None:
+        record = simulators.read_simulator_file(path)
+        names = simulators.load_simulator_file(record)
+        if name is None and len(names) > 1:
+            raise HamError(
+                f"--simulator-file {path!r} registers {', '.join(names)}; accepted: --simulator "
+                "naming one of them"
+            )
+        name = name or names[0]
+        if name not in names:
+            raise HamError(
+                f"--simulator {name!r} is not one --simulator-file {path!r} registers; accepted: "
+                f"{' or '.join(names)} (or no --simulator-file)"
+            )
+    elif name is not None and name not in simulators.simulator_names():
+        raise simulators.unknown_simulator(name)
+    return record, name
 
 
 def print_json(obj) -> None:

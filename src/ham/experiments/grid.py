@@ -555,6 +555,7 @@ class Grid:
         for k in ("evaluate",):
             if not isinstance(d.get(k, []), list):
                 raise HamError(f"{source}: {k} = {d[k]!r}; accepted: a list of tables")
+        d = _world_files(d, source)
         return cls(
             name=d.get("name", Path(source).stem if source != "grid" else "grid"),
             description=str(d.get("description", "")),
@@ -584,6 +585,74 @@ def _plugin(value, source: str) -> dict | None:
         return read_plugin(folder / value)
     except HamError as exc:
         raise HamError(f"{source}: {exc}") from None
+
+
+#: The world fields that name a file of the user's (relative to the grid file): its reader.
+_WORLD_FILES = {
+    "objects_file": ("ham.world.objects", "read_objects_file"),
+    "simulator_file": ("ham.world.simulators", "read_simulator_file"),
+}
+
+
+def _world_files(d: Mapping, source: str) -> dict:
+    """``d`` with every world table's ``objects_file`` / ``simulator_file`` path (relative to the
+    grid file's folder) replaced by the file's record, as worlds keep them; records pass as they
+    are. A world table given an objects file and no ``objects`` takes the file's objects; given a
+    simulator file of one simulator and no ``simulator``, that simulator (as the CLI does)."""
+    import importlib
+
+    folder = Path(source).parent if source != "grid" else Path()
+
+    def world(table, where: str):
+        if not isinstance(table, Mapping):
+            return table  # refused by name later
+        table = dict(table)
+        for key, (module, reader) in _WORLD_FILES.items():
+            value = table.get(key)
+            if value is None or isinstance(value, Mapping):
+                continue
+            if not isinstance(value, str):
+                raise HamError(f"{where}: {key} = {value!r}; accepted: the path of the file")
+            read = getattr(importlib.import_module(module), reader)
+            try:
+                table[key] = read(folder / value)
+                if key == "objects_file" and "objects" not in table:
+                    from ham.world.objects import load_objects
+
+                    table["objects"] = ",".join(load_objects(table[key]))
+                if key == "simulator_file" and "simulator" not in table:
+                    from ham.world.simulators import load_simulator_file
+
+                    names = load_simulator_file(table[key])
+                    if len(names) == 1:  # else the world names one, or is refused
+                        table["simulator"] = names[0]
+            except HamError as exc:
+                raise HamError(f"{where}: {exc}") from None
+        return table
+
+    d = dict(d)
+    if "world" in d:
+        d["world"] = world(d["world"], f"{source} world")
+    if isinstance(d.get("cells"), list):
+        d["cells"] = [
+            {**c, "world": world(c["world"], f"{source} cell {c.get('name', i)!r} world")}
+            if isinstance(c, Mapping) and "world" in c
+            else c
+            for i, c in enumerate(d["cells"])
+        ]
+    if isinstance(d.get("axes"), Mapping):
+        axes = {}
+        for name, values in d["axes"].items():
+            if isinstance(values, list):
+                values = [
+                    {**v, "world": world(v["world"], f"{source} axis {name!r} world")}
+                    if isinstance(v, Mapping) and "world" in v
+                    else v
+                    for v in values
+                ]
+            axes[name] = values
+        d["axes"] = axes
+    return d
 
 
 def _raw_world(v):

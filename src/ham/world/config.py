@@ -7,18 +7,19 @@ every table and run. ``make_simulator`` builds the simulator it names:
   (:class:`ham.world.glance.FastSimulator`), or the extended glance on height fields
   (:class:`ham.world.extended_glance.ExtendedSimulator`) when ``pose_dims`` has ``y`` or
   ``phi_y`` or an object varies in y;
-* ``mujoco``: the MuJoCo physics engine (:mod:`ham.world.mujoco_sim`), when installed.
-
-Third parties add a simulator with :func:`register_simulator`.
+* ``mujoco``: the MuJoCo physics engine (:mod:`ham.world.mujoco_sim`), when installed;
+* a simulator of your own (:mod:`ham.world.simulators`): registered by a program with
+  :func:`register_simulator`, or by a simulator file (``--simulator-file FILE.py``) that the
+  world records (``simulator_file``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 
 from ham.errors import HamError, check_known_fields
 from ham.world import objects as _objects
+from ham.world import simulators as _simulators
 from ham.world.extended_glance import ExtendedSimulator
 from ham.world.glance import (
     PAPER_POSE_DIMS,
@@ -30,6 +31,9 @@ from ham.world.glance import (
 )
 from ham.world.objects import HapticObject
 from ham.world.sensor import MAX_FOAM_STIFFNESS, SensorConfig
+from ham.world.simulators import register_simulator, simulator_names
+
+__all__ = ["WorldConfig", "make_simulator", "register_simulator", "simulator_names"]
 
 
 @dataclass(frozen=True)
@@ -48,6 +52,10 @@ class WorldConfig:
     ``{"name", "sha256", "source"}`` (:func:`ham.world.objects.read_objects_file`): a world loaded
     from a table or run (:meth:`from_dict`) and a world resolved in any process
     (:meth:`resolve_objects`) registers the same objects from the recorded text, hash verified.
+
+    ``simulator_file`` records a simulator file (``--simulator-file``,
+    :func:`ham.world.simulators.read_simulator_file`) in the same way; ``simulator`` must name one
+    of the simulators it registers. :meth:`to_dict` leaves it out when there is none.
     """
 
     objects: str = "paper"
@@ -58,12 +66,19 @@ class WorldConfig:
     mujoco: dict = field(default_factory=dict)
     objects_file: dict | None = None
     pose_dims: tuple[str, ...] = PAPER_POSE_DIMS
+    simulator_file: dict | None = None
 
     def register_objects(self) -> list[str]:
         """Register the recorded objects file's objects (once per process); their names."""
         if self.objects_file is None:
             return []
         return _objects.load_objects(self.objects_file)
+
+    def register_simulators(self) -> list[str]:
+        """Register the recorded simulator file's simulators (once per process); their names."""
+        if self.simulator_file is None:
+            return []
+        return _simulators.load_simulator_file(self.simulator_file)
 
     def __post_init__(self) -> None:
         for name, kind in (("objects", str), ("simulator", str), ("sensor", SensorConfig),
@@ -74,6 +89,14 @@ class WorldConfig:
                 )
         if self.objects_file is not None:
             _objects.check_record(self.objects_file)
+        if self.simulator_file is not None:
+            names = self.register_simulators()
+            if self.simulator not in names:  # a file nothing uses: refused, not ignored
+                raise HamError(
+                    f"world simulator = {self.simulator!r}, but simulator file "
+                    f"{self.simulator_file['name']!r} registers {', '.join(names)}; accepted: "
+                    f"simulator = {' or '.join(repr(n) for n in names)}, or no simulator file"
+                )
         object.__setattr__(self, "pose_dims", check_pose_dims(self.pose_dims, "world pose_dims"))
         # The foam must carry the glance's stop force on the whole face before it is compressed
         # through: softer, and even the flat box blocks the pad with no 2 N reading.
@@ -110,6 +133,8 @@ class WorldConfig:
         d["pose_dims"] = list(self.pose_dims)
         if self.pose_dims == PAPER_POSE_DIMS:  # the paper's world: the dict saved before
             del d["pose_dims"]
+        if self.simulator_file is None:  # likewise: the dict saved before simulator files
+            del d["simulator_file"]
         return d
 
     @classmethod
@@ -138,23 +163,11 @@ class WorldConfig:
             mujoco=dict(mujoco),
             objects_file=d.get("objects_file"),
             pose_dims=d.get("pose_dims", PAPER_POSE_DIMS),
+            simulator_file=d.get("simulator_file"),
             **parts,
         )
         world.register_objects()
         return world
-
-
-SimulatorFactory = Callable[..., Simulator]
-_SIMULATORS: dict[str, SimulatorFactory] = {}
-
-
-def register_simulator(name: str, factory: SimulatorFactory) -> None:
-    """Make ``factory(objects, sensor, pose, glance, device=...)`` available under ``name``."""
-    _SIMULATORS[name] = factory
-
-
-def simulator_names() -> list[str]:
-    return ["fast", "mujoco", *[n for n in _SIMULATORS if n not in ("fast", "mujoco")]]
 
 
 def make_simulator(
@@ -163,10 +176,13 @@ def make_simulator(
     """The simulator ``config.simulator`` over ``config``'s objects.
 
     ``fast`` is the paper's line glance, or the extended glance when ``config.extended``
-    (``pose_dims`` with y or phi_y, or an object that varies in y).
+    (``pose_dims`` with y or phi_y, or an object that varies in y). A registered simulator (its
+    simulator file registered first, in any process) has its glances checked
+    (:class:`ham.world.simulators.CheckedSimulator`).
     """
     config = config or WorldConfig()
     objs = config.resolve_objects()
+    config.register_simulators()  # a world may arrive pickled in a fresh worker process
     name = config.simulator
     if name == "fast" and config.extended:
         return ExtendedSimulator(
@@ -176,7 +192,7 @@ def make_simulator(
         return FastSimulator(
             objs, config.sensor, config.pose, config.glance, device=device, **kwargs
         )
-    if name == "mujoco" and name not in _SIMULATORS:
+    if name == "mujoco":
         try:
             from ham.world.mujoco_sim import MujocoSimulator
         except ImportError as exc:  # pragma: no cover - depends on the installation
@@ -184,11 +200,9 @@ def make_simulator(
         return MujocoSimulator(
             objs, config.sensor, config.pose, config.glance, **{**config.mujoco, **kwargs}
         )
-    if name in _SIMULATORS:
-        return _SIMULATORS[name](
-            objs, config.sensor, config.pose, config.glance, device=device, **kwargs
-        )
-    raise HamError(f"unknown simulator {name!r}; accepted: {', '.join(simulator_names())}")
+    return _simulators.make_registered(
+        name, objs, config.sensor, config.pose, config.glance, device=device, **kwargs
+    )
 
 
 # ------------------------------------------------------------------------------------------------

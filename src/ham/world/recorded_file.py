@@ -67,8 +67,14 @@ def run_python(what: str, name: str, source: str, module: str) -> None:
             f"{what} {name!r} has a syntax error at line {exc.lineno}: {exc.msg}"
         ) from None
     namespace = {"__name__": module, "__file__": name}
+    call(what, name, exec, code, namespace)
+
+
+def call(what: str, name: str, fn, *args, **kwargs):
+    """``fn(*args, **kwargs)``, code of the user's file ``name`` run at last; any failure is one
+    line naming the file and the innermost line of it that raised (``what``: "plugin", ...)."""
     try:
-        exec(code, namespace)  # noqa: S102 - running the user's own file is the point
+        return fn(*args, **kwargs)
     except HamError as exc:
         raise HamError(f"{what} {name!r}: {one_line(exc)}") from None
     except (Exception, SystemExit) as exc:  # noqa: BLE001 - any failure of the user's file

@@ -190,6 +190,20 @@ def build_table(
     ``compression`` (version 2 only): gzip (``None``: the default), lzf or none (a
     memory-mappable file); the paper's table (version 1) is stored uncompressed.
     """
+    # A build that fails (e.g. a simulator of the user's that returns bad glances) leaves no
+    # partial file of its own: a rerun would fail the same way, and a fixed simulator is another
+    # world. An interrupted build keeps it, to resume.
+    partial = Path(os.fspath(out) + ".partial")
+    fresh = not partial.exists()
+    try:
+        return _build_table(world, grid, out, batch, progress, command, compression, sim_kwargs)
+    except HamError:
+        if fresh:
+            partial.unlink(missing_ok=True)
+        raise
+
+
+def _build_table(world, grid, out, batch, progress, command, compression, sim_kwargs) -> Path:
     dims = world_pose_dims(world)
     shape = grid_shape_for(grid, dims)
     if compression is not None and compression not in COMPRESSIONS:

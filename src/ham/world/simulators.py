@@ -1,0 +1,221 @@
+"""The simulators a world may name: ``fast``, ``mujoco``, and your own (``--simulator-file``).
+
+A simulator of your own is a factory ``factory(objects, sensor, pose, glance, device=...)`` that
+returns a :class:`ham.world.glance.Simulator` (``name``, ``objects``, ``glance``, ``describe``);
+:func:`register_simulator` makes it available under a name. From the command line, a
+*simulator file* (a self-contained ``.py`` file that calls ``register_simulator``) is given with
+``--simulator-file FILE.py``: a world keeps the file's record (name, sha256, text:
+:attr:`ham.world.config.WorldConfig.simulator_file`), so a table built with it, a run trained
+online with it and a grid's worker processes run the same code wherever they load the world.
+
+This is the way to a sensor of your own: a simulator that wraps the fast one and reads its
+contacts out otherwise (docs/plugins/binary_pad.py: taxels that only say touched or not).
+
+Every glance of a registered simulator is checked (:class:`CheckedSimulator`): the result must be
+a :class:`ham.world.glance.GlanceResult` with one ``N x N`` image per glance (``N`` the pad's
+taxels), finite and non-negative, and any failure of the user's code is one line naming the file
+and its line.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from pathlib import Path
+
+import torch
+
+from ham.errors import HamError
+from ham.world import objects as _objects
+from ham.world import recorded_file
+
+#: The simulators of the package itself; no file or program may register these names.
+BUILT_IN: tuple[str, ...] = ("fast", "mujoco")
+SUFFIXES: tuple[str, ...] = (".py",)
+_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
+
+SimulatorFactory = Callable[..., object]
+_SIMULATORS: dict[str, SimulatorFactory] = {}
+#: name -> the simulator file that registered it (absent: registered by a program)
+_ORIGIN: dict[str, str] = {}
+#: sha256 of a simulator file -> the names it registered: a process runs each file once.
+_LOADED: dict[str, tuple[str, ...]] = {}
+#: while a simulator file runs: its name (recorded as the origin of what it registers)
+_LOADING: list[str] = []
+
+
+def register_simulator(name: str, factory: SimulatorFactory) -> None:
+    """Make ``factory(objects, sensor, pose, glance, device=..., **kwargs)`` the simulator ``name``.
+
+    The factory returns an object with ``name``, ``objects``, ``glance(object_ids, q_x, q_phi,
+    q_y=None, q_phi_y=None)`` -> :class:`ham.world.glance.GlanceResult` and ``describe()`` ->
+    dict. Names are letters, digits and ``_ . -``; ``fast``, ``mujoco`` and names registered
+    already are refused.
+    """
+    if not (isinstance(name, str) and _NAME.match(name)):
+        raise HamError(f"simulator name {name!r}; accepted: letters, digits and _ . - (not empty)")
+    if name in BUILT_IN or name in _SIMULATORS:
+        raise HamError(f"simulator {name!r} is registered already; accepted: another name")
+    if not callable(factory):
+        raise HamError(
+            f"simulator {name!r}: factory {factory!r}; accepted: a callable "
+            "factory(objects, sensor, pose, glance, device=...) returning a simulator"
+        )
+    _SIMULATORS[name] = factory
+    if _LOADING:
+        _ORIGIN[name] = _LOADING[-1]
+
+
+def simulator_names() -> list[str]:
+    """``fast``, ``mujoco`` and the registered simulators, in registration order."""
+    return [*BUILT_IN, *_SIMULATORS]
+
+
+def registered(name: str) -> SimulatorFactory | None:
+    """The factory registered as ``name`` (``None`` for the built-in and unknown names)."""
+    return _SIMULATORS.get(name)
+
+
+def unknown_simulator(name: object) -> HamError:
+    """The error for a simulator name nothing registered."""
+    return HamError(
+        f"unknown simulator {name!r}; accepted: {', '.join(simulator_names())}, or a simulator "
+        "of your own registered by a simulator file (--simulator-file FILE.py, "
+        "WorldConfig(simulator_file=ham.world.simulators.read_simulator_file(FILE)))"
+    )
+
+
+# ------------------------------------------------------------------------------------------------
+def read_simulator_file(path: str | Path) -> dict:
+    """The record of the simulator file ``path``: ``{"name", "sha256", "source"}`` (nothing runs)."""
+    return recorded_file.read_record(
+        path,
+        "simulator file",
+        SUFFIXES,
+        "a .py file that calls ham.world.simulators.register_simulator",
+    )
+
+
+def check_record(record: object) -> dict:
+    """``record`` if it is a complete simulator-file record whose text has its sha256, else an error."""
+    return recorded_file.check_record(record, "simulator file", "simulator_file", SUFFIXES)
+
+
+def load_simulator_file(record: dict) -> list[str]:
+    """Run the simulator file of ``record`` (verified) once per process; the names it registered.
+
+    A file that fails, registers no simulator, or registers objects (they belong in an objects
+    file, which a world records) leaves the registries as they were.
+    """
+    record = check_record(record)
+    name, sha = record["name"], record["sha256"]
+    if sha in _LOADED:
+        return list(_LOADED[sha])
+    before, objs = set(_SIMULATORS), set(_objects.names())
+    _LOADING.append(name)
+    try:
+        recorded_file.run_python("simulator file", name, record["source"], "ham_simulator_file")
+        added_objects = [n for n in _objects.names() if n not in objs]
+        if added_objects:
+            raise HamError(
+                f"simulator file {name!r} registers objects {added_objects}; accepted: objects "
+                "in an objects file (--objects-file)"
+            )
+        added = [n for n in _SIMULATORS if n not in before]
+        if not added:
+            raise HamError(
+                f"simulator file {name!r} registers no simulator; accepted: a file that calls "
+                "ham.world.simulators.register_simulator(NAME, factory)"
+            )
+    except BaseException:
+        for n in [n for n in _SIMULATORS if n not in before]:
+            del _SIMULATORS[n]
+            _ORIGIN.pop(n, None)
+        _objects.unregister_since(objs)
+        raise
+    finally:
+        _LOADING.pop()
+    _LOADED[sha] = tuple(added)
+    return list(added)
+
+
+def make_registered(name: str, objects: list, sensor, pose, glance, **kwargs) -> CheckedSimulator:
+    """The registered simulator ``name`` over ``objects``, its glances checked."""
+    factory = _SIMULATORS.get(name)
+    if factory is None:
+        raise unknown_simulator(name)
+    what, where = _who(name)
+    sim = recorded_file.call(what, where, factory, list(objects), sensor, pose, glance, **kwargs)
+    return CheckedSimulator(sim, name, sensor)
+
+
+def _who(name: str) -> tuple[str, str]:
+    """How errors name the code of simulator ``name``: its file, or the simulator itself."""
+    if name in _ORIGIN:
+        return "simulator file", _ORIGIN[name]
+    return "simulator", name
+
+
+class CheckedSimulator:
+    """A registered simulator whose every glance is checked, failures in one line.
+
+    ``name`` is the registered name; ``sensor`` the world's pad (the images are ``N x N``,
+    ``N = sensor.taxels``); ``inner`` the factory's simulator.
+    """
+
+    def __init__(self, inner, name: str, sensor) -> None:
+        what, where = _who(name)
+        for attr in ("glance", "describe"):
+            if not callable(getattr(inner, attr, None)):
+                raise HamError(
+                    f"{what} {where!r}: simulator {name!r} made a {type(inner).__name__} without "
+                    f"a {attr}() method; accepted: an object with glance() and describe()"
+                )
+        if not isinstance(getattr(inner, "objects", None), list):
+            raise HamError(
+                f"{what} {where!r}: simulator {name!r} has no list of objects (its .objects); "
+                "accepted: the objects the factory was given"
+            )
+        self.inner, self.name, self.sensor = inner, name, sensor
+        self.objects = inner.objects
+        self._what, self._where = what, where
+
+    def _error(self, text: str) -> HamError:
+        return HamError(f"{self._what} {self._where!r}: simulator {self.name!r} {text}")
+
+    def glance(self, object_ids, q_x, q_phi, **kwargs):
+        from ham.world.glance import GlanceResult
+
+        n = len(object_ids)
+        r = recorded_file.call(
+            self._what, self._where, self.inner.glance, object_ids, q_x, q_phi, **kwargs
+        )
+        if not isinstance(r, GlanceResult):
+            raise self._error(f"returned a {type(r).__name__}; accepted: a GlanceResult")
+        side = self.sensor.taxels
+        p = r.pressure
+        if not isinstance(p, torch.Tensor) or tuple(p.shape) != (n, side, side):
+            got = tuple(p.shape) if isinstance(p, torch.Tensor) else type(p).__name__
+            raise self._error(
+                f"returned pressure {got} for {n} glances; accepted: a tensor ({n}, {side}, {side})"
+            )
+        if not bool(torch.isfinite(p).all()) or bool((p < 0).any()):
+            bad = p[~torch.isfinite(p) | (p < 0)][0].item()
+            raise self._error(f"returned a pressure of {bad!r} Pa; accepted: finite values >= 0")
+        for field in ("force", "z", "contact", "blocked"):
+            v = getattr(r, field)
+            if not isinstance(v, torch.Tensor) or tuple(v.shape) != (n,):
+                got = tuple(v.shape) if isinstance(v, torch.Tensor) else type(v).__name__
+                raise self._error(
+                    f"returned {field} {got} for {n} glances; accepted: a tensor ({n},)"
+                )
+        return r
+
+    def describe(self) -> dict:
+        d = recorded_file.call(self._what, self._where, self.inner.describe)
+        if not isinstance(d, dict):
+            raise self._error(f"describe() returned a {type(d).__name__}; accepted: a dict")
+        out = {**d, "simulator": self.name}
+        if self._what == "simulator file":
+            out["simulator_file"] = self._where
+        return out

@@ -1,0 +1,226 @@
+"""Simulator files: a user's own simulator (a sensor of their own) from a file, no package edit.
+
+``--simulator-file FILE.py`` registers it; tables and runs keep the file's text, so the real CLI
+in other processes loads them after the file is gone. The example is the one the docs ship:
+docs/plugins/binary_pad.py, whose taxels read 5 kPa where the fast model's read over 1 kPa.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import torch
+
+from ham.errors import HamError
+from ham.world import objects, simulators
+from ham.world.config import WorldConfig, make_simulator
+from tests.conftest import ok, one_line_error, registries_restored, run_ham, run_ham_inprocess
+
+PAD = Path(__file__).parents[1] / "docs/plugins/binary_pad.py"
+TRAIN = ("--glances", "2", "--steps", "2", "--batch-size", "8", "--eval-every", "2",
+         "--eval-batches", "2", "--seed", "3", "--no-progress")  # fmt: skip
+
+
+def _pressures(path: Path) -> np.ndarray:
+    with h5py.File(path) as f:
+        return np.stack([f[f"objects/{n}/pressure"][...] for n in ("box", "ramp_up", "convex")])
+
+
+def test_a_table_built_with_the_binary_pad_is_the_fast_table_thresholded(tmp_path):
+    (tmp_path / "pad.py").write_text(PAD.read_text())
+    ok(run_ham("table", "build", "--simulator-file", "pad.py", "--grid", "9", "--out", "b.h5",
+               "--quiet", cwd=tmp_path))  # fmt: skip
+    ok(run_ham_inprocess("table", "build", "--grid", "9", "--out", "f.h5", "--quiet",
+                         cwd=tmp_path))  # fmt: skip
+    binary, fast = _pressures(tmp_path / "b.h5"), _pressures(tmp_path / "f.h5")
+    assert np.array_equal(binary, np.where(fast > 1000.0, 5000.0, 0.0).astype(np.float32))
+    assert 0 < (binary > 0).mean() < (fast > 0).mean()  # some taxels on, fewer than touched
+    (tmp_path / "pad.py").unlink()  # the table keeps the text
+    r = ok(run_ham_inprocess("table", "info", "b.h5", cwd=tmp_path))
+    assert "simulator: binary" in r.stdout and "simulator file: pad.py (sha256" in r.stdout
+    # the table trains with nothing else given (lookups need no simulator)
+    ok(run_ham_inprocess("train", "--table", "b.h5", *TRAIN, "--out", "r", cwd=tmp_path))
+
+
+def test_an_online_run_keeps_the_file_and_loads_without_it(tmp_path):
+    (tmp_path / "pad.py").write_text(PAD.read_text())
+    ok(run_ham_inprocess("train", "--online", "--simulator-file", "pad.py", *TRAIN, "--out", "r",
+                         cwd=tmp_path))  # fmt: skip
+    (tmp_path / "pad.py").unlink()
+    world = json.loads((tmp_path / "r" / "config.json").read_text())["world"]
+    assert (world["simulator"], world["simulator_file"]["name"]) == ("binary", "pad.py")
+    # another process: the real CLI registers the recorded text
+    r = ok(run_ham("evaluate", "r", "--batches", "2", "--json", cwd=tmp_path))
+    assert 0 <= json.loads(r.stdout)["accuracy"] <= 1
+    ok(run_ham_inprocess("train", "--resume", "r", "--steps", "4", "--no-progress", cwd=tmp_path))
+    assert json.loads((tmp_path / "r" / "metrics.json").read_text())["steps"] == 4
+    line = one_line_error(run_ham_inprocess("train", "--resume", "r", "--simulator-file",
+                                            "pad.py", "--no-progress", cwd=tmp_path))  # fmt: skip
+    assert "remove --simulator-file" in line
+
+
+def test_the_same_simulator_file_and_seed_give_the_same_numbers(tmp_path):
+    for out in ("a", "b"):
+        ok(run_ham_inprocess("train", "--online", "--simulator-file", str(PAD), *TRAIN,
+                             "--out", out, cwd=tmp_path))  # fmt: skip
+    a, b = (json.loads((tmp_path / d / "metrics.json").read_text())["history"] for d in "ab")
+    assert a == b
+
+
+_HEAD = (PAD.read_text().split("register_simulator(")[0]
+         + "import torch\nfrom ham.world.glance import GlanceResult\n")  # fmt: skip
+
+
+def _glance_returning(expr: str) -> str:
+    """The binary pad whose glance returns ``expr`` (``r`` is its checked-in result)."""
+    return _HEAD + (
+        "class Bad(BinaryPad):\n"
+        "    def glance(self, object_ids, q_x, q_phi, **kwargs):\n"
+        "        r = BinaryPad.glance(self, object_ids, q_x, q_phi, **kwargs)\n"
+        f"        return {expr}\n"
+        "register_simulator('bad', Bad)\n"
+    )
+
+
+BAD = {
+    "missing.py": (None, "simulator file 'missing.py' does not exist"),
+    "mine.txt": ("x = 1\n", "accepted: a .py file that calls ham.world.simulators.register_sim"),
+    "empty.py": ("x = 1\n", "registers no simulator"),
+    "syntax.py": ("def f(:\n", "syntax error at line 1"),
+    "builtin.py": (
+        _HEAD + "register_simulator('fast', BinaryPad)\n",
+        "simulator 'fast' is registered already",
+    ),  # fmt: skip
+    "name.py": (
+        _HEAD + "register_simulator('a b', BinaryPad)\n",
+        "simulator name 'a b'; accepted: letters, digits",
+    ),  # fmt: skip
+    "factory.py": (_HEAD + "register_simulator('x', 3)\n", "factory 3; accepted: a callable"),
+    "objects.py": (
+        _HEAD + "register_simulator('x', BinaryPad)\n"
+        "from ham.world.objects import HapticObject, register\n"
+        "register(HapticObject.from_polyline('simfile_obj', [(-0.045, 0.0), (0.045, 0.04)]))\n",
+        "registers objects ['simfile_obj']; accepted: objects in an objects file",
+    ),
+    "two.py": (
+        _HEAD + "register_simulator('one', BinaryPad)\nregister_simulator('two', BinaryPad)\n",
+        "registers one, two; accepted: --simulator naming one of them",
+    ),  # fmt: skip
+    "shape.py": (
+        _glance_returning("dataclasses.replace(r, pressure=r.pressure[:, :3])"),
+        "simulator 'bad' returned pressure (81, 3, 16) for 81 glances; accepted: a "
+        "tensor (81, 16, 16)",
+    ),  # fmt: skip
+    "negative.py": (
+        _glance_returning("dataclasses.replace(r, pressure=r.pressure - 1)"),
+        "returned a pressure of -1.0 Pa; accepted: finite values >= 0",
+    ),  # fmt: skip
+    "nan.py": (
+        _glance_returning("dataclasses.replace(r, pressure=r.pressure * float('nan'))"),
+        "returned a pressure of nan Pa",
+    ),  # fmt: skip
+    "force.py": (
+        _glance_returning("dataclasses.replace(r, force=r.force[:1])"),
+        "returned force (1,) for 81 glances; accepted: a tensor (81,)",
+    ),  # fmt: skip
+    "result.py": (_glance_returning("r.pressure"), "returned a Tensor; accepted: a GlanceResult"),
+    "raises.py": (_glance_returning("1 / 0"), "raised ZeroDivisionError at line {line}"),
+}
+
+
+#: the files whose loading fails (the others load, and fail when the CLI uses them)
+LOAD_FAILS = ("empty.py", "syntax.py", "builtin.py", "name.py", "factory.py", "objects.py")
+
+
+@pytest.mark.parametrize("name", list(BAD))
+def test_a_bad_simulator_file_is_one_line_and_leaves_nothing(tmp_path, name):
+    text, expected = BAD[name]
+    if "{line}" in expected:  # the file's own line that raised
+        expected = expected.format(line=text.splitlines().index("        return 1 / 0") + 1)
+    if text is not None:
+        (tmp_path / name).write_text(text.replace("import torch\n", "import dataclasses, torch\n"))
+    before = (dict(simulators._SIMULATORS), objects.names(), dict(simulators._LOADED))
+    line = one_line_error(run_ham_inprocess("table", "build", "--simulator-file", name, "--grid",
+                                            "9", "--out", "t.h5", "--quiet", cwd=tmp_path))  # fmt: skip
+    assert expected in line, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ([name] if text is not None else [])
+    # the Python API rolls back too (run_ham_inprocess would restore the registries anyway)
+    if name in LOAD_FAILS:
+        record = simulators.read_simulator_file(tmp_path / name)
+        with pytest.raises(HamError):
+            simulators.load_simulator_file(record)
+    assert (dict(simulators._SIMULATORS), objects.names(), dict(simulators._LOADED)) == before
+
+
+def test_the_simulator_a_world_names_is_checked(tmp_path):
+    line = one_line_error(run_ham_inprocess("table", "build", "--simulator", "binary", "--grid",
+                                            "9", "--out", "t.h5", cwd=tmp_path))  # fmt: skip
+    assert "unknown simulator 'binary'; accepted: fast, mujoco, or" in line
+    assert "--simulator-file FILE.py" in line
+    line = one_line_error(run_ham_inprocess("table", "build", "--simulator", "fast",
+                                            "--simulator-file", str(PAD), "--grid", "9",
+                                            "--out", "t.h5", cwd=tmp_path))  # fmt: skip
+    assert "--simulator 'fast' is not one --simulator-file" in line and "accepted: binary" in line
+    assert list(tmp_path.iterdir()) == []
+    record = simulators.read_simulator_file(PAD)
+    with registries_restored():
+        with pytest.raises(HamError, match="world simulator = 'fast', but simulator file "
+                           "'binary_pad.py' registers binary; accepted: simulator = 'binary'"):  # fmt: skip
+            WorldConfig(simulator_file=record)
+        world = WorldConfig(simulator="binary", simulator_file=record)
+        assert WorldConfig.from_dict(world.to_dict()) == world
+        assert "simulator_file" not in WorldConfig().to_dict()  # the paper's world as before
+        altered = {**record, "source": record["source"] + "\n"}
+        with pytest.raises(HamError, match="recorded sha256 .* the record was altered"):
+            WorldConfig.from_dict({**world.to_dict(), "simulator_file": altered})
+
+
+def test_a_simulator_registered_by_a_program_is_checked_too():
+    from ham.world.glance import FastSimulator
+
+    with registries_restored():
+        simulators.register_simulator("prog", FastSimulator)
+        with pytest.raises(HamError, match="simulator 'prog' is registered already"):
+            simulators.register_simulator("prog", FastSimulator)
+        sim = make_simulator(WorldConfig(simulator="prog"))
+        r = sim.glance(torch.zeros(3, dtype=torch.long), torch.zeros(3), torch.zeros(3))
+        assert r.pressure.shape == (3, 16, 16) and sim.describe()["simulator"] == "prog"
+        simulators.register_simulator("broken", lambda *a, **k: object())
+        with pytest.raises(HamError, match="simulator 'broken': simulator 'broken' made a object "
+                           "without a glance"):  # fmt: skip
+            make_simulator(WorldConfig(simulator="broken"))
+    assert "prog" not in simulators.simulator_names()
+
+
+def test_a_grid_names_world_files_beside_it(tmp_path):
+    (tmp_path / "sims").mkdir()
+    (tmp_path / "sims" / "pad.py").write_text(PAD.read_text())
+    (tmp_path / "shapes.toml").write_text(
+        'objects = [{ name = "simfile_wedge", polyline = [[-0.045, 0.0], [0.045, 0.03]] },\n'
+        '           { name = "simfile_flat", polyline = [[-0.045, 0.01], [0.045, 0.01]] }]\n'
+    )
+    (tmp_path / "g.toml").write_text(
+        'name = "pads"\nseeds = 1\n[table]\ngrid = 9\n'
+        '[world]\nobjects_file = "shapes.toml"\n'
+        "[base]\nsteps = 2\neval_every = 2\neval_batches = 2\nbatch_size = 8\n"
+        '[axes]\npad = [{ name = "pressure" }, '
+        '{ name = "binary", world = { simulator_file = "sims/pad.py" } }]\n'
+    )
+    with registries_restored():
+        r = ok(run_ham_inprocess("reproduce", "grid", "g.toml", "--workers", "1", "--out", "o",
+                                 "--quiet", cwd=tmp_path))  # fmt: skip
+    assert "ran 2 run(s)" in r.stdout
+    tables = sorted((tmp_path / "o").glob("table_9*.h5"))
+    assert len(tables) == 2
+    worlds = [json.loads(h5py.File(t).attrs["world"]) for t in tables]
+    assert sorted(w["simulator"] for w in worlds) == ["binary", "fast"]
+    assert all(w["objects"] == "simfile_wedge,simfile_flat" for w in worlds)
+    assert all(w["objects_file"]["name"] == "shapes.toml" for w in worlds)
+    (tmp_path / "g.toml").write_text((tmp_path / "g.toml").read_text().replace("sims/", "no/"))
+    line = one_line_error(run_ham_inprocess("reproduce", "grid", "g.toml", "--out", "o2",
+                                            cwd=tmp_path))  # fmt: skip
+    assert "axis 'pad' world: simulator file" in line and "does not exist" in line
