@@ -13,10 +13,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ham.errors import HamError
 from ham.model.core import CORES
 from ham.model.policy import POLICIES
-from ham.world import objects as _objects
 from ham.world import recorded_file
 
 SUFFIXES: tuple[str, ...] = (".py",)
@@ -43,30 +41,14 @@ def load_plugin(record: dict) -> list[str]:
     A plugin that fails, registers nothing, or registers objects leaves the registries as they were.
     """
     record = check_plugin(record)
-    name, sha = record["name"], record["sha256"]
+    sha = record["sha256"]
     if sha in _LOADED:
         return list(_LOADED[sha])
-    cores, policies, objs = set(CORES), set(POLICIES), set(_objects.names())
-    try:
-        recorded_file.run_python("plugin", name, record["source"], "ham_plugin")
-        added_objects = [n for n in _objects.names() if n not in objs]
-        if added_objects:
-            raise HamError(
-                f"plugin {name!r} registers objects {added_objects}; accepted: objects in an "
-                "objects file (--objects-file), which tables and runs record"
-            )
-        added = [f"core {n}" for n in CORES if n not in cores]
-        added += [f"policy {n}" for n in POLICIES if n not in policies]
-        if not added:
-            raise HamError(
-                f"plugin {name!r} registers no core or location policy; accepted: a file that "
-                "calls ham.model.core.register_core or ham.model.policy.register_policy"
-            )
-    except BaseException:
-        for registry, before in ((CORES, cores), (POLICIES, policies)):
-            for n in [n for n in registry if n not in before]:
-                del registry[n]
-        _objects.unregister_since(objs)
-        raise
+    got = recorded_file.run_registering(
+        "plugin", record, "ham_plugin", {"core": CORES, "policy": POLICIES},
+        "no core or location policy",
+        "a file that calls ham.model.core.register_core or ham.model.policy.register_policy",
+    )  # fmt: skip
+    added = [f"{label} {n}" for label, names in got.items() for n in names]
     _LOADED[sha] = tuple(added)
     return list(added)

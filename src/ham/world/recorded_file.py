@@ -87,3 +87,41 @@ def call(what: str, name: str, fn, *args, **kwargs):
         raise HamError(
             f"{what} {name!r} raised {type(exc).__name__}{where}: {one_line(exc)}"
         ) from None
+
+
+def run_registering(
+    what: str, record: dict, module: str, registries: dict[str, dict], nothing: str, hint: str
+) -> dict[str, list[str]]:
+    """Run the Python of the (checked) ``record``; the names it added to each of ``registries``
+    (a label -> a dict registry, e.g. ``{"core": CORES}``).
+
+    A file that fails, adds nothing (``nothing``: what it should add; ``hint``: how) or registers
+    objects (they belong in an objects file, which a world records) leaves every registry, the
+    objects' too, as it was.
+    """
+    from ham.world import objects as _objects  # objects reads its files with this module
+
+    name = record["name"]
+    before = {label: set(registry) for label, registry in registries.items()}
+    objs = set(_objects.names())
+    try:
+        run_python(what, name, record["source"], module)
+        added_objects = [n for n in _objects.names() if n not in objs]
+        if added_objects:
+            raise HamError(
+                f"{what} {name!r} registers objects {added_objects}; accepted: objects in an "
+                "objects file (--objects-file), which tables and runs record"
+            )
+        added = {
+            label: [n for n in registry if n not in before[label]]
+            for label, registry in registries.items()
+        }
+        if not any(added.values()):
+            raise HamError(f"{what} {name!r} registers {nothing}; accepted: {hint}")
+    except BaseException:
+        for label, registry in registries.items():
+            for n in [n for n in registry if n not in before[label]]:
+                del registry[n]
+        _objects.unregister_since(objs)
+        raise
+    return added

@@ -26,7 +26,6 @@ from pathlib import Path
 import torch
 
 from ham.errors import HamError
-from ham.world import objects as _objects
 from ham.world import recorded_file
 
 #: The simulators of the package itself; no file or program may register these names.
@@ -111,30 +110,16 @@ def load_simulator_file(record: dict) -> list[str]:
     name, sha = record["name"], record["sha256"]
     if sha in _LOADED:
         return list(_LOADED[sha])
-    before, objs = set(_SIMULATORS), set(_objects.names())
     _LOADING.append(name)
     try:
-        recorded_file.run_python("simulator file", name, record["source"], "ham_simulator_file")
-        added_objects = [n for n in _objects.names() if n not in objs]
-        if added_objects:
-            raise HamError(
-                f"simulator file {name!r} registers objects {added_objects}; accepted: objects "
-                "in an objects file (--objects-file)"
-            )
-        added = [n for n in _SIMULATORS if n not in before]
-        if not added:
-            raise HamError(
-                f"simulator file {name!r} registers no simulator; accepted: a file that calls "
-                "ham.world.simulators.register_simulator(NAME, factory)"
-            )
-    except BaseException:
-        for n in [n for n in _SIMULATORS if n not in before]:
-            del _SIMULATORS[n]
-            _ORIGIN.pop(n, None)
-        _objects.unregister_since(objs)
-        raise
+        added = recorded_file.run_registering(
+            "simulator file", record, "ham_simulator_file", {"simulator": _SIMULATORS},
+            "no simulator", "a file that calls ham.world.simulators.register_simulator(NAME, factory)",
+        )["simulator"]  # fmt: skip
     finally:
         _LOADING.pop()
+        for n in [n for n in _ORIGIN if n not in _SIMULATORS]:  # rolled back
+            del _ORIGIN[n]
     _LOADED[sha] = tuple(added)
     return list(added)
 
