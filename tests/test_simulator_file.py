@@ -220,6 +220,9 @@ def test_a_grid_names_world_files_beside_it(tmp_path):
     assert sorted(w["simulator"] for w in worlds) == ["binary", "fast"]
     assert all(w["objects"] == "simfile_wedge,simfile_flat" for w in worlds)
     assert all(w["objects_file"]["name"] == "shapes.toml" for w in worlds)
+    report = (tmp_path / "o" / "report.md").read_text()  # a file by its name, not its text
+    assert 'world: simulator_file="pad.py", simulator="binary"' in report
+    assert "register_simulator" not in report
     (tmp_path / "g.toml").write_text((tmp_path / "g.toml").read_text().replace("sims/", "no/"))
     line = one_line_error(run_ham_inprocess("reproduce", "grid", "g.toml", "--out", "o2",
                                             cwd=tmp_path))  # fmt: skip

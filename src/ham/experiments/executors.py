@@ -174,11 +174,46 @@ def _single_tasks(jobs: list[Job], root: Path, world: dict, grid: int | None) ->
 def _batched_tasks(
     jobs: list[Job], root: Path, world: dict, grid: int | None, options: BatchedOptions
 ) -> list[_Task]:
-    """A task a batched model (:func:`group_jobs`, :func:`run_batch`): the batched executors."""
+    """A task a batched model (:func:`group_jobs`, :func:`run_batch`): the batched executors.
+    A run no batched model can train (:func:`unbatchable`) is a task of its own, as the local
+    executor's, on the same pool."""
+    single = unbatchable(jobs)
+    batchable = [j for j in jobs if j.key not in single]
     groups = [[j.to_dict() for j in g]
-              for g in group_jobs(jobs, options.batch_runs, options.merge_glances)]  # fmt: skip
-    return [_Task(_safe_batch, (g, str(root), world, grid, options), [j["key"] for j in g])
-            for g in groups]  # fmt: skip
+              for g in group_jobs(batchable, options.batch_runs, options.merge_glances)]  # fmt: skip
+    tasks = [_Task(_safe_batch, (g, str(root), world, grid, options), [j["key"] for j in g])
+             for g in groups]  # fmt: skip
+    return tasks + _single_tasks([j for j in jobs if j.key in single], root, world, grid)
+
+
+def unbatchable(jobs: Iterable) -> dict[str, str]:
+    """The runs among ``jobs`` (``.key``, ``.config``) that no batched model can train (a core
+    other than lstm/mlp, the learned stop, another learner, ...: :func:`ham.learn.batched.
+    check_batchable`), by key: why, e.g. ``core 'transformer' cannot be batched``."""
+    from ham.learn.batched import check_batchable
+    from ham.learn.train import TrainConfig
+
+    out = {}
+    for job in jobs:
+        try:
+            check_batchable(TrainConfig.from_dict(job.config))
+        except HamError as exc:
+            out[job.key] = str(exc).split(";")[0]
+    return out
+
+
+def unbatchable_note(jobs: list) -> str | None:
+    """One line for the runs a batched executor trains one by one (``None`` when there are none),
+    for the terminal and the report: how many, and why for the first."""
+    single = unbatchable(jobs)
+    if not single:
+        return None
+    key, why = next(iter(single.items()))
+    more = f" and {len(single) - 1} more" if len(single) > 1 else ""
+    return (
+        f"{len(single)} of {len(jobs)} run(s) cannot be batched (run {key}: {why}{more}): they "
+        "train one by one, as with --executor local (batched options do not apply to them)"
+    )
 
 
 def _on_pool(tasks: list[_Task], workers: int, on_result: Callable[[dict], None]) -> None:
@@ -388,21 +423,10 @@ class BatchedOptions:
 
 
 def check_batched_options(
-    executor: str, options: BatchedOptions, devices: Iterable[str] = (), jobs: Iterable = ()
+    executor: str, options: BatchedOptions, devices: Iterable[str] = ()
 ) -> None:
-    """``options`` need a batched executor, and a CUDA graph the runs' ``devices`` all CUDA;
-    with a batched executor every one of ``jobs`` (``.key``, ``.config``) must be batchable,
-    refused before a table is built or a run starts."""
-    if executor in BATCHED_EXECUTORS:
-        from ham.learn.batched import check_batchable
-        from ham.learn.train import TrainConfig
-
-        for job in jobs:
-            try:
-                check_batchable(TrainConfig.from_dict(job.config))
-            except HamError as exc:
-                raise HamError(f"run {job.key}: {exc}") from None
-    else:
+    """``options`` need a batched executor, and a CUDA graph the runs' ``devices`` all CUDA."""
+    if executor not in BATCHED_EXECUTORS:
         given = options.given()
         if given:
             verb = "needs" if len(given) == 1 else "need"

@@ -727,8 +727,11 @@ def settings_text(settings: Mapping) -> str:
     """``glances=3, policy=random`` for a report."""
 
     def text(k, v) -> str:
-        if k == "world":  # a cell's own world: the fields it sets
-            return "world: " + ", ".join(f"{a}={json.dumps(b)}" for a, b in v["table"].items())
+        if k == "world":  # a cell's own world: the fields it sets (a file by its name)
+            return "world: " + ", ".join(
+                f"{a}={json.dumps(b['name'] if a in _WORLD_FILES and isinstance(b, Mapping) else b)}"
+                for a, b in v["table"].items()
+            )
         return f"{_short(k)}={_value_text(v)}"
 
     return ", ".join(text(k, v) for k, v in settings.items())

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -21,12 +22,14 @@ import numpy as np
 
 from ham.errors import HamError
 from ham.experiments.executors import (
+    BATCHED_EXECUTORS,
     EXECUTORS,
     BatchedOptions,
     check_batched_options,
     check_ray_address,
     execute,
     ray_session,
+    unbatchable_note,
 )
 from ham.experiments.grid import Grid, GridJob, load_grid, settings_text
 from ham.experiments.reproduce import _environment, _fmt, _write_json, mean_sem
@@ -96,7 +99,10 @@ def run_grid(
     root = Path(out).resolve()
     tables = grid.table_paths(root, cache_dir)
     jobs = grid.jobs(tables)
-    check_batched_options(executor, batched, [j.config.get("device", "cpu") for j in jobs], jobs)
+    check_batched_options(executor, batched, [j.config.get("device", "cpu") for j in jobs])
+    note = unbatchable_note(jobs) if executor in BATCHED_EXECUTORS else None
+    if note and progress:
+        print(note, file=sys.stderr)
     _check_existing_runs(root, jobs)
     with ray_session(executor, ray_address, workers):  # before anything is written
         root.mkdir(parents=True, exist_ok=True)
@@ -118,7 +124,9 @@ def run_grid(
             executor=executor, workers=workers, ray_address=ray_address, retries=retries,
             progress=progress, desc=f"grid {grid.name}", batched=batched,
         )  # fmt: skip
-    summary = write_report(root, grid, jobs, failures, command=command, executor=executor)
+    summary = write_report(
+        root, grid, jobs, failures, command=command, executor=executor, note=note
+    )
     summary["skipped"] = len(jobs) - len(todo)
     summary["ran"] = sum(r["status"] == "done" for r in results.values())
     return summary
@@ -329,8 +337,10 @@ def write_report(
     *,
     command: str | None,
     executor: str,
+    note: str | None = None,
 ) -> dict:
-    """``results.json``, ``report.md`` and ``curves.png`` from the finished runs."""
+    """``results.json``, ``report.md`` and ``curves.png`` from the finished runs; ``note``: a
+    line on how the executor ran them (:func:`ham.experiments.executors.unbatchable_note`)."""
     cells = aggregate(root, grid, jobs)
     summary = {"grid": grid.to_dict(), "cells": cells, "failures": failures}
     _write_json(root / "results.json", summary)
@@ -342,7 +352,8 @@ def write_report(
         "",
         *([grid.description, ""] if grid.description else []),
         f"Command: `{command or 'ham reproduce grid ' + grid.name}`",
-        f"Executor: {executor}. Written {time.strftime('%Y-%m-%d %H:%M:%S %Z')}.",
+        f"Executor: {executor}. Written {time.strftime('%Y-%m-%d %H:%M:%S %Z')}."
+        + (f" {note[0].upper()}{note[1:]}." if note else ""),
         "",
         f"{len(jobs)} run(s) in {len(cells)} cell(s); glances: {where}; world objects "
         f"`{grid.world.get('objects')}`. Every run: "

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from ham.model.core import CORES
 from ham.model.policy import POLICIES
-from ham.world import recorded_file
+from ham.world import recorded_file, registering
 
 SUFFIXES: tuple[str, ...] = (".py",)
 #: sha256 -> the names the plugin registered: a process runs each plugin once.
@@ -44,7 +44,7 @@ def load_plugin(record: dict) -> list[str]:
     sha = record["sha256"]
     if sha in _LOADED:
         return list(_LOADED[sha])
-    got = recorded_file.run_registering(
+    got = registering.run_registering(
         "plugin", record, "ham_plugin", {"core": CORES, "policy": POLICIES},
         "no core or location policy",
         "a file that calls ham.model.core.register_core or ham.model.policy.register_policy",

@@ -26,7 +26,7 @@ from pathlib import Path
 import torch
 
 from ham.errors import HamError
-from ham.world import recorded_file
+from ham.world import recorded_file, registering
 
 #: The simulators of the package itself; no file or program may register these names.
 BUILT_IN: tuple[str, ...] = ("fast", "mujoco")
@@ -112,7 +112,7 @@ def load_simulator_file(record: dict) -> list[str]:
         return list(_LOADED[sha])
     _LOADING.append(name)
     try:
-        added = recorded_file.run_registering(
+        added = registering.run_registering(
             "simulator file", record, "ham_simulator_file", {"simulator": _SIMULATORS},
             "no simulator", "a file that calls ham.world.simulators.register_simulator(NAME, factory)",
         )["simulator"]  # fmt: skip
