@@ -26,15 +26,16 @@ def run_ham(*args: str, cwd=None, timeout: float = 300) -> subprocess.CompletedP
 
 @contextlib.contextmanager
 def registries_restored():
-    """The registries of objects, simulators, cores and policies (and the loaded plugins and
+    """The registries of objects, simulators, cores, policies and learners (and the loaded plugins and
     simulator files) as they were before the block: an objects file, simulator file or plugin it
     loads stays out of the other tests."""
+    from ham.learn import learners
     from ham.model import core, plugin, policy
     from ham.world import objects, simulators
 
     registry = (objects._REGISTRY, objects._ORDER, objects._ORIGIN, objects._FILES, objects._LAZY,
                 core.CORES, policy.POLICIES, plugin._LOADED, simulators._SIMULATORS,
-                simulators._ORIGIN, simulators._LOADED)  # fmt: skip
+                simulators._ORIGIN, simulators._LOADED, learners.LEARNERS, learners.READS)  # fmt: skip
     saved = [r.copy() for r in registry]
     try:
         yield

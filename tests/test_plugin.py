@@ -100,7 +100,7 @@ BAD = {
     "": (None, "plugin '': accepted: a .py file"),
     "latin1.py": (b"# \xe9\n", "cannot read plugin 'latin1.py': 'utf-8' codec can't decode"),
     "mine.txt": ("x = 1\n", "accepted: a .py file that registers cores or location policies"),
-    "empty.py": ("x = 1\n", "registers no core or location policy"),
+    "empty.py": ("x = 1\n", "registers no core, location policy or learner; accepted: a file"),
     "syntax.py": ("def f(:\n", "syntax error at line 1"),
     "raises.py": ("x = 1\nraise ValueError('no\\nway')\n", "raised ValueError at line 2: no way"),
     "clash.py": (

@@ -41,9 +41,10 @@ def add_commands(subparsers) -> None:
         skip={"n_objects", "pressure_dim", "pose_dims", "moves", "move_length", "plugin"},
     )
     net.add_argument("--plugin", metavar="FILE.py",
-                     help="a Python file that registers your own cores or location policies "
-                     "(ham.model.core.register_core, ham.model.policy.register_policy) for "
-                     "--core/--policy; the run records its text (docs/agent.md)")  # fmt: skip
+                     help="a Python file that registers your own cores, location policies or "
+                     "learners (ham.model.core.register_core, ham.model.policy.register_policy, "
+                     "ham.learn.learners.register_learner) for --core/--policy/--learner; the "
+                     "run records its text (docs/agent.md, docs/learners.md)")  # fmt: skip
     src = p.add_mutually_exclusive_group()
     src.add_argument("--table", metavar="FILE", help="glance table (HDF5) to look glances up in")
     src.add_argument("--online", action="store_true",

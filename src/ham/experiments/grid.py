@@ -182,8 +182,8 @@ class Grid:
         world: the :class:`ham.world.config.WorldConfig` dict every run uses.
         table_grid: ``N`` trains on an N x N glance table built from ``world``; ``None`` online.
         evaluate: re-evaluations of each run's final checkpoint: ``policy``, ``batches``, ``seed``.
-        plugin: the record of a plugin file (:mod:`ham.model.plugin`) whose cores and policies
-            the cells may name; the runs that use them keep it in their config.
+        plugin: the record of a plugin file (:mod:`ham.model.plugin`) whose cores, policies and
+            learners the cells may name; the runs that use them keep it in their config.
     """
 
     name: str
@@ -296,7 +296,8 @@ class Grid:
             raise HamError(
                 f"{w}: plugin {self.plugin['name']!r} registers "
                 f"{', '.join(sorted(self._plugin_names))}, which no cell uses; accepted: a grid "
-                "whose cells name the plugin's core or policy (model.core, model.policy)"
+                "whose cells name the plugin's core, policy or learner (model.core, model.policy, "
+                "learner)"
             )
 
     def _checked_axes(self, w: str) -> dict:
@@ -465,8 +466,9 @@ class Grid:
                 model[k[len("model.") :]] = v
             else:
                 train[k] = v
-        if self.plugin is not None:  # only the runs that use its core or policy keep it
-            uses = {f"core {model.get('core')}", f"policy {model.get('policy')}"}
+        if self.plugin is not None:  # only the runs that use its core, policy or learner keep it
+            uses = {f"core {model.get('core')}", f"policy {model.get('policy')}",
+                    f"learner {train.get('learner')}"}  # fmt: skip
             if uses & self._plugin_names:
                 model["plugin"] = self.plugin
         return TrainConfig(

@@ -50,6 +50,7 @@ from ham.learn.info_loss import (
     information_gain,
     mean_travel_penalty,
 )
+from ham.learn.learners import LEARNER_OPTIONS, LEARNERS, READS, learner_loss, unknown_learner
 from ham.learn.off_policy import SacLoss, SacState, sac_update
 from ham.learn.probe import PROBE_SCORES, probe_due, probe_glances, probe_round, probe_schedule
 from ham.learn.stopping import STOP_LEARNERS, stop_loss
@@ -65,25 +66,6 @@ METRICS_FILE = "metrics.json"
 CHECKPOINT_FILE = "checkpoint.pt"
 TIMING_FILE = "timing.json"
 DEVICES: tuple[str, ...] = ("cpu", "cuda")
-LEARNERS: tuple[str, ...] = ("hybrid", "info", "sac")
-#: The TrainConfig fields only some learners read (the rest read all or none of them): a value
-#: away from the default with another learner is refused, not ignored.
-LEARNER_OPTIONS: dict[str, tuple[str, ...]] = {
-    "beta": ("hybrid",),
-    "classification_reduction": ("hybrid",),
-    "reinforce_reduction": ("hybrid",),
-    "gamma": ("info", "sac"),
-    "gae_lambda": ("info",),
-    "entropy_coef": ("info",),
-    "normalize_advantage": ("info",),
-    "replay_size": ("sac",),
-    "replay_batch": ("sac",),
-    "sac_updates": ("sac",),
-    "target_tau": ("sac",),
-    "init_alpha": ("sac",),
-    "target_entropy": ("sac",),
-    "critic_trains_core": ("sac",),
-}
 OPTIMIZERS: tuple[str, ...] = ("sgd", "adam")
 #: ``TrainConfig.first_pose_lr_scale``'s default (docs/learners.md, "A learned stop")
 FIRST_POSE_LR_SCALE = 10.0
@@ -130,7 +112,8 @@ class TrainConfig:
             ``info`` (beyond the paper: cross-entropy after every glance and an actor-critic
             on the information each glance gains, :mod:`ham.learn.info_loss`) or ``sac`` (the
             same classification, the location policy by a soft actor-critic over replayed
-            episodes, :mod:`ham.learn.off_policy`).
+            episodes, :mod:`ham.learn.off_policy`), or a learner of your own from a plugin
+            (:mod:`ham.learn.learners`).
         optimizer: ``sgd`` (the paper: SGD, Nesterov momentum) or ``adam`` (at the same
             learning-rate schedule; beta_1 = momentum).
         gamma: discount of the information reward over the glances (info learner; 0.5: a
@@ -299,6 +282,9 @@ class TrainConfig:
         if not (math.isfinite(self.beta) and self.beta >= 0):
             raise HamError(f"beta = {self.beta!r}; accepted: a finite number >= 0")
         check_seed(self.seed)
+        if self.learner not in LEARNERS:  # a name of the user's own: say how
+            raise unknown_learner(self.learner)
+        self._check_plugin_used()
         check_choices(self)
         for name in ("gamma", "gae_lambda"):
             v = getattr(self, name)
@@ -424,6 +410,22 @@ class TrainConfig:
                 f"but the budget gives {self.steps} steps; accepted: a budget of more steps"
             )
 
+    def _check_plugin_used(self) -> None:
+        """A plugin that registers a learner: the run uses its core, policy or learner."""
+        plugin = self.model.plugin
+        if plugin is None:
+            return
+        from ham.model.plugin import load_plugin
+
+        registered = load_plugin(plugin)  # loaded once, by HamConfig
+        uses = {f"core {self.model.core}", f"policy {self.model.policy}", f"learner {self.learner}"}
+        if not uses & set(registered):
+            raise HamError(
+                f"plugin {plugin['name']!r} with core {self.model.core!r}, policy "
+                f"{self.model.policy!r} and learner {self.learner!r}, none of which it registers; "
+                f"accepted: --core, --policy or --learner of the plugin's ({', '.join(registered)})"
+            )
+
     def _check_unused(self) -> None:
         """A field set away from its default where nothing reads it is refused, not ignored:
         another learner's options, the move cost's place without a move cost, the stop's
@@ -431,6 +433,7 @@ class TrainConfig:
         defaults = {f.name: f.default for f in fields(self)}
         for name, learners in LEARNER_OPTIONS.items():
             value = getattr(self, name)
+            learners = learners + tuple(n for n, reads in READS.items() if name in reads)
             if self.learner not in learners and value != defaults[name]:
                 raise HamError(
                     f"{name} = {value!r} with learner {self.learner!r}, which does not read it; "
@@ -1039,8 +1042,10 @@ def train_step(run: Run) -> HybridLoss | InfoLoss | SacLoss:
                 loss.total
                 + stop_loss(episode, c.glance_cost, run.policy_generator, c.stop_learner).total
             )
-    else:
+    elif c.learner == "hybrid":
         loss = hybrid_loss(episode, c.beta, c.classification_reduction, c.reinforce_reduction)
+    else:  # a learner of the user's own (ham.learn.learners)
+        loss = learner_loss(c.learner, episode, c)
     _descend(run, loss.total)
     run.step += 1
     _check_weights(run)

@@ -102,8 +102,9 @@ class HamConfig:
         move_length: the sensor's full step per move (set with ``moves`` for ``grid-corner``,
             which plans its walk in it; 0: unused).
         plugin: the record ``{"name", "sha256", "source"}`` of the user's plugin file that
-            registers ``core`` or ``policy`` (``--plugin FILE.py``, :mod:`ham.model.plugin`): run
-            before the config is checked, so a saved config loads anywhere.
+            registers ``core`` or ``policy`` (or the run's learner, which TrainConfig checks;
+            ``--plugin FILE.py``, :mod:`ham.model.plugin`): run before the config is checked, so
+            a saved config loads anywhere.
         std_activation: ``softplus`` (paper) or ``sigmoid`` (authors' code) for ``sigma``.
         sigma_min: floor added to ``sigma`` for numerical safety (not in the paper).
         phi_scale: the pose fed to the tactile network is ``(q_x, q_phi * phi_scale)`` (pi/2).
@@ -175,7 +176,10 @@ class HamConfig:
     def __post_init__(self) -> None:
         if self.plugin is not None:
             registered = load_plugin(self.plugin)
-            if not {f"core {self.core}", f"policy {self.policy}"} & set(registered):
+            learners = any(r.startswith("learner ") for r in registered)  # TrainConfig checks
+            if not learners and not {f"core {self.core}", f"policy {self.policy}"} & set(
+                registered
+            ):
                 raise HamError(
                     f"plugin {self.plugin['name']!r} with core {self.core!r} and policy "
                     f"{self.policy!r}, neither of which it registers; accepted: --core or "
