@@ -169,3 +169,30 @@ def test_a_grid_runs_a_plugin_learner_alone_under_the_batched_executor(tmp_path,
     assert config["learner=hybrid-s0"]["model"]["plugin"] is None  # only its users keep it
     assert config["learner=no_baseline-s0"]["model"]["plugin"]["name"] == "nb.py"
     assert all(json.loads((d / "metrics.json").read_text())["steps"] == 2 for d in runs.iterdir())
+
+
+def test_a_plugin_that_imports_the_learn_layer_itself_is_counted_and_rolled_back(tmp_path):
+    """In a process that has not imported ham.learn, the learners' registry joins the plugin
+    registries while the plugin runs: its learner counts, and a failure removes it."""
+    import subprocess
+    import sys
+
+    (tmp_path / "half.py").write_text(NO_BASELINE.read_text() + "1 / 0\n")
+    code = (
+        "import sys\nfrom ham.model.plugin import load_plugin, read_plugin\n"
+        "assert 'ham.learn.learners' not in sys.modules\n"
+        f"print(load_plugin(read_plugin({str(NO_BASELINE)!r})))\n"
+        "from ham.learn.learners import LEARNERS\nprint(list(LEARNERS))\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert r.stdout.split("\n")[:2] == [
+        "['learner no_baseline']", "['hybrid', 'info', 'sac', 'no_baseline']"]  # fmt: skip
+    code = (
+        "from ham.errors import HamError\nfrom ham.model.plugin import load_plugin, read_plugin\n"
+        f"try:\n    load_plugin(read_plugin({str(tmp_path / 'half.py')!r}))\n"
+        "except HamError as exc:\n    print(exc)\n"
+        "from ham.learn.learners import LEARNERS\nprint(list(LEARNERS))\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert "plugin 'half.py' raised ZeroDivisionError at line" in r.stdout
+    assert r.stdout.strip().split("\n")[-1] == "['hybrid', 'info', 'sac']"
