@@ -337,6 +337,15 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("train-device-cpu-abc", ["train", "--out", "r", "--device", "cpu:abc"], "'cpu:abc'"),
     ("train-device-tpu", ["train", "--out", "r", "--device", "tpu"], "'tpu'"),
     ("train-device-empty", ["train", "--out", "r", "--device", ""], "''"),
+    # an empty value was read as not given: online glances instead of the table, no picture
+    ("train-table-empty", ["train", "--out", "r", "--table", ""], "--table ''; accepted: a value"),
+    ("train-table-equals-empty", ["train", "--out", "r", "--table="], "--table ''"),
+    ("train-resume-empty", ["train", "--resume", ""], "--resume ''"),
+    ("objects-image-empty", ["objects", "--image", "", "--name", "x"], "--image ''"),
+    ("objects-export-empty", ["objects", "--export", ""], "--export ''"),
+    ("glance-out-empty", ["glance", "--object", "box", "--x", "0", "--phi", "0", "--out", ""], "--out ''"),
+    ("evaluate-run-empty", ["evaluate", ""], "RUN ''; accepted: a value"),
+    ("table-build-simulator-file-empty", ["table", "build", "--grid", "3", "--out", "t.h5", "--simulator-file", ""], "--simulator-file ''"),
     ("train-device-cuda-99", ["train", "--out", "r", "--device", "cuda:99"], "'cuda:99'"),
     ("train-table-missing", ["train", "--out", "r", "--table", "nosuch.h5"], "'nosuch.h5'"),
     ("train-table-dir", ["train", "--out", "r", "--table", "adir"], "'adir'"),
@@ -519,6 +528,20 @@ def test_cli_bad_input_subprocess(name, fx, work, ham_cli):
     r = ham_cli(*expand(args, fx), cwd=work, timeout=120)
     assert r.returncode == 2, f"exit {r.returncode}; stdout: {r.stdout[-500:]}; stderr: {r.stderr}"
     check_message(r.stderr, needle)
+
+
+def test_a_reader_that_leaves_early_is_no_error(work):
+    """``ham objects | head -1``: the pipe closes before ham writes; it exits as a command killed
+    by SIGPIPE (141), with nothing on stderr (it said ``ham: error: [Errno 32] Broken pipe``)."""
+    import subprocess
+
+    from tests.conftest import ham_command
+
+    argv, env = ham_command("objects")
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=work, env=env)
+    proc.stdout.close()  # before ham writes: importing torch takes seconds
+    _, err = proc.communicate(timeout=120)
+    assert (proc.returncode, err) == (141, b"")
 
 
 # --------------------------------------------------------------------------- Python API cases

@@ -97,7 +97,7 @@ def test_a_run_of_an_unregistered_policy_says_how_to_register_it(tmp_path):
 
 BAD = {
     "missing.py": (None, "plugin 'missing.py' does not exist"),
-    "": (None, "plugin '': accepted: a .py file"),
+    "": (None, "--plugin ''; accepted: a value"),
     "latin1.py": (b"# \xe9\n", "cannot read plugin 'latin1.py': 'utf-8' codec can't decode"),
     "mine.txt": ("x = 1\n", "accepted: a .py file that registers cores or location policies"),
     "empty.py": ("x = 1\n", "registers no core, location policy or learner; accepted: a file"),

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import math
+import os
 import re
 import sys
 from collections.abc import Sequence
@@ -503,6 +504,18 @@ def _out_of_memory(exc: BaseException, text: str) -> bool:
     return type(exc).__name__ == "OutOfMemoryError" or "can't allocate memory" in text
 
 
+def _empty_option(args: argparse.Namespace, argv: list[str]) -> str | None:
+    """The first option or argument given an empty value (``--table ''``, ``--out=``, ``ham
+    evaluate ''``): never meaningful in this CLI, and a command that reads ``if args.table:``
+    would take it as not given. (No option's default is empty.)"""
+    for dest, value in vars(args).items():
+        if value == "" or (isinstance(value, list) and "" in value):
+            flag = "--" + dest.replace("_", "-")
+            given = any(tok == flag or tok.startswith(flag + "=") for tok in argv)
+            return flag if given else dest.upper()
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -510,12 +523,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     args._ham_argv = argv  # what tables record as their command (ham.cli.options.command_line)
     if not getattr(args, "func", None):
         _need_action(parser, "command", "COMMAND")
+    empty = _empty_option(args, argv)
+    if empty is not None:
+        print(f"ham: error: {empty} ''; accepted: a value (an empty one reads as not given)",
+              file=sys.stderr)  # fmt: skip
+        return 2
     try:
         return int(args.func(args) or 0)
     except HamError as exc:
         # one line, whatever a wrapped library message held (h5py's span several)
         print(f"ham: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # `ham objects | head`: the reader left, which is no error of ours
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no 2nd one at exit
+        return 141  # as a command killed by SIGPIPE
     except OSError as exc:  # a file the user named that the checks did not foresee: still one line
         print(f"ham: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
