@@ -343,7 +343,7 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("train-resume-empty", ["train", "--resume", ""], "--resume ''"),
     ("objects-image-empty", ["objects", "--image", "", "--name", "x"], "--image ''"),
     ("objects-export-empty", ["objects", "--export", ""], "--export ''"),
-    ("glance-out-empty", ["glance", "--object", "box", "--x", "0", "--phi", "0", "--out", ""], "--out ''"),
+    ("glance-out-empty-string", ["glance", "--object", "box", "--x", "0", "--phi", "0", "--out", ""], "--out ''"),
     ("evaluate-run-empty", ["evaluate", ""], "RUN ''; accepted: a value"),
     ("table-build-simulator-file-empty", ["table", "build", "--grid", "3", "--out", "t.h5", "--simulator-file", ""], "--simulator-file ''"),
     ("train-device-cuda-99", ["train", "--out", "r", "--device", "cuda:99"], "'cuda:99'"),
