@@ -227,3 +227,29 @@ def test_a_grid_names_world_files_beside_it(tmp_path):
     line = one_line_error(run_ham_inprocess("reproduce", "grid", "g.toml", "--out", "o2",
                                             cwd=tmp_path))  # fmt: skip
     assert "axis 'pad' world: simulator file" in line and "does not exist" in line
+
+
+def test_gym_envs_glance_through_a_simulator_file(tmp_path):
+    import gymnasium as gym
+
+    import ham.envs  # noqa: F401 - registers the environments
+
+    with registries_restored():
+        world = WorldConfig(simulator="binary", simulator_file=simulators.read_simulator_file(PAD))
+        env = gym.make("ham/HapticGlance-v0", world=world.to_dict())
+        env.reset(seed=0)
+        env.action_space.seed(0)
+        levels = []  # one bit per taxel: an image holds 0 and at most one other (normalized) value
+        for _ in range(12):
+            obs, _, terminated, truncated, _ = env.step(env.action_space.sample())
+            levels.append(len(np.unique(obs["pressure"])))
+            if terminated or truncated:
+                env.reset()
+        assert max(levels) == 2, levels  # some glances touched, none read more than one level
+    ok(run_ham_inprocess("envs", "check", "--simulator-file", str(PAD), "--glances", "2",
+                         "--num-envs", "2", cwd=tmp_path))  # fmt: skip
+    ok(run_ham_inprocess("table", "build", "--grid", "3", "--out", "t.h5", "--quiet",
+                         cwd=tmp_path))  # fmt: skip
+    line = one_line_error(run_ham_inprocess("envs", "check", "--simulator-file", str(PAD),
+                                            "--table", "t.h5", cwd=tmp_path))  # fmt: skip
+    assert "is the online world's; the table 't.h5' has its own" in line

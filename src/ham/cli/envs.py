@@ -52,6 +52,9 @@ def add_commands(subparsers) -> None:
     add_sensor_options(q, geometry_only=True)  # the online world's pad (a table has its own)
     q.add_argument("--objects", default=None, help="online object set (default: paper)")
     add_objects_file_option(q)
+    q.add_argument("--simulator-file", metavar="FILE",
+                   help="a .py file that registers your own simulator: the online world's "
+                   "(docs/world.md)")  # fmt: skip
     q.set_defaults(func=cmd_check)
 
     q = sub.add_parser("bench", help="environment steps per second (ours, and one ap_gym env)")
@@ -210,13 +213,22 @@ def cmd_check(args: argparse.Namespace) -> int:
     if args.table is not None and args.objects is not None:
         raise HamError(f"--objects {args.objects!r} chooses the online world's objects; the table "
                        f"{args.table!r} has its own: give one of them")  # fmt: skip
-    if changes or args.objects is not None or args.objects_file is not None:
+    if args.table is not None and args.simulator_file is not None:
+        raise HamError(f"--simulator-file {args.simulator_file!r} is the online world's; the "
+                       f"table {args.table!r} has its own: give one of them")  # fmt: skip
+    if changes or args.objects is not None or args.objects_file is not None or args.simulator_file:
+        from ham.cli.options import simulator_from_args
         from ham.world.config import WorldConfig
         from ham.world.sensor import SensorConfig
 
         objects, record = objects_from_args(args)
+        sim_record, simulator = simulator_from_args(args)
         world = WorldConfig(
-            objects=objects, objects_file=record, sensor=SensorConfig(**changes)
+            objects=objects,
+            objects_file=record,
+            sensor=SensorConfig(**changes),
+            simulator=simulator or "fast",
+            simulator_file=sim_record,
         ).to_dict()
     for line in check_all(args.table, args.glances, args.num_envs, world):
         print(line)
