@@ -253,3 +253,19 @@ def test_gym_envs_glance_through_a_simulator_file(tmp_path):
     line = one_line_error(run_ham_inprocess("envs", "check", "--simulator-file", str(PAD),
                                             "--table", "t.h5", cwd=tmp_path))  # fmt: skip
     assert "is the online world's; the table 't.h5' has its own" in line
+
+
+def test_the_binary_pad_reads_out_the_extended_glance_of_a_world_with_y(tmp_path):
+    """A factory with a ``world`` parameter is given the world: the example builds the world's
+    own fast glance, here the extended one (x, y, phi, phi_y on height fields)."""
+    args = ["--objects", "composite:train", "--pose-dims", "x,y,phi,phi_y", "--grid", "5,5,3,3",
+            "--quiet"]  # fmt: skip
+    ok(run_ham_inprocess("table", "build", "--simulator-file", str(PAD), *args, "--out", "b.h5",
+                         cwd=tmp_path))  # fmt: skip
+    ok(run_ham_inprocess("table", "build", *args, "--out", "f.h5", cwd=tmp_path))
+    with h5py.File(tmp_path / "b.h5") as b, h5py.File(tmp_path / "f.h5") as f:
+        names = json.loads(f.attrs["objects"])
+        binary = np.stack([b[f"objects/{n}/pressure"][...] for n in names])
+        fast = np.stack([f[f"objects/{n}/pressure"][...] for n in names])
+    assert np.array_equal(binary, np.where(fast > 1000.0, 5000.0, 0.0).astype(np.float32))
+    assert (binary > 0).any()

@@ -201,7 +201,7 @@ def make_simulator(
             objs, config.sensor, config.pose, config.glance, **{**config.mujoco, **kwargs}
         )
     return _simulators.make_registered(
-        name, objs, config.sensor, config.pose, config.glance, device=device, **kwargs
+        name, objs, config.sensor, config.pose, config.glance, world=config, device=device, **kwargs
     )
 
 

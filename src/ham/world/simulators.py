@@ -1,7 +1,8 @@
 """The simulators a world may name: ``fast``, ``mujoco``, and your own (``--simulator-file``).
 
-A simulator of your own is a factory ``factory(objects, sensor, pose, glance, device=...)`` that
-returns a :class:`ham.world.glance.Simulator` (``name``, ``objects``, ``glance``, ``describe``);
+A simulator of your own is a factory ``factory(objects, sensor, pose, glance, device=...)`` (and
+``world=...``, the WorldConfig, when it has that parameter) that returns a
+:class:`ham.world.glance.Simulator` (``name``, ``objects``, ``glance``, ``describe``);
 :func:`register_simulator` makes it available under a name. From the command line, a
 *simulator file* (a self-contained ``.py`` file that calls ``register_simulator``) is given with
 ``--simulator-file FILE.py``: a world keeps the file's record (name, sha256, text:
@@ -19,6 +20,7 @@ and its line.
 
 from __future__ import annotations
 
+import inspect
 import re
 from collections.abc import Callable
 from pathlib import Path
@@ -124,14 +126,27 @@ def load_simulator_file(record: dict) -> list[str]:
     return list(added)
 
 
-def make_registered(name: str, objects: list, sensor, pose, glance, **kwargs) -> CheckedSimulator:
-    """The registered simulator ``name`` over ``objects``, its glances checked."""
+def make_registered(
+    name: str, objects: list, sensor, pose, glance, world=None, **kwargs
+) -> CheckedSimulator:
+    """The registered simulator ``name`` over ``objects``, its glances checked. A factory with a
+    parameter ``world`` is given the :class:`ham.world.config.WorldConfig` too (its pose dims,
+    its other fields: e.g. to build the built-in glance of that world and read it out anew)."""
     factory = _SIMULATORS.get(name)
     if factory is None:
         raise unknown_simulator(name)
     what, where = _who(name)
+    if world is not None and _takes_world(factory):
+        kwargs["world"] = world
     sim = recorded_file.call(what, where, factory, list(objects), sensor, pose, glance, **kwargs)
     return CheckedSimulator(sim, name, sensor)
+
+
+def _takes_world(factory) -> bool:
+    try:
+        return "world" in inspect.signature(factory).parameters
+    except (TypeError, ValueError):  # a callable without a signature (a builtin)
+        return False
 
 
 def _who(name: str) -> tuple[str, str]:
