@@ -3,9 +3,23 @@
 The CLI prints its message on one line and exits non-zero, without a traceback.
 """
 
+import re
+
 
 class HamError(ValueError):
     """A user-facing error whose message names the bad value and what is accepted."""
+
+
+_NEW_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
+
+
+def check_new_name(kind: str, name: object, taken) -> None:
+    """``name`` for a new entry of the registry of ``kind`` ("simulator", "learner"): letters,
+    digits and ``_ . -``, and none of ``taken``."""
+    if not (isinstance(name, str) and _NEW_NAME.match(name)):
+        raise HamError(f"{kind} name {name!r}; accepted: letters, digits and _ . - (not empty)")
+    if name in taken:
+        raise HamError(f"{kind} {name!r} is registered already; accepted: another name")
 
 
 def check_choices(config) -> None:

@@ -589,11 +589,8 @@ def _plugin(value, source: str) -> dict | None:
         raise HamError(f"{source}: {exc}") from None
 
 
-#: The world fields that name a file of the user's (relative to the grid file): its reader.
-_WORLD_FILES = {
-    "objects_file": ("ham.world.objects", "read_objects_file"),
-    "simulator_file": ("ham.world.simulators", "read_simulator_file"),
-}
+#: The world fields that name a file of the user's (relative to the grid file).
+_WORLD_FILES: tuple[str, ...] = ("objects_file", "simulator_file")
 
 
 def _world_files(d: Mapping, source: str) -> dict:
@@ -601,30 +598,27 @@ def _world_files(d: Mapping, source: str) -> dict:
     grid file's folder) replaced by the file's record, as worlds keep them; records pass as they
     are. A world table given an objects file and no ``objects`` takes the file's objects; given a
     simulator file of one simulator and no ``simulator``, that simulator (as the CLI does)."""
-    import importlib
+    from ham.world.objects import load_objects, read_objects_file
+    from ham.world.simulators import load_simulator_file, read_simulator_file
 
     folder = Path(source).parent if source != "grid" else Path()
+    readers = {"objects_file": read_objects_file, "simulator_file": read_simulator_file}
 
     def world(table, where: str):
         if not isinstance(table, Mapping):
             return table  # refused by name later
         table = dict(table)
-        for key, (module, reader) in _WORLD_FILES.items():
+        for key in _WORLD_FILES:
             value = table.get(key)
             if value is None or isinstance(value, Mapping):
                 continue
             if not isinstance(value, str):
                 raise HamError(f"{where}: {key} = {value!r}; accepted: the path of the file")
-            read = getattr(importlib.import_module(module), reader)
             try:
-                table[key] = read(folder / value)
+                table[key] = readers[key](folder / value)
                 if key == "objects_file" and "objects" not in table:
-                    from ham.world.objects import load_objects
-
                     table["objects"] = ",".join(load_objects(table[key]))
                 if key == "simulator_file" and "simulator" not in table:
-                    from ham.world.simulators import load_simulator_file
-
                     names = load_simulator_file(table[key])
                     if len(names) == 1:  # else the world names one, or is refused
                         table["simulator"] = names[0]

@@ -16,12 +16,11 @@ baseline).
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable
 
 import torch
 
-from ham.errors import HamError
+from ham.errors import HamError, check_new_name
 from ham.learn.hybrid_loss import HybridLoss
 from ham.model import plugin as _plugin
 from ham.world import recorded_file
@@ -31,7 +30,6 @@ BUILT_IN: tuple[str, ...] = ("hybrid", "info", "sac")
 LEARNERS: dict[str, Callable | None] = dict.fromkeys(BUILT_IN)
 #: name -> the learner options of TrainConfig a learner of your own reads
 READS: dict[str, tuple[str, ...]] = {}
-_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 
 #: The TrainConfig fields only some learners read (the rest read all or none of them): a value
 #: away from the default with another learner is refused, not ignored.
@@ -61,10 +59,7 @@ def register_learner(name: str, *, reads: tuple[str, ...] = ()) -> Callable:
     ``reads``: the learner options of ``TrainConfig`` it reads (:data:`LEARNER_OPTIONS`). Names
     are letters, digits and ``_ . -``; a name registered already is refused.
     """
-    if not (isinstance(name, str) and _NAME.match(name)):
-        raise HamError(f"learner name {name!r}; accepted: letters, digits and _ . - (not empty)")
-    if name in LEARNERS:
-        raise HamError(f"learner {name!r} is registered already; accepted: another name")
+    check_new_name("learner", name, LEARNERS)
     bad = [r for r in reads if r not in LEARNER_OPTIONS] if isinstance(reads, tuple) else [reads]
     if bad:
         raise HamError(

@@ -26,11 +26,12 @@ SUFFIXES: tuple[str, ...] = (".py",)
 REGISTRIES: dict[str, dict] = {"core": CORES, "policy": POLICIES}
 #: label -> the names a registry holds before any plugin (its built-in ones)
 _BUILTIN: dict[str, tuple[str, ...]] = {"core": tuple(CORES), "policy": tuple(POLICIES)}
-_LEARNER_HOW = "ham.learn.learners.register_learner"
-#: label -> how a plugin registers one (for the error of a plugin that registers nothing)
+#: label -> how a plugin registers one (for the error of a plugin that registers nothing; the
+#: learners' too before ham.learn is imported)
 _HOW: dict[str, str] = {
     "core": "ham.model.core.register_core",
     "policy": "ham.model.policy.register_policy",
+    "learner": "ham.learn.learners.register_learner",
 }
 #: sha256 -> the names the plugin registered: a process runs each plugin once.
 _LOADED: dict[str, tuple[str, ...]] = {}
@@ -60,7 +61,7 @@ def load_plugin(record: dict) -> list[str]:
         return list(_LOADED[sha])
     # the learners' registry joins REGISTRIES when the plugin imports ham.learn: live, and a
     # registry that joins while the plugin runs counts only what it adds (_BUILTIN)
-    how = [*_HOW.values(), *([] if "learner" in _HOW else [_LEARNER_HOW])]
+    how = list(_HOW.values())
     got = registering.run_registering(
         "plugin", record, "ham_plugin", REGISTRIES, "no core, location policy or learner",
         f"a file that calls {', '.join(how[:-1])} or {how[-1]}", builtin=_BUILTIN,

@@ -21,19 +21,17 @@ and its line.
 from __future__ import annotations
 
 import inspect
-import re
 from collections.abc import Callable
 from pathlib import Path
 
 import torch
 
-from ham.errors import HamError
+from ham.errors import HamError, check_new_name
 from ham.world import recorded_file, registering
 
 #: The simulators of the package itself; no file or program may register these names.
 BUILT_IN: tuple[str, ...] = ("fast", "mujoco")
 SUFFIXES: tuple[str, ...] = (".py",)
-_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 
 SimulatorFactory = Callable[..., object]
 _SIMULATORS: dict[str, SimulatorFactory] = {}
@@ -53,10 +51,7 @@ def register_simulator(name: str, factory: SimulatorFactory) -> None:
     dict. Names are letters, digits and ``_ . -``; ``fast``, ``mujoco`` and names registered
     already are refused.
     """
-    if not (isinstance(name, str) and _NAME.match(name)):
-        raise HamError(f"simulator name {name!r}; accepted: letters, digits and _ . - (not empty)")
-    if name in BUILT_IN or name in _SIMULATORS:
-        raise HamError(f"simulator {name!r} is registered already; accepted: another name")
+    check_new_name("simulator", name, (*BUILT_IN, *_SIMULATORS))
     if not callable(factory):
         raise HamError(
             f"simulator {name!r}: factory {factory!r}; accepted: a callable "
@@ -70,11 +65,6 @@ def register_simulator(name: str, factory: SimulatorFactory) -> None:
 def simulator_names() -> list[str]:
     """``fast``, ``mujoco`` and the registered simulators, in registration order."""
     return [*BUILT_IN, *_SIMULATORS]
-
-
-def registered(name: str) -> SimulatorFactory | None:
-    """The factory registered as ``name`` (``None`` for the built-in and unknown names)."""
-    return _SIMULATORS.get(name)
 
 
 def unknown_simulator(name: object) -> HamError:
