@@ -7,6 +7,7 @@ docs/plugins/binary_pad.py, whose taxels read 5 kPa where the fast model's read 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -129,6 +130,13 @@ BAD = {
     ),  # fmt: skip
     "result.py": (_glance_returning("r.pressure"), "returned a Tensor; accepted: a GlanceResult"),
     "raises.py": (_glance_returning("1 / 0"), "raised ZeroDivisionError at line {line}"),
+    "noisy.py": (
+        _glance_returning(
+            "dataclasses.replace(r, pressure=r.pressure + torch.rand_like(r.pressure))"
+        ),
+        "simulator 'bad' gave another pressure when glancing object 0 at q_x = -1, q_phi = -1 "
+        "again; accepted: the same glance for the same object and pose",
+    ),  # fmt: skip
 }
 
 
@@ -194,6 +202,33 @@ def test_a_simulator_registered_by_a_program_is_checked_too():
                            "without a glance"):  # fmt: skip
             make_simulator(WorldConfig(simulator="broken"))
     assert "prog" not in simulators.simulator_names()
+
+
+def test_noise_seeded_by_object_and_pose_is_accepted_and_global_noise_is_not():
+    from ham.world.glance import FastSimulator
+
+    class Seeded(FastSimulator):  # noise as a function of object and pose: deterministic
+        def glance(self, object_ids, q_x, q_phi, **kwargs):
+            r = super().glance(object_ids, q_x, q_phi, **kwargs)
+            g = torch.sin(1e3 * (q_x + 3 * q_phi) + torch.as_tensor(object_ids)).abs()
+            return dataclasses.replace(r, pressure=r.pressure + 50.0 * g[:, None, None])
+
+    class Global(FastSimulator):  # noise from the global random state: refused
+        def glance(self, object_ids, q_x, q_phi, **kwargs):
+            r = super().glance(object_ids, q_x, q_phi, **kwargs)
+            return dataclasses.replace(r, z=r.z + 1e-4 * torch.rand_like(r.z))
+
+    ids, q = torch.tensor([0, 1, 2, 3] * 5), torch.linspace(-1, 1, 20)
+    with registries_restored():
+        simulators.register_simulator("seeded", Seeded)
+        simulators.register_simulator("global", Global)
+        a = make_simulator(WorldConfig(simulator="seeded")).glance(ids, q, -q)
+        b = make_simulator(WorldConfig(simulator="seeded")).glance(ids, q, -q)
+        assert torch.equal(a.pressure, b.pressure)
+        sim = make_simulator(WorldConfig(simulator="global"))
+        with pytest.raises(HamError, match=r"simulator 'global' gave another z when glancing "
+                           r"object \d at q_x = "):  # fmt: skip
+            sim.glance(ids, q, -q)
 
 
 def test_a_grid_names_world_files_beside_it(tmp_path):

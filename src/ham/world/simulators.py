@@ -146,6 +146,22 @@ def _who(name: str) -> tuple[str, str]:
     return "simulator", name
 
 
+_REPEATED_GLANCES = 8  # how many of a simulator's first glances are glanced again
+
+
+def _close(a: torch.Tensor, b: torch.Tensor) -> bool:
+    """Equal up to float noise of another batch size (1e-5 of the largest value)."""
+    a, b = a.detach().cpu().double(), b.detach().cpu().double()
+    scale = float(a.abs().max()) if a.numel() else 0.0
+    return bool(torch.allclose(a, b, rtol=1e-5, atol=max(1e-5 * scale, 1e-12)))
+
+
+def _first_off(a: torch.Tensor, b: torch.Tensor) -> int:
+    """The first batch index at which ``a`` and ``b`` differ most of all (for the message)."""
+    d = (a.detach().cpu().double() - b.detach().cpu().double()).abs().reshape(len(a), -1)
+    return int(d.max(dim=1).values.argmax())
+
+
 class CheckedSimulator:
     """A registered simulator whose every glance is checked, failures in one line.
 
@@ -169,6 +185,7 @@ class CheckedSimulator:
         self.inner, self.name, self.sensor = inner, name, sensor
         self.objects = inner.objects
         self._what, self._where = what, where
+        self._repeated = False  # whether a glance was repeated to check determinism
 
     def _error(self, text: str) -> HamError:
         return HamError(f"{self._what} {self._where!r}: simulator {self.name!r} {text}")
@@ -199,7 +216,36 @@ class CheckedSimulator:
                 raise self._error(
                     f"returned {field} {got} for {n} glances; accepted: a tensor ({n},)"
                 )
+        if not self._repeated and n:
+            self._repeated = True
+            self._check_repeatable(r, object_ids, q_x, q_phi, kwargs)
         return r
+
+    def _check_repeatable(self, r, object_ids, q_x, q_phi, kwargs) -> None:
+        """Glance the first few of the first batch again: the same object and pose must give
+        the same glance, or a table built twice differs and a resumed online run glances
+        otherwise than an uninterrupted one (noise must be a function of object and pose)."""
+        k = min(len(object_ids), _REPEATED_GLANCES)
+        again = recorded_file.call(
+            self._what,
+            self._where,
+            self.inner.glance,
+            object_ids[:k],
+            q_x[:k],
+            q_phi[:k],
+            **{key: (v[:k] if isinstance(v, torch.Tensor) else v) for key, v in kwargs.items()},
+        )
+        for field in ("pressure", "force", "z", "contact", "blocked"):
+            a, b = getattr(r, field)[:k], getattr(again, field, None)
+            if not isinstance(b, torch.Tensor) or b.shape != a.shape or not _close(a, b):
+                i = 0 if not isinstance(b, torch.Tensor) or b.shape != a.shape else _first_off(a, b)
+                obj = int(torch.as_tensor(object_ids)[i])
+                pose = f"q_x = {float(q_x[i]):.4g}, q_phi = {float(q_phi[i]):.4g}"
+                raise self._error(
+                    f"gave another {field} when glancing object {obj} at {pose} again; "
+                    "accepted: the same glance for the same object and pose (seed any noise "
+                    "by them, not by a global random state)"
+                )
 
     def describe(self) -> dict:
         d = recorded_file.call(self._what, self._where, self.inner.describe)
