@@ -245,6 +245,26 @@ def test_unstable_step_is_flagged_or_raised():
         strict.glance([0], [0.0], [0.0])
 
 
+def test_a_full_contact_arena_is_flagged_unstable(monkeypatch, tmp_path):
+    # A 60 KB arena holds a few hundred contacts: the box's flat top fills it and MuJoCo drops
+    # contacts (its warning goes to MUJOCO_LOG.TXT in the working folder). Such a glance's
+    # forces are wrong, so it is flagged, not read out; the default arena never fills.
+    monkeypatch.chdir(tmp_path)
+    from_xml = mujoco.MjModel.from_xml_string
+
+    def small_arena(xml, *args, **kwargs):
+        head = xml.index(">", xml.index("<mujoco")) + 1
+        return from_xml(xml[:head] + '<size memory="60K"/>' + xml[head:], *args, **kwargs)
+
+    monkeypatch.setattr(mujoco.MjModel, "from_xml_string", small_arena)
+    r = MujocoSimulator(PAPER[:1], threads=1).glance([0], [0.0], [0.0])
+    assert r.info["status"].tolist() == [UNSTABLE] and torch.isnan(r.z).all()
+    assert "arena memory is full" in (tmp_path / "MUJOCO_LOG.TXT").read_text()
+    monkeypatch.undo()
+    r = MujocoSimulator(PAPER[:1], threads=1).glance([0], [0.0], [0.0])
+    assert r.info["status"].tolist() == [SETTLED]
+
+
 def test_steep_tilt_ends_blocked_or_settled(mj):
     """Near |phi| = pi/2 the housing may hold the pad: every glance still ends, none diverges."""
     r = mj.glance([0, 1, 2, 3], [0.0, 0.3, -0.3, 0.9], [1.0, -1.0, 0.98, -0.97])

@@ -46,8 +46,8 @@ sensor) and the vertical part ``F_z`` of their contact force (a contact sensor),
 part, is the paper's 2 N. The glance ends when the pad has settled (speed below ``settle_speed`` and
 ``|S - 2 N|`` within ``settle_tolerance``), when the rigid housing holds the pad while the taxels
 feel less than 2 N (``blocked``, as in the fast model), or at ``max_steps`` (flagged: ``blocked`` and
-``info["status"] == 2``). A diverging step (bad-acceleration warning, non-finite state, pad thrown 5 cm)
-is flagged ``unstable`` (status 3) with no contact; ``on_failure="raise"`` turns either into a
+``info["status"] == 2``). A diverging step (bad-acceleration warning, non-finite state, pad thrown 5 cm,
+a contact arena too full to hold every contact) is flagged ``unstable`` (status 3) with no contact; ``on_failure="raise"`` turns either into a
 :class:`HamError`. Nothing can hang: every glance stops after ``max_steps``.
 
 Read-outs:
@@ -1138,10 +1138,12 @@ class MujocoSimulator:
             z = d.qpos[0]
             if (
                 d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number
+                or d.warning[mujoco.mjtWarning.mjWARN_CONTACTFULL].number
                 or not (math.isfinite(z) and math.isfinite(v))
                 or abs(z - z0) > _DIVERGED
             ):
-                # A 2 N push cannot throw the pad 5 cm: the step diverged.
+                # A 2 N push cannot throw the pad 5 cm: the step diverged. A full contact
+                # arena drops contacts, so that step's forces are wrong as well.
                 status = UNSTABLE
                 break
             if s_sum > 0:
