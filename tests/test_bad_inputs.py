@@ -406,6 +406,8 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     # reproduce (checked before any table or run is made)
     ("reproduce-workers-0", ["reproduce", "table1", "--out", "rp", "--workers", "0"], "workers = 0"),
     ("reproduce-workers-minus", ["reproduce", "table1", "--out", "rp", "--workers", "-2"], "-2"),
+    ("reproduce-seeds-huge", ["reproduce", "table1", "--out", "rp", "--seeds", "99999999999"], "seeds = 99999999999; accepted: an integer from 1 to 10000"),
+    ("reproduce-grid-seeds-huge", ["reproduce", "grid", EXAMPLE_GRID, "--out", "rp", "--seeds", "99999999999"], "seeds = 99999999999"),
     ("reproduce-retries-minus", ["reproduce", "table1", "--out", "rp", "--retries", "-1"], "retries = -1"),
     ("reproduce-seeds-0", ["reproduce", "table1", "--out", "rp", "--seeds", "0"], "seeds = 0"),
     ("reproduce-steps-0", ["reproduce", "table1", "--out", "rp", "--steps", "0"], "steps = 0"),
@@ -434,6 +436,9 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("envs-check-table-nan", ["envs", "check", "--table", "{nan}"], "nan"),
     ("envs-bench-num-envs-0", ["envs", "bench", "--num-envs", "0"], "--num-envs [0]"),
     ("envs-bench-threads-0", ["envs", "bench", "--threads", "0"], "--threads 0"),
+    ("envs-bench-threads-huge", ["envs", "bench", "--threads", "99999999999"], "--threads 99999999999; accepted: an integer from 1 to"),
+    ("sb3-threads-huge", ["sb3", "--out", "s", "--threads", "99999999999"], "this machine's cores"),
+    ("train-threads-huge", ["train", "--out", "r", "--threads", "99999999999"], "--threads 99999999999"),
     ("train-env-unknown-id", ["train", "--env", "nosuch", "--out", "e"], "'nosuch'"),
     ("train-env-glances-0", ["train", "--env", AP_ENV, "--out", "e", "--glances", "0"], "glances = 0"),
     ("train-env-steps-minus", ["train", "--env", AP_ENV, "--out", "e", "--steps", "-1"], "-1"),

@@ -111,7 +111,7 @@ def test_ray_executor_matches_the_local_pool(smoke_all, tmp_path, ham_cli):
 
 
 def test_bad_arguments(tmp_path, ham_main):
-    with pytest.raises(HamError, match="seeds = 0; accepted: an integer >= 1"):
+    with pytest.raises(HamError, match="seeds = 0; accepted: an integer from 1 to 10000"):
         reproduce("table1", "smoke", tmp_path, seeds=0)
     with pytest.raises(HamError, match="profile 'huge'; accepted: smoke, quick, paper"):
         reproduce("table1", "huge", tmp_path)

@@ -125,16 +125,6 @@ def _world_from_args(args: argparse.Namespace):
     return world_from_args(args)
 
 
-def _set_threads(threads: int | None) -> None:
-    if threads is None:
-        return
-    if threads < 1:
-        raise HamError(f"--threads {threads}; accepted: an integer >= 1")
-    import torch
-
-    torch.set_num_threads(threads)
-
-
 def _config_from_args(args: argparse.Namespace):
     from ham.cli.config_args import overrides
     from ham.learn.train import TrainConfig, model_for_source
@@ -280,9 +270,10 @@ def _world_changes(world) -> list[str]:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
+    from ham.cli.options import set_threads
     from ham.learn.train import resume, train
 
-    _set_threads(args.threads)
+    set_threads(args.threads)
     progress = not args.no_progress
     if args.resume:
         if args.out:

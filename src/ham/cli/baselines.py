@@ -149,10 +149,10 @@ _SB3_CONFIG_FLAGS = ("algo", "env", "glances", "table", "seed", "n_envs", "eval_
 def cmd_sb3(args: argparse.Namespace) -> int:
     import importlib.util
 
+    from ham.cli.options import set_threads
     from ham.learn.sb3_agents import Sb3Config, resume_sb3, train_sb3
 
-    if args.threads < 1:
-        raise HamError(f"--threads {args.threads}; accepted: an integer >= 1")
+    set_threads(args.threads)
     if args.env_steps is not None and args.env_steps < 1:
         raise HamError(f"--env-steps {args.env_steps}; accepted: an integer >= 1")
     if args.resume:
@@ -166,9 +166,6 @@ def cmd_sb3(args: argparse.Namespace) -> int:
                 f"--resume continues the run with its own config; remove {', '.join(given)} "
                 "(only --env-steps may change)"
             )
-        import torch
-
-        torch.set_num_threads(args.threads)
         metrics = resume_sb3(args.resume, env_steps=args.env_steps, progress=not args.no_progress)
         return _print_sb3(args, metrics, args.resume)
     if args.algo is None:
@@ -208,9 +205,6 @@ def cmd_sb3(args: argparse.Namespace) -> int:
         eval_every=args.eval_every, algo_kwargs=_json_object("--algo-kwargs", args.algo_kwargs),
         device=args.device,
     )  # fmt: skip
-    import torch
-
-    torch.set_num_threads(args.threads)
     metrics = train_sb3(config, args.out, progress=not args.no_progress)
     return _print_sb3(args, metrics, args.out)
 

@@ -22,7 +22,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from ham.cli.options import add_objects_file_option, objects_from_args
+from ham.cli.options import add_objects_file_option, objects_from_args, set_threads
 from ham.errors import HamError
 
 
@@ -256,16 +256,13 @@ def steps_per_second(make, n: int, steps: int) -> float:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     import gymnasium as gym
-    import torch
 
     import ham.envs
     from ham.learn.ap_adapter import import_ap_gym
 
-    if args.threads < 1:
-        raise HamError(f"--threads {args.threads}; accepted: an integer >= 1")
+    set_threads(args.threads)
     if any(n < 1 for n in args.num_envs):
         raise HamError(f"--num-envs {args.num_envs}; accepted: integers >= 1")
-    torch.set_num_threads(args.threads)
     ap_gym = import_ap_gym()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shlex
 import sys
 from dataclasses import replace
@@ -19,6 +20,22 @@ def finite_float(text: str) -> float:
         return float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+
+
+def set_threads(threads: int | None) -> None:
+    """``torch.set_num_threads(threads)`` after checking ``--threads`` (``None``: torch's
+    choice): more threads than this machine's cores only slow torch down, and a huge count
+    overflows torch's int."""
+    if threads is None:
+        return
+    cores = os.cpu_count() or 1
+    if not 1 <= threads <= cores:
+        raise HamError(
+            f"--threads {threads}; accepted: an integer from 1 to {cores} (this machine's cores)"
+        )
+    import torch
+
+    torch.set_num_threads(threads)
 
 
 def command_line(args: argparse.Namespace) -> str:

@@ -49,6 +49,7 @@ from pathlib import Path
 from typing import Any
 
 from ham.errors import HamError
+from ham.experiments.runs import MAX_SEEDS
 
 #: Top-level keys of a grid file.
 GRID_KEYS = ("name", "description", "seeds", "key", "base", "axes", "cells", "world", "table",
@@ -103,12 +104,14 @@ def _seeds(v, where: str) -> tuple[int, ...]:
     def ok(x) -> bool:
         return isinstance(x, int) and not isinstance(x, bool) and x >= 0
 
-    if ok(v) and v >= 1:
+    if ok(v) and 1 <= v <= MAX_SEEDS:
         return tuple(range(v))
     if isinstance(v, (list, tuple)) and v and all(ok(x) for x in v) and len(set(v)) == len(v):
-        return tuple(v)
+        if len(v) <= MAX_SEEDS:
+            return tuple(v)
     raise HamError(
-        f"{where}: seeds = {v!r}; accepted: a count >= 1 or a list of distinct integers >= 0"
+        f"{where}: seeds = {v!r}; accepted: a count from 1 to {MAX_SEEDS} or a list of up to "
+        f"{MAX_SEEDS} distinct integers >= 0"
     )
 
 

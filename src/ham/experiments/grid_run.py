@@ -34,6 +34,7 @@ from ham.experiments.executors import (
 from ham.experiments.grid import Grid, GridJob, load_grid, settings_text
 from ham.experiments.reproduce import _environment, _fmt, _write_json, mean_sem
 from ham.experiments.runs import (
+    check_seed_count,
     evaluation_path,
     has_evaluation,
     is_finished,
@@ -80,8 +81,7 @@ def run_grid(
     if not isinstance(grid, Grid):
         grid = load_grid(grid)
     if seeds is not None:
-        if not (isinstance(seeds, int) and not isinstance(seeds, bool) and seeds >= 1):
-            raise HamError(f"seeds = {seeds!r}; accepted: an integer >= 1")
+        check_seed_count(seeds)
         cells = [{k: v for k, v in c.items() if k != "seeds"} for c in grid.cells]
         grid = replace(grid, seeds=seeds, cells=cells)
     if device is not None:

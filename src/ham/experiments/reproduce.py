@@ -39,7 +39,7 @@ from ham.experiments.executors import (
     execute,
     ray_session,
 )
-from ham.experiments.runs import is_finished, per_object_accuracy, run_dir
+from ham.experiments.runs import check_seed_count, is_finished, per_object_accuracy, run_dir
 
 if TYPE_CHECKING:
     from ham.world.config import WorldConfig
@@ -393,9 +393,7 @@ def reproduce(
     check_batched_options(executor, batched, [device])
     profile = PROFILES[profile_name]
     if seeds is not None:
-        if not (isinstance(seeds, int) and seeds >= 1):
-            raise HamError(f"seeds = {seeds!r}; accepted: an integer >= 1")
-        profile = replace(profile, seeds=seeds)
+        profile = replace(profile, seeds=check_seed_count(seeds))
     if steps is not None:
         if not (isinstance(steps, int) and not isinstance(steps, bool) and steps >= 1):
             raise HamError(f"steps = {steps!r}; accepted: an integer >= 1")

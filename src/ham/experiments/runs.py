@@ -5,6 +5,19 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from ham.errors import HamError
+
+#: the most seeds a grid cell or a Table runs: far beyond any protocol (the paper's is 10), and
+#: a count that cannot be listed (1e11) is refused before anything is written
+MAX_SEEDS = 10_000
+
+
+def check_seed_count(seeds) -> int:
+    """``seeds`` (``--seeds N``: runs seeds 0..N-1) after checking it."""
+    if not (isinstance(seeds, int) and not isinstance(seeds, bool) and 1 <= seeds <= MAX_SEEDS):
+        raise HamError(f"seeds = {seeds!r}; accepted: an integer from 1 to {MAX_SEEDS}")
+    return seeds
+
 
 def run_dir(root: Path, key: str) -> Path:
     return Path(root) / "runs" / key
