@@ -45,11 +45,17 @@ PATHS = {"--out", "--table", "--json", "--confusion", "--objects-file", "--simul
 SKIP = {"-h", "--help", "--resume", "--executor", "--ray-address", "--device"}
 
 
-class _TimeUp(BaseException):
-    """Raised by the per-call timer (a BaseException, so that no ``except Exception`` holds it)."""
+class _TimeUp(KeyboardInterrupt):
+    """Raised by the per-call timer: as Ctrl-C is, which no part of ``ham`` holds (a
+    reproduce run's own failures are recorded, an interrupt is not)."""
+
+
+_fired = False
 
 
 def _alarm(signum, frame):
+    global _fired
+    _fired = True
     # a call's worker processes (reproduce's pool) go too, or its pool would wait for them
     for child in multiprocessing.active_children():
         child.kill()
@@ -74,6 +80,26 @@ def _fixtures(root: Path) -> dict[str, str]:
 
 #: valid base commands; TABLE, RUN, GRID are replaced by the fixtures' paths
 BASE = {
+    "objects": ["objects", "--set", "paper"],
+    "glance": ["glance", "--object", "box", "--x", "0", "--phi", "0", "--json"],
+    "table-build": ["table", "build", "--grid", "3", "--out", "b.h5", "--quiet"],
+    "train": [
+        "train",
+        "--table",
+        "TABLE",
+        "--glances",
+        "2",
+        "--steps",
+        "2",
+        "--eval-every",
+        "2",
+        "--eval-batches",
+        "1",
+        "--no-progress",
+        "--out",
+        "r",
+    ],  # fmt: skip
+    "baselines": ["baselines", "--policy", "random", "--table", "TABLE", "--glances", "1", "2"],
     "evaluate": ["evaluate", "RUN", "--batches", "1"],
     "heatmap": ["heatmap", "RUN", "--out", "h.png", "--batches", "1", "--bins", "4"],
     "sb3": [
@@ -178,7 +204,8 @@ def _call(argv: list[str], cwd: Path, limit: float) -> tuple[str, int | None, st
     from ham.cli.main import main
     from tests.conftest import registries_restored
 
-    err, threads = io.StringIO(), torch.get_num_threads()
+    global _fired
+    err, threads, _fired = io.StringIO(), torch.get_num_threads(), False
     signal.signal(signal.SIGALRM, _alarm)
     signal.setitimer(signal.ITIMER_REAL, limit)
     try:
@@ -188,7 +215,7 @@ def _call(argv: list[str], cwd: Path, limit: float) -> tuple[str, int | None, st
                     rc = main(list(argv))
                 except SystemExit as exc:
                     rc = exc.code if isinstance(exc.code, int) else 1
-        return "done", rc, err.getvalue()
+        return ("slow" if _fired else "done"), rc, err.getvalue()
     except _TimeUp:
         return "slow", None, err.getvalue()
     except BaseException:  # noqa: BLE001 - an escaped exception is what this sweep looks for
