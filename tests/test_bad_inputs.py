@@ -438,6 +438,7 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("envs-bench-threads-0", ["envs", "bench", "--threads", "0"], "--threads 0"),
     ("envs-bench-threads-huge", ["envs", "bench", "--threads", "99999999999"], "--threads 99999999999; accepted: an integer from 1 to"),
     ("sb3-threads-huge", ["sb3", "--out", "s", "--threads", "99999999999"], "this machine's cores"),
+    ("train-hidden-units-huge", ["train", "--out", "r", "--hidden-units", "99999999999"], "out of memory (Storage size calculation overflowed"),
     ("train-threads-huge", ["train", "--out", "r", "--threads", "99999999999"], "--threads 99999999999"),
     ("train-env-unknown-id", ["train", "--env", "nosuch", "--out", "e"], "'nosuch'"),
     ("train-env-glances-0", ["train", "--env", AP_ENV, "--out", "e", "--glances", "0"], "glances = 0"),

@@ -500,8 +500,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _out_of_memory(exc: BaseException, text: str) -> bool:
-    """torch's out-of-memory errors: ``torch.OutOfMemoryError`` (CUDA) or the CPU allocator's."""
-    return type(exc).__name__ == "OutOfMemoryError" or "can't allocate memory" in text
+    """torch's out-of-memory errors: ``torch.OutOfMemoryError`` (CUDA), the CPU allocator's, or
+    a tensor whose byte count overflows (``--hidden-units 99999999999``)."""
+    return type(exc).__name__ == "OutOfMemoryError" or any(
+        words in text for words in ("can't allocate memory", "Storage size calculation overflowed")
+    )
 
 
 def _empty_option(args: argparse.Namespace, argv: list[str]) -> str | None:
@@ -547,7 +550,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         print(
             f"ham: error: out of memory ({text[:300]}); accepted: a request that fits this "
-            "machine (fewer envs, a smaller batch, grid or object set)",
+            "machine (fewer envs or glances, a smaller batch, model, grid or object set)",
             file=sys.stderr,
         )
         return 2

@@ -28,6 +28,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import time
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
@@ -939,12 +940,26 @@ def train(config: TrainConfig, out: str | os.PathLike, *, progress: bool = True)
     if (out / CHECKPOINT_FILE).exists():
         raise HamError(f"{str(out)!r} already holds a run; continue it with --resume {out}")
     run = Run.create(config)  # first: a bad table, device or config leaves no run directory
+    created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
         _write_json(out / CONFIG_FILE, config.to_dict())
         return train_loop(run, out, progress)
+    except Exception:
+        if run.step == 0:  # failed before its first step (out of memory, a plugin's error):
+            _remove_run(out, created)  # no run is left behind, the same command can run again
+        raise
     finally:
         run.close()
+
+
+def _remove_run(out: Path, created: bool) -> None:
+    """Remove what :func:`train` wrote in ``out`` (and ``out`` itself if it made it)."""
+    for name in (CONFIG_FILE, METRICS_FILE, CHECKPOINT_FILE, TIMING_FILE):
+        (out / name).unlink(missing_ok=True)
+    shutil.rmtree(out / "tb", ignore_errors=True)
+    if created and not any(out.iterdir()):
+        out.rmdir()
 
 
 def resume(
@@ -1241,15 +1256,15 @@ def train_loop(run: Run, out: Path, progress: bool) -> dict:
 
     c, env, optimizer = run.config, run.env, run.optimizer
     writer = SummaryWriter(str(out / "tb"), purge_step=run.step if run.step else None)
-    if run.step == 0 and not run.history:  # the untrained model: the curves start at step 0
-        _log_eval(writer, _evaluate(run, None, None), run.config.model.glances)
-        _save(run, out)
     loss_sum = torch.zeros((), device=env.device)
     reward_sum = torch.zeros((), device=env.device)
     n_sum = 0
     bar = tqdm(total=c.steps, initial=run.step, disable=not progress, unit="step", desc="train")
     t_train, n_train = 0.0, 0
     try:
+        if run.step == 0 and not run.history:  # the untrained model: the curves start at step 0
+            _log_eval(writer, _evaluate(run, None, None), run.config.model.glances)
+            _save(run, out)
         while run.step < c.steps:
             t0 = time.perf_counter()
             loss = train_step(run)
