@@ -309,6 +309,13 @@ def test_cli_resume_trains_a_finished_run_further_as_if_never_stopped(
         assert main(argv) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and message in err[0], err
+    from ham.world.files import folder_lock
+
+    with folder_lock(tmp_path / "a"):  # another process resuming it now
+        assert main(["sb3", "--resume", str(tmp_path / "a"), "--env-steps", "256"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "is in use by another ham process" in err[0], err
+    assert json.loads((tmp_path / "a" / "config.json").read_text())["env_steps"] == 192
 
 
 @pytest.mark.parametrize(

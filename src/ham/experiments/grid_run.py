@@ -71,6 +71,7 @@ def run_grid(
     """
     from ham.world.cache import cached_table
     from ham.world.config import WorldConfig
+    from ham.world.files import folder_lock
     from ham.world.table import build_table
 
     if executor not in EXECUTORS:
@@ -106,24 +107,25 @@ def run_grid(
     _check_existing_runs(root, jobs)
     with ray_session(executor, ray_address, workers):  # before anything is written
         root.mkdir(parents=True, exist_ok=True)
-        for world, table in (tables or {}).items():  # one table per world, before any run
-            if not Path(table).exists():
-                world = WorldConfig.from_dict(json.loads(world))
-                if grid.table_cache:
-                    cached_table(world, grid.table_grid, cache_dir, progress=progress,
-                                 command="ham reproduce grid")  # fmt: skip
-                else:
-                    build_table(world, grid.table_grid, table, progress=progress,
-                                command="ham reproduce grid")  # fmt: skip
-        _write_json(root / "grid.json", grid.to_dict())
-        _write_json(root / "plan.json", [j.to_dict() for j in jobs])
+        with folder_lock(root, what="--out"):  # the same --out run twice at once: refused
+            for world, table in (tables or {}).items():  # one table per world, before any run
+                if not Path(table).exists():
+                    world = WorldConfig.from_dict(json.loads(world))
+                    if grid.table_cache:
+                        cached_table(world, grid.table_grid, cache_dir, progress=progress,
+                                     command="ham reproduce grid")  # fmt: skip
+                    else:
+                        build_table(world, grid.table_grid, table, progress=progress,
+                                    command="ham reproduce grid")  # fmt: skip
+            _write_json(root / "grid.json", grid.to_dict())
+            _write_json(root / "plan.json", [j.to_dict() for j in jobs])
 
-        todo = [j for j in jobs if not _complete(root, j)]
-        results, failures = execute(
-            jobs, todo, root, grid.world, grid.table_grid,
-            executor=executor, workers=workers, ray_address=ray_address, retries=retries,
-            progress=progress, desc=f"grid {grid.name}", batched=batched,
-        )  # fmt: skip
+            todo = [j for j in jobs if not _complete(root, j)]
+            results, failures = execute(
+                jobs, todo, root, grid.world, grid.table_grid,
+                executor=executor, workers=workers, ray_address=ray_address, retries=retries,
+                progress=progress, desc=f"grid {grid.name}", batched=batched,
+            )  # fmt: skip
     summary = write_report(
         root, grid, jobs, failures, command=command, executor=executor, note=note
     )

@@ -380,7 +380,7 @@ def reproduce(
     from ham.world.cache import cached_table
     from ham.world.config import WorldConfig
     from ham.world.devices import check_device
-    from ham.world.files import check_output_dir
+    from ham.world.files import check_output_dir, folder_lock
     from ham.world.table import build_table
 
     if target not in TARGETS:
@@ -410,25 +410,26 @@ def reproduce(
     world = world or WorldConfig()
     with ray_session(executor, ray_address, workers):  # before anything is written
         root.mkdir(parents=True, exist_ok=True)
-        table = root / f"table_{profile.table_grid}.h5"
-        if table_cache:
-            table = cached_table(world, profile.table_grid, cache_dir, progress=progress,
-                                 command=command or "ham reproduce")  # fmt: skip
-        elif table.exists():
-            _check_table_objects(table, world)
-        else:
-            build_table(world, profile.table_grid, table, progress=progress,
-                        command=command or "ham reproduce")  # fmt: skip
-        jobs = plan(target, profile, profile.seeds, str(table), device, world.to_dict(),
-                    eval_policy)  # fmt: skip
-        (root / "plan.json").write_text(json.dumps([j.to_dict() for j in jobs], indent=1))
+        with folder_lock(root, what="--out"):  # the same --out run twice at once: refused
+            table = root / f"table_{profile.table_grid}.h5"
+            if table_cache:
+                table = cached_table(world, profile.table_grid, cache_dir, progress=progress,
+                                     command=command or "ham reproduce")  # fmt: skip
+            elif table.exists():
+                _check_table_objects(table, world)
+            else:
+                build_table(world, profile.table_grid, table, progress=progress,
+                            command=command or "ham reproduce")  # fmt: skip
+            jobs = plan(target, profile, profile.seeds, str(table), device, world.to_dict(),
+                        eval_policy)  # fmt: skip
+            (root / "plan.json").write_text(json.dumps([j.to_dict() for j in jobs], indent=1))
 
-        todo = [j for j in jobs if not is_finished(run_dir(root, j.key), profile.steps)]
-        results, failures = execute(
-            jobs, todo, root, world.to_dict(), profile.table_grid,
-            executor=executor, workers=workers, ray_address=ray_address, retries=retries,
-            progress=progress, desc=f"reproduce {target} ({profile.name})", batched=batched,
-        )  # fmt: skip
+            todo = [j for j in jobs if not is_finished(run_dir(root, j.key), profile.steps)]
+            results, failures = execute(
+                jobs, todo, root, world.to_dict(), profile.table_grid,
+                executor=executor, workers=workers, ray_address=ray_address, retries=retries,
+                progress=progress, desc=f"reproduce {target} ({profile.name})", batched=batched,
+            )  # fmt: skip
     skipped = len(jobs) - len(todo)
     summary = write_outputs(
         root, target, profile, jobs, failures, command=command, executor=executor

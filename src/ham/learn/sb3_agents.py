@@ -38,7 +38,7 @@ import torch
 from torch import nn
 
 from ham.errors import HamError, check_choices, check_known_fields, check_seed
-from ham.world.files import atomic_write
+from ham.world.files import atomic_write, folder_lock
 
 ALGOS: tuple[str, ...] = ("ppo", "sac", "crossq")
 
@@ -410,8 +410,11 @@ def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dic
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise HamError(f"algo_kwargs {config.algo_kwargs!r} for {config.algo}: {msg}") from None
     out.mkdir(parents=True, exist_ok=True)
-    _write_json(out / "config.json", asdict(config))
-    return _learn(config, out, model, eval_env, [], 0.0, progress)
+    with folder_lock(out):  # another process starting the same --out: refused
+        if any(out.iterdir()):  # it started first and has written since
+            raise HamError(f"output directory {str(out)!r} exists and is not empty")
+        _write_json(out / "config.json", asdict(config))
+        return _learn(config, out, model, eval_env, [], 0.0, progress)
 
 
 def _read_config(out: Path) -> Sb3Config:
@@ -437,6 +440,11 @@ def resume_sb3(out: str | Path, env_steps: int | None = None, progress: bool = F
     stopped."""
     out = Path(out)
     config = _read_config(out)
+    with folder_lock(out):  # a second resume of the same run at once is refused
+        return _resume_sb3(out, config, env_steps, progress)
+
+
+def _resume_sb3(out: Path, config: Sb3Config, env_steps: int | None, progress: bool) -> dict:
     if (out / "metrics.json").is_file() and env_steps is None:
         raise HamError(f"the run in {str(out)!r} is finished (metrics.json); give a larger "
                        "--env-steps to train it further")  # fmt: skip

@@ -58,7 +58,7 @@ from ham.learn.stopping import STOP_LEARNERS, stop_loss
 from ham.model.agent import Episode, HamConfig, HapticAttentionModel, count_parameters
 from ham.world.config import WorldConfig
 from ham.world.devices import check_device
-from ham.world.files import check_output_dir
+from ham.world.files import check_output_dir, folder_lock
 from ham.world.sensor import NORMALIZATIONS
 from ham.world.source import ObjectPoseConfig, check_model_fits, make_source, world_pose_dims
 
@@ -943,12 +943,16 @@ def train(config: TrainConfig, out: str | os.PathLike, *, progress: bool = True)
     created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
-        _write_json(out / CONFIG_FILE, config.to_dict())
-        return train_loop(run, out, progress)
-    except Exception:
-        if run.step == 0:  # failed before its first step (out of memory, a plugin's error):
-            _remove_run(out, created)  # no run is left behind, the same command can run again
-        raise
+        with folder_lock(out):  # another process training into out: refused, nothing written
+            if (out / CHECKPOINT_FILE).exists():  # it started first and has saved since
+                raise HamError(f"{str(out)!r} already holds a run; continue it with --resume {out}")
+            try:
+                _write_json(out / CONFIG_FILE, config.to_dict())
+                return train_loop(run, out, progress)
+            except Exception:
+                if run.step == 0:  # failed before its first step (out of memory, a plugin's
+                    _remove_run(out, created)  # error): no run left, the same command runs again
+                raise
     finally:
         run.close()
 
@@ -975,6 +979,11 @@ def resume(
     :func:`locate_table`)."""
     out = Path(out)
     recorded = read_run_config(out)
+    with folder_lock(out):  # a second resume of the same run at once is refused
+        return _resume(out, recorded, steps, env_steps, progress, table)
+
+
+def _resume(out: Path, recorded, steps, env_steps, progress: bool, table) -> dict:
     state = load_checkpoint(out)  # read once: its table sha256 locates a moved table
     config = locate_table(out, recorded, state.get("table_checksum"), table)
     if steps is not None:  # an explicit step count replaces an env_steps budget

@@ -10,8 +10,9 @@ folders a command fills (run directories, reports).
 
 from __future__ import annotations
 
+import contextlib
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 from ham.errors import HamError
@@ -93,6 +94,31 @@ def check_output_dir(path: str | os.PathLike, *, what: str = "--out") -> Path:
         return p
     _check_parent(p, what, text)
     return p
+
+
+@contextlib.contextmanager
+def folder_lock(path: str | os.PathLike, *, what: str = "run folder") -> Iterator[None]:
+    """Hold the existing folder ``path`` for this process while the block runs.
+
+    A second ``ham`` process that writes the same folder (a run resumed twice at once, a grid
+    started again before the first one ended) is refused in one line instead of overwriting the
+    other's checkpoints. The lock is an advisory ``flock`` on the folder itself: nothing is
+    written, and it goes with the process however that ends (even ``kill -9``).
+    """
+    import fcntl
+
+    fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise HamError(
+                f"{what} '{os.fspath(path)}' is in use by another ham process; accepted: a "
+                "folder no running ham writes (wait for that one to end, or stop it)"
+            ) from None
+        yield
+    finally:
+        os.close(fd)
 
 
 def atomic_write(
