@@ -406,6 +406,7 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     # reproduce (checked before any table or run is made)
     ("reproduce-workers-0", ["reproduce", "table1", "--out", "rp", "--workers", "0"], "workers = 0"),
     ("reproduce-workers-minus", ["reproduce", "table1", "--out", "rp", "--workers", "-2"], "-2"),
+    ("reproduce-objects-unknown", ["reproduce", "table1", "--out", "rp", "--objects", "abc"], "unknown object set or object 'abc'"),
     ("reproduce-seeds-huge", ["reproduce", "table1", "--out", "rp", "--seeds", "99999999999"], "seeds = 99999999999; accepted: an integer from 1 to 10000"),
     ("reproduce-grid-seeds-huge", ["reproduce", "grid", EXAMPLE_GRID, "--out", "rp", "--seeds", "99999999999"], "seeds = 99999999999"),
     ("reproduce-retries-minus", ["reproduce", "table1", "--out", "rp", "--retries", "-1"], "retries = -1"),

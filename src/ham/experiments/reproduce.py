@@ -381,6 +381,7 @@ def reproduce(
     from ham.world.config import WorldConfig
     from ham.world.devices import check_device
     from ham.world.files import check_output_dir, folder_lock
+    from ham.world.objects import resolve_set
     from ham.world.table import build_table
 
     if target not in TARGETS:
@@ -408,6 +409,7 @@ def reproduce(
     check_device(device)
     root = check_output_dir(out).resolve()
     world = world or WorldConfig()
+    resolve_set(world.objects)  # an unknown object is named before the folder is made
     with ray_session(executor, ray_address, workers):  # before anything is written
         root.mkdir(parents=True, exist_ok=True)
         with folder_lock(root, what="--out"):  # the same --out run twice at once: refused
