@@ -407,6 +407,7 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("reproduce-workers-0", ["reproduce", "table1", "--out", "rp", "--workers", "0"], "workers = 0"),
     ("reproduce-workers-minus", ["reproduce", "table1", "--out", "rp", "--workers", "-2"], "-2"),
     ("reproduce-objects-unknown", ["reproduce", "table1", "--out", "rp", "--objects", "abc"], "unknown object set or object 'abc'"),
+    ("reproduce-objects-one", ["reproduce", "table1", "--out", "rp", "--objects", "0"], "n_objects = 1; accepted: >= 2 objects"),
     ("reproduce-seeds-huge", ["reproduce", "table1", "--out", "rp", "--seeds", "99999999999"], "seeds = 99999999999; accepted: an integer from 1 to 10000"),
     ("reproduce-grid-seeds-huge", ["reproduce", "grid", EXAMPLE_GRID, "--out", "rp", "--seeds", "99999999999"], "seeds = 99999999999"),
     ("reproduce-retries-minus", ["reproduce", "table1", "--out", "rp", "--retries", "-1"], "retries = -1"),

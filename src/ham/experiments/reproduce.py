@@ -377,6 +377,7 @@ def reproduce(
     ``table_cache``: take the glance table from the table cache (:mod:`ham.world.cache`, in
     ``cache_dir``), built there once, instead of ``OUT/table_<N>.h5`` (a preset's slow world).
     """
+    from ham.model.agent import HamConfig
     from ham.world.cache import cached_table
     from ham.world.config import WorldConfig
     from ham.world.devices import check_device
@@ -409,7 +410,8 @@ def reproduce(
     check_device(device)
     root = check_output_dir(out).resolve()
     world = world or WorldConfig()
-    resolve_set(world.objects)  # an unknown object is named before the folder is made
+    # unknown objects, or too few to classify, are named before the folder is made
+    HamConfig(n_objects=len(resolve_set(world.objects)))
     with ray_session(executor, ray_address, workers):  # before anything is written
         root.mkdir(parents=True, exist_ok=True)
         with folder_lock(root, what="--out"):  # the same --out run twice at once: refused
