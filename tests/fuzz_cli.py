@@ -237,7 +237,7 @@ def _call(argv: list[str], cwd: Path, limit: float) -> tuple[str, int | None, st
 
     global _fired
     err, threads, _fired = io.StringIO(), torch.get_num_threads(), False
-    signal.signal(signal.SIGALRM, _alarm)
+    previous = signal.signal(signal.SIGALRM, _alarm)
     signal.setitimer(signal.ITIMER_REAL, limit)
     try:
         with registries_restored(), contextlib.chdir(cwd):
@@ -253,6 +253,7 @@ def _call(argv: list[str], cwd: Path, limit: float) -> tuple[str, int | None, st
         return "traceback", None, traceback.format_exc(limit=-3)
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
         torch.set_num_threads(threads)
 
 
