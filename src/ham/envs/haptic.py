@@ -127,6 +127,8 @@ class GlanceBackend:
             )
         self.object_pose = object_pose if object_pose is not None and object_pose.enabled else None
         self.source, self.world = make_source(table, world, self.device)
+        if self.object_pose is not None:
+            self.object_pose.check_world(self.world)
         self.pose_dims: tuple[str, ...] = tuple(self.source.pose_dims)
         self.table = None if table is None else str(table)
         self.normalization = normalization

@@ -351,6 +351,8 @@ class TrainConfig:
                 f"{'table ' + repr(self.table) if self.table else 'env ' + repr(self.env.env)}; "
                 "accepted: online glances in the haptic world"
             )
+        if self.table is None and self.env is None:
+            self.object_pose.check_world(self.world)
 
     @property
     def object_pose(self) -> ObjectPoseConfig:

@@ -64,6 +64,20 @@ class ObjectPoseConfig:
     def enabled(self) -> bool:
         return self.yaw_max > 0 or self.offset_max > 0
 
+    def check_world(self, world) -> None:
+        """A :class:`HamError` when this pose is on and ``world`` (a ``WorldConfig``) cannot turn
+        or shift an object: only the fast extended glance can (the line glance reads a profile
+        along x; MuJoCo keeps each object at its place on the table)."""
+        if not self.enabled or (world.extended and world.simulator != "mujoco"):
+            return
+        if world.simulator == "mujoco":
+            what, accepted = "simulator 'mujoco'", "simulator 'fast' (its extended glance)"
+        else:
+            what = f"the line glance (pose dims {','.join(world.pose_dims)}, objects "
+            what += f"{world.objects!r})"
+            accepted = "the extended glance: pose dims with y or phi_y, or objects that vary in y"
+        raise HamError(f"a random object pose ({self}) with {what}; accepted: {accepted}")
+
     def sample(self, batch: int, generator: torch.Generator, device) -> tuple[torch.Tensor, ...]:
         """``(yaw, dx, dy)``, each ``(batch,)`` float32, uniform in their ranges."""
         u = torch.rand(batch, 3, generator=generator, device=device) * 2 - 1
