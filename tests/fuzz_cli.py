@@ -25,6 +25,7 @@ import argparse
 import contextlib
 import io
 import multiprocessing
+import shlex
 import shutil
 import signal
 import sys
@@ -78,183 +79,38 @@ def _fixtures(root: Path) -> dict[str, str]:
     return {"TABLE": str(t), "RUN": str(run), "GRID": str(grid)}
 
 
-#: valid base commands; TABLE, RUN, GRID are replaced by the fixtures' paths
-BASE = {
-    "objects": ["objects", "--set", "paper"],
-    "glance": ["glance", "--object", "box", "--x", "0", "--phi", "0", "--json"],
-    "table-build": ["table", "build", "--grid", "3", "--out", "b.h5", "--quiet"],
-    "train": [
-        "train",
-        "--table",
-        "TABLE",
-        "--glances",
-        "2",
-        "--steps",
-        "2",
-        "--eval-every",
-        "2",
-        "--eval-batches",
-        "1",
-        "--no-progress",
-        "--out",
-        "r",
-    ],  # fmt: skip
-    "train-online": [
-        "train",
-        "--online",
-        "--glances",
-        "2",
-        "--steps",
-        "2",
-        "--eval-every",
-        "2",
-        "--eval-batches",
-        "1",
-        "--no-progress",
-        "--out",
-        "r",
-    ],  # fmt: skip
-    "train-env": [
-        "train",
-        "--env",
-        "ap_gym:CircleSquare-v0",
-        "--glances",
-        "2",
-        "--steps",
-        "2",
-        "--eval-every",
-        "2",
-        "--eval-batches",
-        "1",
-        "--no-progress",
-        "--out",
-        "r",
-    ],  # fmt: skip
-    # the learners' own options are refused by the hybrid learner, so each learner is a base
-    "train-info": [
-        "train",
-        "--table",
-        "TABLE",
-        "--learner",
-        "info",
-        "--optimizer",
-        "adam",
-        "--stop",
-        "--glance-cost",
-        "0.01",
-        "--glances",
-        "2",
-        "--steps",
-        "2",
-        "--eval-every",
-        "2",
-        "--eval-batches",
-        "1",
-        "--no-progress",
-        "--out",
-        "r",
-    ],  # fmt: skip
-    "train-sac": [
-        "train",
-        "--table",
-        "TABLE",
-        "--learner",
-        "sac",
-        "--policy",
-        "squashed",
-        "--optimizer",
-        "adam",
-        "--glances",
-        "2",
-        "--steps",
-        "2",
-        "--eval-every",
-        "2",
-        "--eval-batches",
-        "1",
-        "--no-progress",
-        "--out",
-        "r",
-    ],  # fmt: skip
-    "train-probe": [
-        "train",
-        "--table",
-        "TABLE",
-        "--first-glance",
-        "probe",
-        "--glances",
-        "2",
-        "--steps",
-        "2",
-        "--eval-every",
-        "2",
-        "--eval-batches",
-        "1",
-        "--no-progress",
-        "--out",
-        "r",
-    ],  # fmt: skip
-    "baselines": ["baselines", "--policy", "random", "--table", "TABLE", "--glances", "1", "2"],
-    "evaluate": ["evaluate", "RUN", "--batches", "1"],
-    "heatmap": ["heatmap", "RUN", "--out", "h.png", "--batches", "1", "--bins", "4"],
-    "sb3": [
-        "sb3",
-        "--algo",
-        "ppo",
-        "--table",
-        "TABLE",
-        "--glances",
-        "2",
-        "--env-steps",
-        "64",
-        "--eval-every",
-        "64",
-        "--eval-episodes",
-        "4",
-        "--algo-kwargs",
-        '{"n_steps": 32}',
-        "--no-progress",
-        "--out",
-        "s",
-    ],  # fmt: skip
-    "reproduce-grid": ["reproduce", "grid", "GRID", "--out", "r", "--quiet"],
-    "reproduce": [
-        "reproduce",
-        "table1",
-        "--profile",
-        "smoke",
-        "--seeds",
-        "1",
-        "--steps",
-        "2",
-        "--glances",
-        "1",
-        "--variants",
-        "full",
-        "--out",
-        "r",
-        "--quiet",
-    ],  # fmt: skip
-    "envs-check": ["envs", "check", "--table", "TABLE", "--glances", "2", "--num-envs", "2"],
-    "envs-bench": ["envs", "bench", "--num-envs", "1"],
-    "table-show": ["table", "show", "TABLE", "--object", "0", "--n", "2", "--out", "s.png"],
-    "table-info": ["table", "info", "TABLE"],
-    "table-verify": ["table", "verify", "TABLE"],
-    "render": [
-        "render",
-        "--object",
-        "0",
-        "--x",
-        "0",
-        "--phi",
-        "0",
-        "--out",
-        "r.png",
-        "--width",
-        "64",
-        "--height",
-        "64",
-    ],  # fmt: skip
+#: valid base commands (shell words); TABLE, RUN, GRID are replaced by the fixtures' paths
+_SHORT = "--glances 2 --steps 2 --eval-every 2 --eval-batches 1 --no-progress --out r"
+BASE: dict[str, list[str]] = {
+    name: shlex.split(words)
+    for name, words in {
+        "objects": "objects --set paper",
+        "glance": "glance --object box --x 0 --phi 0 --json",
+        "table-build": "table build --grid 3 --out b.h5 --quiet",
+        "train": f"train --table TABLE {_SHORT}",
+        "train-online": f"train --online {_SHORT}",
+        "train-env": f"train --env ap_gym:CircleSquare-v0 {_SHORT}",
+        # the learners' own options are refused by the hybrid learner: each learner is a base
+        "train-info": f"train --table TABLE --learner info --optimizer adam --stop "
+        f"--glance-cost 0.01 {_SHORT}",
+        "train-sac": f"train --table TABLE --learner sac --policy squashed --optimizer adam {_SHORT}",
+        "train-probe": f"train --table TABLE --learner info --optimizer adam --first-glance probe "
+        f"{_SHORT}",
+        "baselines": "baselines --policy random --table TABLE --glances 1 2",
+        "evaluate": "evaluate RUN --batches 1",
+        "heatmap": "heatmap RUN --out h.png --batches 1 --bins 4",
+        "sb3": "sb3 --algo ppo --table TABLE --glances 2 --env-steps 64 --eval-every 64 "
+        """--eval-episodes 4 --algo-kwargs '{"n_steps": 32}' --no-progress --out s""",
+        "reproduce-grid": "reproduce grid GRID --out r --quiet",
+        "reproduce": "reproduce table1 --profile smoke --seeds 1 --steps 2 --glances 1 "
+        "--variants full --out r --quiet",
+        "envs-check": "envs check --table TABLE --glances 2 --num-envs 2",
+        "envs-bench": "envs bench --num-envs 1",
+        "table-show": "table show TABLE --object 0 --n 2 --out s.png",
+        "table-info": "table info TABLE",
+        "table-verify": "table verify TABLE",
+        "render": "render --object 0 --x 0 --phi 0 --out r.png --width 64 --height 64",
+    }.items()
 }
 
 
