@@ -86,6 +86,9 @@ BASE: dict[str, list[str]] = {
     for name, words in {
         "objects": "objects --set paper",
         "glance": "glance --object box --x 0 --phi 0 --json",
+        "glance-4d": "glance --objects curvature2d --object dome --pose-dims x,y,phi,phi_y "
+        "--x 0 --y 0.1 --phi 0 --phi-y 0.1 --json",
+        "glance-mujoco": "glance --simulator mujoco --object box --x 0 --phi 0 --json",
         "table-build": "table build --grid 3 --out b.h5 --quiet",
         "train": f"train --table TABLE {_SHORT}",
         "train-online": f"train --online {_SHORT}",
