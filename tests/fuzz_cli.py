@@ -90,6 +90,8 @@ BASE: dict[str, list[str]] = {
         "--x 0 --y 0.1 --phi 0 --phi-y 0.1 --json",
         "glance-mujoco": "glance --simulator mujoco --object box --x 0 --phi 0 --json",
         "table-build": "table build --grid 3 --out b.h5 --quiet",
+        "table-build-4d": "table build --objects curvature2d --pose-dims x,y,phi,phi_y "
+        "--grid 2,2,2,2 --out b.h5 --quiet",
         "train": f"train --table TABLE {_SHORT}",
         "train-online": f"train --online {_SHORT}",
         "train-env": f"train --env ap_gym:CircleSquare-v0 {_SHORT}",
