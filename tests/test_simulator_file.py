@@ -304,3 +304,22 @@ def test_the_binary_pad_reads_out_the_extended_glance_of_a_world_with_y(tmp_path
         fast = np.stack([f[f"objects/{n}/pressure"][...] for n in names])
     assert np.array_equal(binary, np.where(fast > 1000.0, 5000.0, 0.0).astype(np.float32))
     assert (binary > 0).any()
+
+
+def test_the_binary_pad_turns_objects_with_an_object_pose():
+    """The first glances are glanced again with the object pose of their rows (a ``(yaw, dx,
+    dy)`` tuple cut to them), and match the fast extended glance's thresholded."""
+    ids, q = torch.arange(9), torch.linspace(-0.5, 0.5, 9)
+    pose = (torch.full((9,), 0.3), torch.full((9,), 0.004), torch.zeros(9))
+    world = dict(objects="curvature2d", pose_dims=("x", "y", "phi", "phi_y"))
+    with registries_restored():
+        record = simulators.read_simulator_file(PAD)
+        simulators.load_simulator_file(record)
+        pad = make_simulator(WorldConfig(**world, simulator="binary", simulator_file=record))
+        r = pad.glance(ids, q, q, q_y=q, q_phi_y=q, object_pose=pose)
+    fast = make_simulator(WorldConfig(**world)).glance(
+        ids, q, q, q_y=q, q_phi_y=q, object_pose=pose
+    )
+    assert torch.equal(r.pressure, (fast.pressure > 1000.0).float() * 5000.0)
+    unturned = make_simulator(WorldConfig(**world)).glance(ids, q, q, q_y=q, q_phi_y=q)
+    assert not torch.equal(fast.pressure, unturned.pressure)  # the pose did turn them

@@ -156,6 +156,16 @@ def _close(a: torch.Tensor, b: torch.Tensor) -> bool:
     return bool(torch.allclose(a, b, rtol=1e-5, atol=max(1e-5 * scale, 1e-12)))
 
 
+def _head(v, k: int):
+    """The first ``k`` rows of a glance argument: a tensor, or a tuple of them (``object_pose``
+    ``(yaw, dx, dy)``); numbers and ``None`` as they are."""
+    if isinstance(v, torch.Tensor) and v.ndim:
+        return v[:k]
+    if isinstance(v, (tuple, list)):
+        return type(v)(_head(x, k) for x in v)
+    return v
+
+
 def _first_off(a: torch.Tensor, b: torch.Tensor) -> int:
     """The first batch index at which ``a`` and ``b`` differ most of all (for the message)."""
     d = (a.detach().cpu().double() - b.detach().cpu().double()).abs().reshape(len(a), -1)
@@ -233,7 +243,7 @@ class CheckedSimulator:
             object_ids[:k],
             q_x[:k],
             q_phi[:k],
-            **{key: (v[:k] if isinstance(v, torch.Tensor) else v) for key, v in kwargs.items()},
+            **{key: _head(v, k) for key, v in kwargs.items()},
         )
         for field in ("pressure", "force", "z", "contact", "blocked"):
             a, b = getattr(r, field)[:k], getattr(again, field, None)
