@@ -149,10 +149,11 @@ def _who(name: str) -> tuple[str, str]:
 _REPEATED_GLANCES = 8  # how many of a simulator's first glances are glanced again
 
 
-def _close(a: torch.Tensor, b: torch.Tensor) -> bool:
-    """Equal up to float noise of another batch size (1e-5 of the largest value)."""
+def _close(a: torch.Tensor, b: torch.Tensor, scale: float | None = None) -> bool:
+    """Equal up to float noise of another batch size (1e-5 of the largest value, ``scale``)."""
     a, b = a.detach().cpu().double(), b.detach().cpu().double()
-    scale = float(a.abs().max()) if a.numel() else 0.0
+    if scale is None:
+        scale = float(a.abs().max()) if a.numel() else 0.0
     return bool(torch.allclose(a, b, rtol=1e-5, atol=max(1e-5 * scale, 1e-12)))
 
 
@@ -167,9 +168,9 @@ def _head(v, k: int):
 
 
 def _first_off(a: torch.Tensor, b: torch.Tensor) -> int:
-    """The first batch index at which ``a`` and ``b`` differ most of all (for the message)."""
-    d = (a.detach().cpu().double() - b.detach().cpu().double()).abs().reshape(len(a), -1)
-    return int(d.max(dim=1).values.argmax())
+    """The first batch row in which ``a`` and ``b`` are not :func:`_close` (for the message)."""
+    scale = float(a.detach().abs().max()) if a.numel() else 0.0
+    return next((i for i in range(len(a)) if not _close(a[i], b[i], scale)), 0)
 
 
 class CheckedSimulator:
