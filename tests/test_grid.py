@@ -162,6 +162,7 @@ def test_the_agent_grid_is_the_old_script(tmp_path):
         ('name = "x"\n[[cells]]\nname = "a"\n[[cells]]\nname = "a"\nlr = 0.1\n', r"duplicate cell 'a'"),
         ('name = "x"\n[[cells]]\nname = "a"\nsteps = 5\n[[cells]]\nname = "b"\nsteps = 5\n',
          r"duplicate cell: 'b' runs the same config as 'a'"),
+        ('name = "x"\ndescription = nan\n', r"grid 'x': description = nan; accepted: a string"),
         ('name = "x"\nseeds = 0\n', r"seeds = 0; accepted: a count from 1 to 10000 or a list of up to 10000 distinct"),
         ('name = "x"\nevaluate = [{policy = "greedy"}]\n',
          r"evaluate\[0\]: policy 'greedy'; accepted: mean, sample"),

@@ -212,6 +212,8 @@ class Grid:
             raise HamError(
                 f"grid name {self.name!r}; accepted: letters, digits and . _ = , + - (not empty)"
             )
+        if not isinstance(self.description, str):
+            raise HamError(f"{w}: description = {self.description!r}; accepted: a string")
         if self.plugin is not None:
             from ham.model.plugin import load_plugin
 
@@ -563,7 +565,7 @@ class Grid:
         d = _world_files(d, source)
         return cls(
             name=d.get("name", Path(source).stem if source != "grid" else "grid"),
-            description=str(d.get("description", "")),
+            description=d.get("description", ""),
             base=d.get("base", {}),
             axes=d.get("axes", {}),
             cells=d.get("cells", []),
