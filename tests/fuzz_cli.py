@@ -25,6 +25,7 @@ import argparse
 import contextlib
 import io
 import multiprocessing
+import os
 import shlex
 import shutil
 import signal
@@ -275,4 +276,8 @@ def _fresh(root: Path) -> Path:
 
 
 if __name__ == "__main__":
+    # as `ham render` picks in a fresh process: MuJoCo's GL backend is fixed at its first import,
+    # which an earlier MuJoCo glance of this sweep would make with GLFW (no display here)
+    if "DISPLAY" not in os.environ:
+        os.environ.setdefault("MUJOCO_GL", "egl")
     sys.exit(main())
