@@ -323,3 +323,21 @@ def test_the_binary_pad_turns_objects_with_an_object_pose():
     assert torch.equal(r.pressure, (fast.pressure > 1000.0).float() * 5000.0)
     unturned = make_simulator(WorldConfig(**world)).glance(ids, q, q, q_y=q, q_phi_y=q)
     assert not torch.equal(fast.pressure, unturned.pressure)  # the pose did turn them
+
+
+def test_the_repeated_glances_take_plain_lists_too():
+    """Python lists of one value per glance (q_y, q_phi_y as keywords) are cut to the repeated
+    rows like tensors; a value for all glances is passed as it is."""
+    from ham.world.extended_glance import ExtendedSimulator
+
+    world = dict(objects="curvature2d", pose_dims=("x", "y", "phi", "phi_y"))
+    ids, q = list(range(9)) * 2, [0.1 * (i % 5) - 0.2 for i in range(18)]
+    with registries_restored():
+        simulators.register_simulator("ext", ExtendedSimulator)
+        r = make_simulator(WorldConfig(**world, simulator="ext")).glance(
+            ids, q, q, q_y=q, q_phi_y=0.1, object_pose=(0.3, 0.0, 0.001)
+        )
+    fast = make_simulator(WorldConfig(**world)).glance(
+        ids, q, q, q_y=q, q_phi_y=0.1, object_pose=(0.3, 0.0, 0.001)
+    )
+    assert torch.equal(r.pressure, fast.pressure)

@@ -157,13 +157,14 @@ def _close(a: torch.Tensor, b: torch.Tensor, scale: float | None = None) -> bool
     return bool(torch.allclose(a, b, rtol=1e-5, atol=max(1e-5 * scale, 1e-12)))
 
 
-def _head(v, k: int):
-    """The first ``k`` rows of a glance argument: a tensor, or a tuple of them (``object_pose``
-    ``(yaw, dx, dy)``); numbers and ``None`` as they are."""
-    if isinstance(v, torch.Tensor) and v.ndim:
+def _head(v, k: int, n: int):
+    """The first ``k`` of the ``n`` rows of a glance argument: a tensor, array or list of one
+    value per glance is cut; a tuple of them (``object_pose`` ``(yaw, dx, dy)``) is cut in each
+    part; a number, a value for all glances or ``None`` stays as it is."""
+    if isinstance(v, (tuple, list)) and any(isinstance(x, (torch.Tensor, tuple, list)) for x in v):
+        return type(v)(_head(x, k, n) for x in v)
+    if getattr(v, "ndim", 1) and hasattr(v, "__len__") and len(v) == n:
         return v[:k]
-    if isinstance(v, (tuple, list)):
-        return type(v)(_head(x, k) for x in v)
     return v
 
 
@@ -236,15 +237,14 @@ class CheckedSimulator:
         """Glance the first few of the first batch again: the same object and pose must give
         the same glance, or a table built twice differs and a resumed online run glances
         otherwise than an uninterrupted one (noise must be a function of object and pose)."""
-        k = min(len(object_ids), _REPEATED_GLANCES)
+        n = len(object_ids)
+        k = min(n, _REPEATED_GLANCES)
         again = recorded_file.call(
             self._what,
             self._where,
             self.inner.glance,
-            object_ids[:k],
-            q_x[:k],
-            q_phi[:k],
-            **{key: _head(v, k) for key, v in kwargs.items()},
+            *(_head(v, k, n) for v in (object_ids, q_x, q_phi)),
+            **{key: _head(v, k, n) for key, v in kwargs.items()},
         )
         for field in ("pressure", "force", "z", "contact", "blocked"):
             a, b = getattr(r, field)[:k], getattr(again, field, None)
