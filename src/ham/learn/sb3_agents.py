@@ -384,8 +384,7 @@ def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dic
 
     check_device(config.device)  # a missing GPU is named before anything is written
     out = Path(out)
-    if out.exists() and any(out.iterdir()):
-        raise HamError(f"output directory {str(out)!r} exists and is not empty")
+    _check_empty(out)
 
     # The environment first: a bad id or keyword fails before anything is written.
     def wrapped(head: PredictionHead | None = None) -> SupervisedPrediction:
@@ -411,10 +410,14 @@ def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dic
         raise HamError(f"algo_kwargs {config.algo_kwargs!r} for {config.algo}: {msg}") from None
     out.mkdir(parents=True, exist_ok=True)
     with folder_lock(out):  # another process starting the same --out: refused
-        if any(out.iterdir()):  # it started first and has written since
-            raise HamError(f"output directory {str(out)!r} exists and is not empty")
+        _check_empty(out)  # again: another process may have started first and written since
         _write_json(out / "config.json", asdict(config))
         return _learn(config, out, model, eval_env, [], 0.0, progress)
+
+
+def _check_empty(out: Path) -> None:
+    if out.exists() and any(out.iterdir()):
+        raise HamError(f"output directory {str(out)!r} exists and is not empty")
 
 
 def _read_config(out: Path) -> Sb3Config:

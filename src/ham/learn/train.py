@@ -939,15 +939,13 @@ def load_run(
 def train(config: TrainConfig, out: str | os.PathLike, *, progress: bool = True) -> dict:
     """Train a fresh run into directory ``out``; returns the metrics (also in metrics.json)."""
     out = check_output_dir(out)
-    if (out / CHECKPOINT_FILE).exists():
-        raise HamError(f"{str(out)!r} already holds a run; continue it with --resume {out}")
+    _check_no_run(out)
     run = Run.create(config)  # first: a bad table, device or config leaves no run directory
     created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
         with folder_lock(out):  # another process training into out: refused, nothing written
-            if (out / CHECKPOINT_FILE).exists():  # it started first and has saved since
-                raise HamError(f"{str(out)!r} already holds a run; continue it with --resume {out}")
+            _check_no_run(out)  # again: another process may have started first and saved since
             try:
                 _write_json(out / CONFIG_FILE, config.to_dict())
                 return train_loop(run, out, progress)
@@ -957,6 +955,11 @@ def train(config: TrainConfig, out: str | os.PathLike, *, progress: bool = True)
                 raise
     finally:
         run.close()
+
+
+def _check_no_run(out: Path) -> None:
+    if (out / CHECKPOINT_FILE).exists():
+        raise HamError(f"{str(out)!r} already holds a run; continue it with --resume {out}")
 
 
 def _remove_run(out: Path, created: bool) -> None:
