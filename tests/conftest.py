@@ -93,6 +93,14 @@ def env():
     return HapticEnv(source, batch_size=8, seed=0)
 
 
+@pytest.fixture(scope="module")
+def small_table(tmp_path_factory) -> str:
+    """A 9 x 9 glance table of the paper's world, built by the CLI: one per test module."""
+    path = tmp_path_factory.mktemp("table") / "t.h5"
+    ok(run_ham_inprocess("table", "build", "--grid", "9", "--out", str(path), "--quiet"))
+    return str(path)
+
+
 @pytest.fixture
 def ham_cli():
     return run_ham

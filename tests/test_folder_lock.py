@@ -11,8 +11,6 @@ import subprocess
 import sys
 import textwrap
 
-import pytest
-
 from ham.world.files import folder_lock
 from tests.conftest import ok, one_line_error, run_ham_inprocess
 
@@ -20,20 +18,13 @@ TRAIN = ("--glances", "2", "--steps", "2", "--batch-size", "8", "--eval-every", 
          "--eval-batches", "1", "--no-progress")  # fmt: skip
 
 
-@pytest.fixture(scope="module")
-def table(tmp_path_factory):
-    path = tmp_path_factory.mktemp("table") / "t.h5"
-    ok(run_ham_inprocess("table", "build", "--grid", "5", "--out", str(path), "--quiet"))
-    return str(path)
-
-
 def _digest(folder):
     return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in folder.glob("*.*")}
 
 
-def test_a_run_in_use_is_neither_resumed_nor_trained_into(tmp_path, table):
+def test_a_run_in_use_is_neither_resumed_nor_trained_into(tmp_path, small_table):
     run = tmp_path / "r"
-    ok(run_ham_inprocess("train", "--table", table, *TRAIN, "--out", str(run)))
+    ok(run_ham_inprocess("train", "--table", small_table, *TRAIN, "--out", str(run)))
     before = _digest(run)
     with folder_lock(run):
         line = one_line_error(run_ham_inprocess("train", "--resume", str(run), "--steps", "4"))
@@ -44,7 +35,7 @@ def test_a_run_in_use_is_neither_resumed_nor_trained_into(tmp_path, table):
     fresh = tmp_path / "fresh"
     fresh.mkdir()
     with folder_lock(fresh):  # another process about to write its first checkpoint there
-        line = one_line_error(run_ham_inprocess("train", "--table", table, *TRAIN, "--out",
+        line = one_line_error(run_ham_inprocess("train", "--table", small_table, *TRAIN, "--out",
                                                 str(fresh)))  # fmt: skip
         assert "is in use by another ham process" in line
     assert list(fresh.iterdir()) == []

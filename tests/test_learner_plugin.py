@@ -24,13 +24,6 @@ TRAIN = ("--glances", "2", "--steps", "4", "--batch-size", "8", "--eval-every", 
          "--eval-batches", "2", "--seed", "3", "--no-progress")  # fmt: skip
 
 
-@pytest.fixture(scope="module")
-def table(tmp_path_factory):
-    path = tmp_path_factory.mktemp("table") / "t.h5"
-    ok(run_ham_inprocess("table", "build", "--grid", "9", "--out", str(path), "--quiet"))
-    return str(path)
-
-
 def test_the_no_baseline_learner_is_the_hybrid_loss_with_the_reward_as_advantage(env):
     with registries_restored():
         plugin.load_plugin(plugin.read_plugin(NO_BASELINE))
@@ -54,9 +47,9 @@ def test_the_no_baseline_learner_is_the_hybrid_loss_with_the_reward_as_advantage
     assert "no_baseline" not in learners.LEARNERS
 
 
-def test_a_plugin_learner_trains_and_the_run_loads_without_the_file(tmp_path, table):
+def test_a_plugin_learner_trains_and_the_run_loads_without_the_file(tmp_path, small_table):
     (tmp_path / "nb.py").write_text(NO_BASELINE.read_text())
-    ok(run_ham_inprocess("train", "--table", table, "--plugin", "nb.py", "--learner",
+    ok(run_ham_inprocess("train", "--table", small_table, "--plugin", "nb.py", "--learner",
                          "no_baseline", "--beta", "0.2", *TRAIN, "--out", "r", cwd=tmp_path))  # fmt: skip
     (tmp_path / "nb.py").unlink()
     config = json.loads((tmp_path / "r" / "config.json").read_text())
@@ -69,9 +62,9 @@ def test_a_plugin_learner_trains_and_the_run_loads_without_the_file(tmp_path, ta
     assert "no_baseline" not in learners.LEARNERS  # the in-process runs restore the registries
 
 
-def test_the_same_plugin_learner_and_seed_give_the_same_numbers(tmp_path, table):
+def test_the_same_plugin_learner_and_seed_give_the_same_numbers(tmp_path, small_table):
     for out in ("a", "b"):
-        ok(run_ham_inprocess("train", "--table", table, "--plugin", str(NO_BASELINE),
+        ok(run_ham_inprocess("train", "--table", small_table, "--plugin", str(NO_BASELINE),
                              "--learner", "no_baseline", *TRAIN, "--out", out, cwd=tmp_path))  # fmt: skip
     a, b = (json.loads((tmp_path / d / "metrics.json").read_text())["history"] for d in "ab")
     assert a == b
@@ -125,12 +118,12 @@ BAD = {
 
 
 @pytest.mark.parametrize("name", list(BAD))
-def test_a_bad_plugin_learner_is_one_line(tmp_path, table, name):
+def test_a_bad_plugin_learner_is_one_line(tmp_path, small_table, name):
     text, expected = BAD[name]
     (tmp_path / name).write_text(text)
     learner = "half" if name == "half.py" else "bad"
     before = dict(learners.LEARNERS)
-    line = one_line_error(run_ham_inprocess("train", "--table", table, "--plugin", name,
+    line = one_line_error(run_ham_inprocess("train", "--table", small_table, "--plugin", name,
                                             "--learner", learner, *TRAIN, "--out", "r",
                                             cwd=tmp_path))  # fmt: skip
     assert expected in line, line
@@ -142,8 +135,8 @@ def test_a_bad_plugin_learner_is_one_line(tmp_path, table, name):
     assert dict(learners.LEARNERS) == before
 
 
-def test_a_learner_the_run_does_not_read_or_name_is_refused(tmp_path, table):
-    args = ["train", "--table", table, *TRAIN, "--out", "r"]
+def test_a_learner_the_run_does_not_read_or_name_is_refused(tmp_path, small_table):
+    args = ["train", "--table", small_table, *TRAIN, "--out", "r"]
     line = one_line_error(run_ham_inprocess(*args, "--learner", "mine", cwd=tmp_path))
     assert "learner = 'mine'; accepted: hybrid, info, sac, or a learner of your own" in line
     line = one_line_error(run_ham_inprocess(*args, "--plugin", str(NO_BASELINE), "--learner",
@@ -155,7 +148,7 @@ def test_a_learner_the_run_does_not_read_or_name_is_refused(tmp_path, table):
     assert not (tmp_path / "r").exists()
 
 
-def test_a_grid_runs_a_plugin_learner_alone_under_the_batched_executor(tmp_path, table):
+def test_a_grid_runs_a_plugin_learner_alone_under_the_batched_executor(tmp_path, small_table):
     (tmp_path / "nb.py").write_text(NO_BASELINE.read_text())
     (tmp_path / "g.toml").write_text(
         'name = "learners"\nplugin = "nb.py"\n[table]\ngrid = 9\n'
