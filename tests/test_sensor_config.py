@@ -46,15 +46,27 @@ def _refused(proc, *words: str) -> str:
 
 
 # --------------------------------------------------------------------------- validation
-@pytest.mark.parametrize("taxels", [1, 0, -4, MAX_TAXELS + 1, 2.5, 8.0, True, "8", None])
+@pytest.mark.parametrize("taxels", [1, 0, -4, MAX_TAXELS + 1])
 def test_taxels_must_be_an_integer_2_to_128(taxels):
     with pytest.raises(HamError, match=r"taxels = .*accepted: an integer 2\.\.128"):
         SensorConfig(taxels=taxels)
 
 
-@pytest.mark.parametrize("pitch", [0.0, -0.005, math.nan, math.inf, "0.005"])
-def test_pitch_must_be_finite_and_positive(pitch):
+@pytest.mark.parametrize("taxels", [2.5, 8.0, True, "8", None])
+def test_taxels_of_another_type_are_refused_by_type(taxels):
+    with pytest.raises(HamError, match=r"^taxels = .*; accepted: an integer$"):
+        SensorConfig(taxels=taxels)
+
+
+@pytest.mark.parametrize("pitch", [0.0, -0.005])
+def test_pitch_must_be_positive(pitch):
     with pytest.raises(HamError, match="pitch = .*accepted: a positive number"):
+        SensorConfig(pitch=pitch)
+
+
+@pytest.mark.parametrize("pitch", [math.nan, math.inf, "0.005"])
+def test_pitch_must_be_a_finite_number(pitch):
+    with pytest.raises(HamError, match="^pitch = .*; accepted: a finite number$"):
         SensorConfig(pitch=pitch)
 
 

@@ -3,7 +3,12 @@
 The CLI prints its message on one line and exits non-zero, without a traceback.
 """
 
+import dataclasses
+import math
+import numbers
 import re
+import types
+import typing
 
 
 class HamError(ValueError):
@@ -32,6 +37,63 @@ def check_choices(config) -> None:
         if allowed is not None and getattr(config, f.name) not in allowed:
             value = getattr(config, f.name)
             raise HamError(f"{f.name} = {value!r}; accepted: {', '.join(allowed)}")
+
+
+def _accepted(kind) -> str | None:
+    """What a field annotated ``kind`` accepts, in words, or None when this check leaves the
+    field to its config (a nested config, a generic container it reads itself)."""
+    if kind is bool:
+        return "true or false"
+    if kind is int:
+        return "an integer"
+    if kind is float:
+        return "a finite number"
+    if kind in (str, dict) or dataclasses.is_dataclass(kind):
+        return ("an " if kind.__name__[0] in "AEIOU" else "a ") + kind.__name__
+    origin, args = typing.get_origin(kind), typing.get_args(kind)
+    if origin is typing.Literal:
+        return ", ".join(map(str, args))
+    if origin is tuple and args and Ellipsis not in args and all(a is float for a in args):
+        return f"a list of {len(args)} finite numbers"
+    if origin in (typing.Union, types.UnionType) and type(None) in args:
+        rest = [a for a in args if a is not type(None)]
+        inner = _accepted(rest[0]) if len(rest) == 1 else None
+        return None if inner is None else f"{inner} or None"
+    return None
+
+
+def _fits(kind, v) -> bool:
+    if kind is bool:
+        return isinstance(v, bool)
+    if kind is int:
+        return isinstance(v, numbers.Integral) and not isinstance(v, bool)
+    if kind is float:
+        return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+    if kind in (str, dict) or dataclasses.is_dataclass(kind):
+        return isinstance(v, kind)
+    origin, args = typing.get_origin(kind), typing.get_args(kind)
+    if origin is typing.Literal:
+        return isinstance(v, str) and v in args
+    if origin is tuple:
+        return (
+            isinstance(v, (tuple, list)) and len(v) == len(args) and all(_fits(float, x) for x in v)
+        )
+    rest = [a for a in args if a is not type(None)]
+    return v is None or _fits(rest[0], v)
+
+
+def check_types(config) -> None:
+    """Every field of the dataclass ``config`` holds a value of its annotated type: booleans for
+    ``bool``, integers (not booleans) for ``int``, finite numbers for ``float``, strings for
+    ``str``, one of a ``Literal``'s values, None where the annotation allows it. Run first in
+    a config's ``__post_init__``, so its range checks compare numbers (a saved config or a
+    Python caller may hand in anything)."""
+    hints = typing.get_type_hints(type(config))
+    for f in dataclasses.fields(config):
+        accepted = _accepted(hints[f.name])
+        value = getattr(config, f.name)
+        if accepted is not None and not _fits(hints[f.name], value):
+            raise HamError(f"{f.name} = {value!r}; accepted: {accepted}")
 
 
 def check_known_fields(cls, d: dict, what: str) -> None:

@@ -29,7 +29,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import NamedTuple, Protocol
 
-from ham.errors import HamError
+from ham.errors import HamError, check_types
 from ham.experiments.runs import is_finished, run_dir
 
 EXECUTORS = ("local", "ray", "batched", "ray-batched")
@@ -409,6 +409,7 @@ class BatchedOptions:
     cuda_graph: bool = False
 
     def __post_init__(self) -> None:
+        check_types(self)
         b = self.batch_runs
         if b is not None and not (isinstance(b, int) and not isinstance(b, bool) and b >= 1):
             raise HamError(f"batch_runs = {b!r}; accepted: an integer >= 1")

@@ -55,7 +55,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ham.errors import HamError, check_known_fields
+from ham.errors import HamError, check_known_fields, check_types
 from ham.model.agent import HamConfig
 from ham.model.policy import raster_counts
 from ham.world.devices import check_device
@@ -166,6 +166,7 @@ class ApGymConfig:
     glimpse: str = "flat"
 
     def __post_init__(self) -> None:
+        check_types(self)
         for name in ("env", "eval_env"):
             v = getattr(self, name)
             if not (isinstance(v, str) and v) and not (name == "eval_env" and v is None):

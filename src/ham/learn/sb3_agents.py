@@ -37,7 +37,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ham.errors import HamError, check_choices, check_known_fields, check_seed
+from ham.errors import HamError, check_choices, check_known_fields, check_seed, check_types
 from ham.world.files import atomic_write, folder_lock
 
 ALGOS: tuple[str, ...] = ("ppo", "sac", "crossq")
@@ -204,6 +204,7 @@ class Sb3Config:
     algo_kwargs: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        check_types(self)
         check_choices(self)
         for name in ("env_steps", "n_envs", "eval_episodes", "eval_every"):
             v = getattr(self, name)

@@ -37,7 +37,7 @@ import torch
 from torch import nn
 from tqdm.auto import tqdm
 
-from ham.errors import HamError, check_choices, check_known_fields, check_seed
+from ham.errors import HamError, check_choices, check_known_fields, check_seed, check_types
 from ham.learn.ap_adapter import ApGymConfig, ApGymGlanceEnv
 from ham.learn.environment import HapticEnv, check_pose_noise
 from ham.learn.evaluation import EVAL_POLICIES, EvalResult, evaluate
@@ -238,6 +238,7 @@ class TrainConfig:
     critic_trains_core: bool = False
 
     def __post_init__(self) -> None:
+        check_types(self)
         for name, kind in (("model", HamConfig), ("world", WorldConfig), ("nesterov", bool)):
             if not isinstance(getattr(self, name), kind):
                 raise HamError(f"{name} = {getattr(self, name)!r}; accepted: a {kind.__name__}")

@@ -30,7 +30,7 @@ from dataclasses import asdict, dataclass, field, fields
 import torch
 from torch import nn
 
-from ham.errors import HamError, check_choices, check_known_fields
+from ham.errors import HamError, check_choices, check_known_fields, check_types
 from ham.model.baseline import Baseline
 from ham.model.classifier import Classifier
 from ham.model.core import ACTIVATIONS, CORES, State, make_core
@@ -174,6 +174,7 @@ class HamConfig:
     plugin: dict | None = None
 
     def __post_init__(self) -> None:
+        check_types(self)
         if self.plugin is not None:
             registered = load_plugin(self.plugin)
             learners = any(r.startswith("learner ") for r in registered)  # TrainConfig checks

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
-from ham.errors import HamError, check_known_fields
+from ham.errors import HamError, check_known_fields, check_types
 from ham.world import objects as _objects
 from ham.world import simulators as _simulators
 from ham.world.extended_glance import ExtendedSimulator
@@ -81,6 +81,7 @@ class WorldConfig:
         return _simulators.load_simulator_file(self.simulator_file)
 
     def __post_init__(self) -> None:
+        check_types(self)
         for name, kind in (("objects", str), ("simulator", str), ("sensor", SensorConfig),
                            ("pose", PoseConfig), ("glance", GlanceConfig), ("mujoco", dict)):  # fmt: skip
             if not isinstance(getattr(self, name), kind):

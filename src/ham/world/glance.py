@@ -34,7 +34,7 @@ from typing import Protocol
 import numpy as np
 import torch
 
-from ham.errors import HamError
+from ham.errors import HamError, check_types
 from ham.world.objects import HapticObject
 from ham.world.sensor import Myrmex, SensorConfig
 
@@ -92,6 +92,7 @@ class PoseConfig:
     authors_zones: bool = False
 
     def __post_init__(self) -> None:
+        check_types(self)
         for name in ("phi_max", "zone_half_width", "pivot_offset"):
             v = getattr(self, name)
             if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))):
@@ -150,6 +151,7 @@ class GlanceConfig:
     housing_samples: int = 6
 
     def __post_init__(self) -> None:
+        check_types(self)
         if isinstance(self.force_threshold, bool) or not isinstance(
             self.force_threshold, (int, float)
         ):

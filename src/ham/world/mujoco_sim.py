@@ -84,7 +84,7 @@ import mujoco
 import numpy as np
 import torch
 
-from ham.errors import HamError
+from ham.errors import HamError, check_types
 from ham.world.glance import (
     GlanceConfig,
     GlanceResult,
@@ -208,6 +208,7 @@ class MujocoConfig:
     foam_points: int = 8
 
     def __post_init__(self) -> None:
+        check_types(self)
         if self.readout not in READOUTS:
             raise HamError(f"readout = {self.readout!r}; accepted: {', '.join(READOUTS)}")
         if self.on_failure not in ("flag", "raise"):

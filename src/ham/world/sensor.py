@@ -31,7 +31,7 @@ from typing import Literal
 import numpy as np
 import torch
 
-from ham.errors import HamError
+from ham.errors import HamError, check_types
 
 #: Most cells per side: a 128 x 128 image is 16,384 values per glance (64 KB), and a 201 x 201
 #: table of one object 2.6 GB; beyond that tables and networks stop being practical.
@@ -80,6 +80,7 @@ class SensorConfig:
     full_scale: float = 20_000.0
 
     def __post_init__(self) -> None:
+        check_types(self)
         if not (
             isinstance(self.taxels, (int, np.integer))
             and not isinstance(self.taxels, bool)

@@ -21,7 +21,7 @@ from typing import Protocol, runtime_checkable
 
 import torch
 
-from ham.errors import HamError
+from ham.errors import HamError, check_types
 from ham.world.config import WorldConfig, make_simulator
 from ham.world.poses import PAPER_POSE_DIMS, result_height, simulate, world_pose_dims
 from ham.world.sensor import SensorConfig
@@ -55,6 +55,7 @@ class ObjectPoseConfig:
     offset_max: float = 0.0
 
     def __post_init__(self) -> None:
+        check_types(self)
         for name, top in (("yaw_max", math.pi), ("offset_max", 0.05)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= top:
