@@ -107,3 +107,8 @@ def test_a_nested_config_must_be_its_dataclass():
         HamError, match=r"^env = 'ap_gym:CircleSquare-v0'; accepted: an ApGymConfig or None$"
     ):
         TrainConfig(env="ap_gym:CircleSquare-v0")
+
+
+def test_a_negative_sigma_floor_is_refused_by_the_config_not_first_by_the_model():
+    with pytest.raises(HamError, match=r"^sigma_min = -1; accepted: a finite number >= 0$"):
+        HamConfig(sigma_min=-1)

@@ -413,9 +413,6 @@ class BatchedOptions:
         b = self.batch_runs
         if b is not None and not (isinstance(b, int) and not isinstance(b, bool) and b >= 1):
             raise HamError(f"batch_runs = {b!r}; accepted: an integer >= 1")
-        for name in ("stop_at_perfect", "merge_glances", "cuda_graph"):
-            if not isinstance(getattr(self, name), bool):
-                raise HamError(f"{name} = {getattr(self, name)!r}; accepted: true or false")
 
     def given(self) -> list[str]:
         """The options set, as their flags."""

@@ -239,15 +239,6 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         check_types(self)
-        for name, kind in (("model", HamConfig), ("world", WorldConfig), ("nesterov", bool)):
-            if not isinstance(getattr(self, name), kind):
-                raise HamError(f"{name} = {getattr(self, name)!r}; accepted: a {kind.__name__}")
-        if self.table is not None and not isinstance(self.table, str):
-            raise HamError(f"table = {self.table!r}; accepted: a glance table's path or None")
-        for name in ("lr", "lr_min", "lr_decay", "momentum", "beta"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise HamError(f"{name} = {v!r}; accepted: a finite number")
         if self.env_steps is not None:
             v = self.env_steps
             if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):

@@ -188,8 +188,6 @@ class HamConfig:
                 )
         # frozen: a JSON list (a saved config) becomes the tuple
         object.__setattr__(self, "pose_dims", check_pose_dims(self.pose_dims))
-        if not isinstance(self.height_input, bool):
-            raise HamError(f"height_input = {self.height_input!r}; accepted: true or false")
         for name in ("glances", "n_objects", "pressure_dim", "what_units", "where_units",
                      "combine_units", "hidden_units", "transformer_layers",
                      "transformer_heads", "first_pose_grid"):  # fmt: skip
@@ -209,18 +207,15 @@ class HamConfig:
                 f"probe_grid = {self.probe_grid} with first_glance {self.first_glance!r}; "
                 "accepted: with first_glance 'probe' (--first-glance probe)"
             )
-        if not isinstance(self.moves, bool):
-            raise HamError(f"moves = {self.moves!r}; accepted: true or false")
-        ml = self.move_length
-        if isinstance(ml, bool) or not isinstance(ml, (int, float)) or not 0 <= ml < math.inf:
-            raise HamError(f"move_length = {ml!r}; accepted: a finite number >= 0")
+        if self.move_length < 0:
+            raise HamError(f"move_length = {self.move_length!r}; accepted: a finite number >= 0")
+        if self.sigma_min < 0:  # checked again by the location network, built without a config
+            raise HamError(f"sigma_min = {self.sigma_min!r}; accepted: a finite number >= 0")
         if self.policy == "grid" and self.first_glance == "own":
             raise HamError(
                 "first_glance = 'own' with policy 'grid'; accepted: random, learned (the "
                 "sweep's first pose) or probe"
             )
-        if not isinstance(self.stay_gate, bool):
-            raise HamError(f"stay_gate = {self.stay_gate!r}; accepted: true or false")
         if self.stay_gate and self.policy != "learned":
             raise HamError(
                 f"stay_gate with policy {self.policy!r}; accepted: --policy learned (a mean pose "

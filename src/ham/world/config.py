@@ -82,12 +82,6 @@ class WorldConfig:
 
     def __post_init__(self) -> None:
         check_types(self)
-        for name, kind in (("objects", str), ("simulator", str), ("sensor", SensorConfig),
-                           ("pose", PoseConfig), ("glance", GlanceConfig), ("mujoco", dict)):  # fmt: skip
-            if not isinstance(getattr(self, name), kind):
-                raise HamError(
-                    f"world {name} = {getattr(self, name)!r}; accepted: a {kind.__name__}"
-                )
         if self.objects_file is not None:
             _objects.check_record(self.objects_file)
         if self.simulator_file is not None:

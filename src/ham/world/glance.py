@@ -93,10 +93,6 @@ class PoseConfig:
 
     def __post_init__(self) -> None:
         check_types(self)
-        for name in ("phi_max", "zone_half_width", "pivot_offset"):
-            v = getattr(self, name)
-            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))):
-                raise HamError(f"{name} = {v!r}; accepted: a number (m or rad)")
         if not (math.isfinite(self.phi_max) and 0 < self.phi_max <= math.pi / 2):
             raise HamError(f"phi_max = {self.phi_max!r}; accepted: 0 < phi_max <= pi/2")
         if self.zone_half_width is not None and not (
@@ -152,12 +148,6 @@ class GlanceConfig:
 
     def __post_init__(self) -> None:
         check_types(self)
-        if isinstance(self.force_threshold, bool) or not isinstance(
-            self.force_threshold, (int, float)
-        ):
-            raise HamError(
-                f"force_threshold = {self.force_threshold!r}; accepted: a number > 0 (N)"
-            )
         if not (math.isfinite(self.force_threshold) and self.force_threshold > 0):
             raise HamError(f"force_threshold = {self.force_threshold!r}; accepted: > 0 (N)")
         if not (isinstance(self.housing_samples, int) and self.housing_samples >= 2):
