@@ -154,6 +154,116 @@ def test_a_plugin_must_be_used(tmp_path):
     assert "remove --plugin" in line
 
 
+CORE_HEAD = """from torch import nn
+from ham.model.core import register_core
+
+class Core(nn.Module):
+    def __init__(self, i, h):
+        super().__init__()
+        self.hidden_size, self.lin = h, nn.Linear(i, h)
+
+    def initial_state(self, batch, like):
+        return (like.new_zeros(batch, self.hidden_size),)
+
+"""
+POLICY_HEAD = """import torch
+from ham.model.policy import LocationPolicy, TruncatedGaussian, register_policy
+
+class Dist(TruncatedGaussian):
+    pass
+
+@register_policy("wrong")
+class Wrong(LocationPolicy):
+    @classmethod
+    def from_config(cls, config):
+        return cls()
+
+"""
+#: a plugin file whose core ``wrong`` (or policy) breaks the contract the model relies on
+BAD_PARTS = {
+    "width": (
+        CORE_HEAD + "    def forward(self, g, state):\n        t = self.lin(g)[:, :-3]\n"
+        "        return t, (t,)\n\n@register_core('wrong')\ndef f(i, h, **_):\n"
+        "    return Core(i, h)\n",
+        "core 'wrong' of 'bad.py' gave tau (2, 253) for 2 episodes; accepted: (2, 256)",
+    ),
+    "pair": (
+        CORE_HEAD + "    def forward(self, g, state):\n        return self.lin(g)\n\n"
+        "@register_core('wrong')\ndef f(i, h, **_):\n    return Core(i, h)\n",
+        "core 'wrong' of 'bad.py' returned (2, 256); accepted: a pair (tau, state)",
+    ),
+    "module": (
+        CORE_HEAD + "@register_core('wrong')\ndef f(i, h, **_):\n    return 42\n",
+        "core 'wrong' of 'bad.py' built an int; accepted: a torch.nn.Module with initial_state",
+    ),
+    "factory": (
+        CORE_HEAD + "@register_core('wrong')\ndef f(i, h, **_):\n    return Core(i, h, 3)\n",
+        "core 'wrong' of 'bad.py' raised TypeError at line 14: ",
+    ),
+    "forward": (
+        CORE_HEAD + "    def forward(self, g, state):\n        return 1 / 0\n\n"
+        "@register_core('wrong')\ndef f(i, h, **_):\n    return Core(i, h)\n",
+        "core 'wrong' of 'bad.py' raised ZeroDivisionError at line 13: division by zero",
+    ),
+    "distribution": (
+        POLICY_HEAD + "    def distribution(self, tau):\n        return tau[:, :2]\n",
+        "policy 'wrong' of 'bad.py' gave (2, 2); accepted: a ham.model.policy.LocationDistribution",
+    ),
+    "range": (
+        POLICY_HEAD.replace(
+            "    pass", "    def sample(self, generator):\n        return self.mu + 3"
+        )
+        + "    def distribution(self, tau):\n        z = tau[:, :2]\n"
+        "        return Dist(z, z + 1)\n",
+        "policy 'wrong' of 'bad.py' gave samples [[3.0, 3.0], [3.0, 3.0]]; accepted: poses (2, 2) "
+        "in [-1, 1]",
+    ),
+    "log_prob": (
+        POLICY_HEAD.replace("    pass", "    def log_prob(self, q):\n        return q")
+        + "    def distribution(self, tau):\n        z = tau[:, :2]\n"
+        "        return Dist(z, z + 1)\n",
+        "policy 'wrong' of 'bad.py' gave log_prob (2, 2); accepted: (2,), one value per episode",
+    ),
+}
+
+
+@pytest.mark.parametrize("name", list(BAD_PARTS))
+def test_a_plugin_core_or_policy_that_breaks_the_contract_is_one_line(tmp_path, name):
+    text, expected = BAD_PARTS[name]
+    (tmp_path / "bad.py").write_text(text)
+    part = "--policy" if "policy" in expected[:7] else "--core"
+    line = one_line_error(run_ham_inprocess("train", "--plugin", "bad.py", part, "wrong", *TRAIN,
+                                            "--online", "--out", "r", cwd=tmp_path))  # fmt: skip
+    assert expected in line, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.py"]  # no run left
+
+
+def test_the_contract_check_leaves_the_core_and_the_random_numbers_as_they_were(tmp_path):
+    import torch
+
+    from ham.model.agent import HamConfig, HapticAttentionModel
+
+    # a core that draws random numbers (dropout) and keeps running statistics (batch norm)
+    (tmp_path / "mine.py").write_text(
+        CORE_HEAD.replace("nn.Linear(i, h)", "nn.Sequential(nn.Linear(i, h), "
+                          "nn.BatchNorm1d(h), nn.Dropout(0.5))")
+        + "    def forward(self, g, state):\n        t = self.lin(g)\n        return t, (t,)\n"
+        "\n@register_core('noisy')\ndef f(i, h, **_):\n    return Core(i, h)\n"
+    )  # fmt: skip
+    config = HamConfig(glances=2, core="noisy", plugin=plugin.read_plugin(tmp_path / "mine.py"))
+    torch.manual_seed(0)
+    a = HapticAttentionModel(config)
+    after = torch.rand(3)
+    torch.manual_seed(0)
+    with pytest.MonkeyPatch.context() as m:  # the same model without the checks
+        m.setattr("ham.model.agent.check_core", lambda *a: None)
+        m.setattr("ham.model.agent.check_policy", lambda *a: None)
+        b = HapticAttentionModel(config)
+    assert torch.equal(after, torch.rand(3))
+    for (k, v), (k2, v2) in zip(a.state_dict().items(), b.state_dict().items(), strict=True):
+        assert k == k2 and torch.equal(v, v2), k
+
+
 GRID = """
 name = "plugged"
 plugin = "plugins/mine.py"

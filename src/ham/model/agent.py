@@ -35,7 +35,7 @@ from ham.model.baseline import Baseline
 from ham.model.classifier import Classifier
 from ham.model.core import ACTIVATIONS, CORES, State, make_core
 from ham.model.location_net import STD_ACTIVATIONS, uniform_locations
-from ham.model.plugin import load_plugin
+from ham.model.plugin import build_part, check_core, check_policy, load_plugin
 from ham.model.policy import (
     POLICIES,
     FirstPose,
@@ -388,7 +388,11 @@ class HapticAttentionModel(nn.Module):
             c.combine_units,
             c.bias,
         )
-        self.core = make_core(
+        self.core = build_part(
+            "core",
+            c.core,
+            CORES,
+            make_core,
             c.core,
             self.tactile.out_features,
             c.hidden_units,
@@ -402,7 +406,7 @@ class HapticAttentionModel(nn.Module):
         self.classifier = Classifier(c.hidden_units, c.n_objects, c.bias)
         self.baseline = Baseline(c.hidden_units, c.bias)
         # the location policy (ham.model.policy); created last, as its weights always were
-        self.location = make_policy(c)
+        self.location = build_part("policy", c.policy, POLICIES, make_policy, c)
         he_normal_init(self)
         if c.stop:  # after every other part: their initial weights stay those of a run without
             if c.stop_input == "core":
@@ -425,6 +429,9 @@ class HapticAttentionModel(nn.Module):
             nn.init.constant_(self.stay.net[-1].bias, STAY_GATE_BIAS)
         # where-input column i: q_i, times phi_scale for an angle
         self._angle = [d in ANGLE_DIMS for d in c.pose_dims]
+        # a core or policy of the user's own keeps the contract the model relies on
+        check_core(c.core, self.core, self.tactile.out_features, c.hidden_units)
+        check_policy(c.policy, self.location, c.hidden_units, len(c.pose_dims))
 
     @property
     def chooses_first_glance(self) -> bool:

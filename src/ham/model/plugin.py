@@ -13,10 +13,15 @@ again wherever they load the run. Objects belong in an objects file (``--objects
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
+import torch
+from torch import nn
+
+from ham.errors import HamError
 from ham.model.core import CORES
-from ham.model.policy import POLICIES
+from ham.model.policy import POLICIES, LocationDistribution
 from ham.world import recorded_file, registering
 
 SUFFIXES: tuple[str, ...] = (".py",)
@@ -77,3 +82,105 @@ def add_registry(label: str, registry: dict, how: str) -> None:
     REGISTRIES[label] = registry
     _BUILTIN[label] = tuple(registry)
     _HOW[label] = how
+
+
+# ------------------------------------------------------------------ the parts a plugin builds
+def _file_of(part) -> str:
+    """The file whose code defines ``part`` (a factory function or a class): for a plugin, the
+    name its text was compiled under; ``'?'`` when none is found."""
+    candidates = [part] if not isinstance(part, type) else list(vars(part).values())
+    for c in candidates:
+        code = getattr(getattr(c, "__func__", c), "__code__", None)
+        if code is not None:
+            return code.co_filename
+    return "?"
+
+
+def build_part(label: str, name: str, registry: dict, make, *args, **kwargs):
+    """``make(*args, **kwargs)``, the ``label`` ("core", "policy") ``name`` built; for one that is
+    not built in, any failure of the user's code is one line naming its file and line."""
+    if name in _BUILTIN[label] or name not in registry:
+        return make(*args, **kwargs)
+    return recorded_file.call(
+        f"{label} {name!r} of", _file_of(registry[name]), make, *args, **kwargs
+    )
+
+
+def _shape(x) -> str:
+    """A tensor's shape, else what ``x`` is ("an int", "a tuple")."""
+    if isinstance(x, torch.Tensor):
+        return str(tuple(x.shape))
+    kind = type(x).__name__
+    return ("an " if kind[0] in "aeiouAEIOU" else "a ") + kind
+
+
+def check_core(name: str, core, input_size: int, hidden_size: int) -> None:
+    """A core that is not built in keeps the contract the model relies on (:data:`CORES`): a
+    module whose ``initial_state(batch, like)`` and ``forward(g, state) -> (tau, state)`` give
+    ``tau`` of ``hidden_size`` features for each episode. Tried on a copy for two steps of two
+    episodes, under a forked random state: the core and the run's random numbers are as before."""
+    if name in _BUILTIN["core"]:
+        return
+    file = _file_of(CORES[name])
+    label = f"core {name!r} of"  # recorded_file.call adds the file
+    what = f"{label} {file!r}"
+    if not (isinstance(core, nn.Module) and callable(getattr(core, "initial_state", None))):
+        raise HamError(
+            f"{what} built {_shape(core)}; accepted: a torch.nn.Module with initial_state(batch, "
+            "like) and forward(g, state) -> (tau, state)"
+        )
+    with torch.random.fork_rng(devices=[]), torch.no_grad():
+        trial = copy.deepcopy(core)
+        g = torch.zeros(2, input_size)
+        state = recorded_file.call(label, file, trial.initial_state, 2, g)
+        for _ in range(2):
+            out = recorded_file.call(label, file, trial, g, state)
+            if not (isinstance(out, tuple) and len(out) == 2):
+                raise HamError(f"{what} returned {_shape(out)}; accepted: a pair (tau, state)")
+            tau, state = out
+            if not (isinstance(tau, torch.Tensor) and tau.is_floating_point()
+                    and tuple(tau.shape) == (2, hidden_size)):  # fmt: skip
+                raise HamError(
+                    f"{what} gave tau {_shape(tau)} for 2 episodes; accepted: (2, {hidden_size}), "
+                    "hidden_size floats per episode"
+                )
+
+
+def check_policy(name: str, policy, hidden_size: int, dims: int) -> None:
+    """A location policy that is not built in keeps the contract of
+    :class:`ham.model.policy.LocationDistribution`: from ``tau`` of two episodes, a distribution
+    whose ``sample`` gives poses ``(2, dims)`` in ``[-1, 1]``, ``log_prob`` and ``entropy`` one
+    value per episode, ``mode`` None or poses, and ``stack`` of two glances ``(2, 2)``. Tried on
+    a copy under a forked random state, as :func:`check_core`."""
+    if name in _BUILTIN["policy"]:
+        return
+    file = _file_of(POLICIES[name])
+    label = f"policy {name!r} of"  # recorded_file.call adds the file
+    what = f"{label} {file!r}"
+
+    def need(ok: bool, got, accepted: str) -> None:
+        if not ok:
+            raise HamError(f"{what} gave {got}; accepted: {accepted}")
+
+    with torch.random.fork_rng(devices=[]), torch.no_grad():
+        trial = copy.deepcopy(policy)
+        tau, position = torch.zeros(2, hidden_size), torch.zeros(2, dims)
+        d = recorded_file.call(label, file, trial.distribution_at, tau, 1, position)
+        need(isinstance(d, LocationDistribution), _shape(d),
+             "a ham.model.policy.LocationDistribution")  # fmt: skip
+        q = recorded_file.call(label, file, d.sample, torch.Generator().manual_seed(0))
+        poses = f"poses (2, {dims}) in [-1, 1]"
+        need(isinstance(q, torch.Tensor) and tuple(q.shape) == (2, dims),
+             f"samples {_shape(q)}", poses)  # fmt: skip
+        need(bool(((q >= -1) & (q <= 1)).all()), f"samples {q.tolist()}", poses)
+        for method, arg in (("log_prob", (q,)), ("entropy", ())):
+            v = recorded_file.call(label, file, getattr(d, method), *arg)
+            need(isinstance(v, torch.Tensor) and tuple(v.shape) == (2,),
+                 f"{method} {_shape(v)}", "(2,), one value per episode")  # fmt: skip
+        m = recorded_file.call(label, file, d.mode)
+        need(m is None or (isinstance(m, torch.Tensor) and tuple(m.shape) == (2, dims)),
+             f"mode {_shape(m)}", f"None or {poses}")  # fmt: skip
+        both = recorded_file.call(label, file, type(d).stack, [d, d])
+        v = recorded_file.call(label, file, both.log_prob, torch.stack([q, q]))
+        need(isinstance(v, torch.Tensor) and tuple(v.shape) == (2, 2),
+             f"log_prob {_shape(v)} of 2 stacked glances", "(2, 2)")  # fmt: skip
