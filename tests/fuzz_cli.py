@@ -196,7 +196,8 @@ def _verdict(
     lines = [ln for ln in stderr.splitlines() if ln.startswith("ham: error:")]
     if rc == 2 and (len(lines) != 1 or "Traceback" in stderr):
         return f"{len(lines)} error lines"
-    if rc == 2 and left:
+    kept = " keeps the run as saved at step " in stderr  # a diverged run: kept, and said so
+    if rc == 2 and left and not kept:
         return f"left {left}"
     path = option in PATHS or isinstance(option, int)
     if rc == 0 and (value == "" if path else value in NEVER_OK):

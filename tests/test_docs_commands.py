@@ -20,6 +20,7 @@ import pytest
 
 from ham.cli.agent import _config_from_args
 from ham.cli.main import build_parser
+from tests.conftest import registries_restored
 
 ROOT = Path(__file__).resolve().parents[1]
 #: commands the docs name as removed ("... are gone")
@@ -119,4 +120,5 @@ def test_every_training_run_in_the_docs_builds_its_config(where, words, monkeypa
     args = _parse(words)
     if args is None or isinstance(args, str):  # --help; a fragment (the test above)
         return
-    _config_from_args(args)
+    with registries_restored():  # a plugin's core, an objects file's objects: not for others
+        _config_from_args(args)

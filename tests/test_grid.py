@@ -218,7 +218,7 @@ def test_a_grid_runs_and_reports(tiny_run):
     assert "ran 4 run(s), skipped 0 finished" in r.stdout
     # the failing cell was tried twice (--retries 1 by default), then reported
     assert "retrying 1 failed run(s) (attempt 2)" in r.stderr
-    assert "ham: run diverges-s0 failed: HamError: training diverged at step" in r.stderr
+    assert "ham: run diverges-s0 failed: DivergedError: training diverged at step" in r.stderr
     results = json.loads((out / "results.json").read_text())
     cells = {c["cell"]: c for c in results["cells"]}
     assert list(cells) == ["glances=1", "glances=2", "diverges"]
@@ -233,7 +233,7 @@ def test_a_grid_runs_and_reports(tiny_run):
     mean, sem = g2["best_accuracy"]["mean"], g2["best_accuracy"]["sem"]
     assert f"| `glances=2` | glances=2 | 2/2 | 10 | {mean:.3f} ± {sem:.3f} |" in report
     assert "| `diverges` | lr=1e+30 | 0/1 | 10 | — |" in report
-    assert "- `diverges-s0`: HamError: training diverged" in report
+    assert "- `diverges-s0`: DivergedError: training diverged" in report
     assert (out / "curves.png").read_bytes()[:4] == b"\x89PNG"
     # the grid and every run's resolved config are saved beside the results
     plan_ = json.loads((out / "plan.json").read_text())

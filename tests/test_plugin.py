@@ -14,7 +14,7 @@ import pytest
 from ham.errors import HamError
 from ham.model import core, plugin, policy
 from ham.world import objects
-from tests.conftest import ok, one_line_error, run_ham, run_ham_inprocess
+from tests.conftest import ok, one_line_error, registries_restored, run_ham, run_ham_inprocess
 
 # the GRU core that ships as the docs' example (registered as "gru"), plus a policy
 PLUGIN = (
@@ -250,16 +250,17 @@ def test_the_contract_check_leaves_the_core_and_the_random_numbers_as_they_were(
         + "    def forward(self, g, state):\n        t = self.lin(g)\n        return t, (t,)\n"
         "\n@register_core('noisy')\ndef f(i, h, **_):\n    return Core(i, h)\n"
     )  # fmt: skip
-    config = HamConfig(glances=2, core="noisy", plugin=plugin.read_plugin(tmp_path / "mine.py"))
-    torch.manual_seed(0)
-    a = HapticAttentionModel(config)
-    after = torch.rand(3)
-    torch.manual_seed(0)
-    with pytest.MonkeyPatch.context() as m:  # the same model without the checks
-        m.setattr("ham.model.agent.check_core", lambda *a: None)
-        m.setattr("ham.model.agent.check_policy", lambda *a: None)
-        b = HapticAttentionModel(config)
-    assert torch.equal(after, torch.rand(3))
+    with registries_restored():
+        config = HamConfig(glances=2, core="noisy", plugin=plugin.read_plugin(tmp_path / "mine.py"))
+        torch.manual_seed(0)
+        a = HapticAttentionModel(config)
+        after = torch.rand(3)
+        torch.manual_seed(0)
+        with pytest.MonkeyPatch.context() as m:  # the same model without the checks
+            m.setattr("ham.model.agent.check_core", lambda *a: None)
+            m.setattr("ham.model.agent.check_policy", lambda *a: None)
+            b = HapticAttentionModel(config)
+        assert torch.equal(after, torch.rand(3))
     for (k, v), (k2, v2) in zip(a.state_dict().items(), b.state_dict().items(), strict=True):
         assert k == k2 and torch.equal(v, v2), k
 

@@ -155,6 +155,12 @@ def test_nan_stops_the_run_with_the_step_named(tmp_path, capsys):
                                  "--lr", "1e30", "--out", str(tmp_path / "nan"))  # fmt: skip
     assert code == 2
     assert "diverged at step" in err
+    # what is left and what to do: resuming repeats the same numbers
+    out = str(tmp_path / "nan")
+    assert f"{out!r} keeps the run as saved at step " in err and "smaller --lr" in err
+    code, _, err2 = ham_inprocess(capsys, "train", "--resume", out, "--no-progress")
+    assert code == 2 and err2.strip() == err.strip().splitlines()[-1]
+    assert "resuming diverges again" in err2
 
 
 # --------------------------------------------------------------------------- resume

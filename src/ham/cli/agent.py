@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -269,6 +270,24 @@ def _world_changes(world) -> list[str]:
     return [f"{k}={v!r}" for k, v in new.items() if old.get(k, object()) != v]
 
 
+@contextlib.contextmanager
+def _diverged(out: Path):
+    """A run that diverged, with what its folder keeps and what to do: resuming repeats the same
+    numbers (the same seed from the same checkpoint), so it would diverge again."""
+    from ham.learn.train import DivergedError
+
+    try:
+        yield
+    except DivergedError as exc:
+        if exc.saved_step is None:  # nothing kept
+            raise
+        raise HamError(
+            f"{exc}; {str(out)!r} keeps the run as saved at step {exc.saved_step} (resuming "
+            f"diverges again); accepted: a fresh run in another --out (or with {str(out)!r} "
+            "removed), e.g. with a smaller --lr"
+        ) from None
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     from ham.cli.options import set_threads
     from ham.learn.train import resume, train
@@ -307,8 +326,9 @@ def cmd_train(args: argparse.Namespace) -> int:
         out = Path(args.resume)
         if args.steps is not None and args.env_steps is not None:
             raise HamError("give --steps or --env-steps to --resume, not both")
-        metrics = resume(out, steps=args.steps, env_steps=args.env_steps, progress=progress,
-                         table=args.table)  # fmt: skip
+        with _diverged(out):
+            metrics = resume(out, steps=args.steps, env_steps=args.env_steps,
+                             progress=progress, table=args.table)  # fmt: skip
     else:
         if not args.out:
             raise HamError("ham train needs --out DIR (or --resume DIR)")
@@ -326,7 +346,8 @@ def cmd_train(args: argparse.Namespace) -> int:
             "see docs/agent.md)",
             flush=True,
         )
-        metrics = train(config, out, progress=progress)
+        with _diverged(out):
+            metrics = train(config, out, progress=progress)
     _print_summary(metrics, out)
     from ham.experiments.figures import plot_training_curve
 

@@ -609,13 +609,14 @@ def run_batch(
         options = options or BatchedOptions()
         results = train_batched(configs, outs, stop_at_perfect=options.stop_at_perfect,
                                 cuda_graph=options.cuda_graph)  # fmt: skip
+        # a string: the run diverged and left the batch (its folder keeps its last checkpoint)
         errors = {j["key"]: r for j, r in zip(todo, results, strict=True) if isinstance(r, str)}
     seconds = (time.perf_counter() - started) / len(jobs)
     out = []
     for j in jobs:
         if j["key"] in errors:
             out.append(
-                {"key": j["key"], "status": "failed", "error": f"HamError: {errors[j['key']]}"}
+                {"key": j["key"], "status": "failed", "error": f"DivergedError: {errors[j['key']]}"}
             )
             continue
         r = _safe_run(j, root, world, grid)  # finished: only its evaluations, if any

@@ -941,9 +941,12 @@ def train(config: TrainConfig, out: str | os.PathLike, *, progress: bool = True)
             try:
                 _write_json(out / CONFIG_FILE, config.to_dict())
                 return train_loop(run, out, progress)
-            except Exception:
+            except Exception as exc:
                 if run.step == 0:  # failed before its first step (out of memory, a plugin's
                     _remove_run(out, created)  # error): no run left, the same command runs again
+                    raise
+                if isinstance(exc, DivergedError):
+                    exc.saved_step = _saved_step(run)
                 raise
     finally:
         run.close()
@@ -997,15 +1000,33 @@ def _resume(out: Path, recorded, steps, env_steps, progress: bool, table) -> dic
             )
         if config != recorded:  # a budget or a moved table, only once accepted: a refused
             _write_json(out / CONFIG_FILE, config.to_dict())  # budget leaves the run as it was
-        return train_loop(run, out, progress)
+        try:
+            return train_loop(run, out, progress)
+        except DivergedError as exc:
+            exc.saved_step = _saved_step(run)
+            raise
     finally:
         run.close()
+
+
+class DivergedError(HamError):
+    """Training met NaN or inf: in the loss, or in the weights after an update.
+
+    ``saved_step``: the step of the checkpoint the run's folder keeps (set by :func:`train` and
+    :func:`resume`; None where nothing was kept)."""
+
+    saved_step: int | None = None
+
+
+def _saved_step(run: Run) -> int:
+    """The step of the run's last checkpoint: one is written at every evaluation."""
+    return run.history[-1]["step"] if run.history else 0
 
 
 def _check_loss(run: Run, loss: torch.Tensor) -> None:
     """Stop a diverged run with the step named: NaN or inf in the loss."""
     if not bool(torch.isfinite(loss)):
-        raise HamError(f"training diverged at step {run.step + 1}: the loss is {loss.item()}")
+        raise DivergedError(f"training diverged at step {run.step + 1}: the loss is {loss.item()}")
 
 
 def _descend(run: Run, loss: torch.Tensor) -> None:
@@ -1023,7 +1044,9 @@ def _check_weights(run: Run) -> None:
     total = torch.stack([p.detach().sum() for p in run.agent.parameters()]).sum()
     if not bool(torch.isfinite(total)):
         bad = [n for n, p in run.agent.named_parameters() if not bool(torch.isfinite(p).all())]
-        raise HamError(f"training diverged at step {run.step}: NaN/inf in the weights {bad[0]}")
+        raise DivergedError(
+            f"training diverged at step {run.step}: NaN/inf in the weights {bad[0]}"
+        )
 
 
 def _probe(run: Run) -> None:
