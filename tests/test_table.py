@@ -10,7 +10,14 @@ import torch
 from ham.errors import HamError
 from ham.world.config import WorldConfig, make_simulator
 from ham.world.glance import FastSimulator
-from ham.world.table import GlanceTable, build_table, grid_values, import_authors, table_info
+from ham.world.table import (
+    GlanceTable,
+    build_table,
+    grid_values,
+    import_authors,
+    table_info,
+    verify_table,
+)
 
 GRID = 11
 
@@ -138,6 +145,36 @@ def test_truncated_corrupt_and_foreign_files_are_refused(tmp_path, table_path):
         f["objects/box/contact"] = np.zeros((3, 3), bool)
     with pytest.raises(HamError, match=r"objects/box/contact has shape \(3, 3\)"):
         GlanceTable.load(wrong)
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [
+        lambda f: f.attrs.__setitem__("geometry", f.attrs["geometry"].replace("0.045", "0.046", 1)),
+        lambda f: f.attrs.__setitem__("world", f.attrs["world"].replace('"fast"', '"mujoco"')),
+        lambda f: f.attrs.__setitem__("command", "ham table build --grid 7"),
+        lambda f: f["objects/box/z"].__setitem__((0, 0), f["objects/box/z"][0, 0] + 1e-3),
+        lambda f: f["objects/convex/contact"].__setitem__(
+            (1, 1), ~f["objects/convex/contact"][1, 1]
+        ),
+        lambda f: f["objects/box/force"].__setitem__((2, 2), 0.0),
+    ],
+    ids=["geometry", "world", "command", "z", "contact", "force"],
+)
+def test_a_change_outside_the_pressures_is_found_by_the_record_checksum(tmp_path, table_path, edit):
+    # The pressure checksum covers the images; a flipped bit in an attribute or in another
+    # dataset read as data (a geometry, a z) was silent before the record checksum.
+    changed = tmp_path / "changed.h5"
+    changed.write_bytes(table_path.read_bytes())
+    with h5py.File(changed, "a") as f:
+        edit(f)
+    for check in (verify_table, GlanceTable.load):
+        with pytest.raises(HamError, match="is corrupt: its attributes or force/height/contact"):
+            check(changed)
+    # a table from before the record checksum has none and loads
+    with h5py.File(changed, "a") as f:
+        del f.attrs["record_checksum"]
+    verify_table(changed)
 
 
 def test_import_of_the_authors_layout(tmp_path):

@@ -282,6 +282,8 @@ def cmd_table_info(args: argparse.Namespace) -> int:
     print(f"  ham {info.ham_version}, created {info.created}")
     print(f"  command:   {info.command}")
     print(f"  checksum:  sha256 {info.checksum} (verified)")
+    if info.record_checksum:
+        print(f"  record:    sha256 {info.record_checksum} (attributes, force/height/contact)")
     return 0
 
 
@@ -300,6 +302,7 @@ def cmd_table_verify(args: argparse.Namespace) -> int:
     print(
         f"ok {args.file}: {len(info.objects)} objects x {_grid_text(info)} glances, "
         "finite non-negative pressures, checksum sha256 matches"
+        + (", and the record checksum" if info.record_checksum else "")
     )
     return 0
 

@@ -9,7 +9,8 @@ File layout (HDF5, self-describing)::
     /                       attrs: format, format_version, grid, q_range, objects (JSON),
                                    world (JSON WorldConfig), sensor (JSON SensorConfig, also in
                                    world), geometry (JSON outlines), simulator description (JSON),
-                                   ham_version, command, created, checksum
+                                   ham_version, command, created, checksum (pressures),
+                                   record_checksum (every other attribute and dataset)
     /objects/<name>/pressure  (grid, grid, N, N) float32, raw Pa; axis 0 = q_x index, 1 = q_phi;
                               N = the sensor's taxels (16)
     /objects/<name>/force     (grid, grid) float32, N (NaN where unknown, e.g. imported data)
@@ -39,8 +40,10 @@ marked in ``/progress``) and renames it to ``FILE`` only when complete and check
 
 Reading checks a table before use (:meth:`GlanceTable.load`, :func:`verify_table`, ``ham table
 verify``): its attributes and dataset shapes, at least one object, finite non-negative
-pressures, and the sha256 checksum of the pressures. On the paper's 201 x 201 table (165 MB)
-the checksum adds about 0.2 s to a 0.1 s load (warm cache, one core), so loads keep it on.
+pressures, the sha256 checksum of the pressures, and the record checksum of everything else
+(attributes, force, z or height, contact; tables from before it have none). On the paper's 201 x
+201 table (165 MB) the checksums add about 0.25 s to a 0.13 s load (warm cache, one core), so
+loads keep them on.
 """
 
 from __future__ import annotations
@@ -166,6 +169,42 @@ def _checksum(f: h5py.File, names: list[str], rows: int = 65536) -> str:
         for i in range(0, ds.shape[0], rows):
             h.update(np.ascontiguousarray(ds[i : i + rows]).tobytes())
     return h.hexdigest()
+
+
+#: attributes the record checksum leaves out: the checksums themselves
+_UNRECORDED = ("checksum", "record_checksum")
+
+
+def _record_checksum(f: h5py.File, names: list[str]) -> str:
+    """sha256 of what the pressure checksum leaves out: every root attribute (the world, its
+    objects and geometry, the grid, the command) and every object's other datasets (force, z or
+    height, contact), so a flipped bit anywhere in a table is found, not read as another world."""
+    h = hashlib.sha256()
+    for key in sorted(k for k in f.attrs if k not in _UNRECORDED):
+        v = f.attrs[key]
+        h.update(repr((key, v.tolist() if hasattr(v, "tolist") else v)).encode())
+    for name in names:
+        g = f[f"objects/{name}"]
+        for key in sorted(k for k in g if k != "pressure"):
+            h.update(f"{name}/{key}".encode())
+            h.update(np.ascontiguousarray(g[key][...]).tobytes())
+    return h.hexdigest()
+
+
+def _check_record(f: h5py.File, info: TableInfo, path: str) -> None:
+    """The record checksum of a table that has one (tables built before it have none)."""
+    recorded = f.attrs.get("record_checksum")
+    if recorded is None:
+        return
+    try:
+        got = _record_checksum(f, info.objects)
+    except (OSError, KeyError) as exc:
+        raise HamError(f"cannot read glance table {path!r}: {exc}") from None
+    if got != str(recorded):
+        raise HamError(
+            f"glance table {path!r} is corrupt: its attributes or force/height/contact data do "
+            f"not match their checksum (recorded {str(recorded)[:12]}..., data {got[:12]}...)"
+        )
 
 
 # --------------------------------------------------------------------------- build
@@ -351,7 +390,6 @@ def _build_grid_table(world, dims, shape, out, batch, progress, command, compres
                     f.flush()
                     bar.update(sl.stop - sl.start)
         _finish_build(f, names, command, list(shape), out)
-        del f.attrs["build"]
     os.replace(partial, out)
     return out
 
@@ -400,6 +438,9 @@ def _finish_build(f: h5py.File, names: list[str], command: str | None, grid, out
     f.attrs["created"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
     f.attrs["checksum"] = _checksum(f, names)
     del f["progress"]
+    if "build" in f.attrs:  # a version-2 build's resume key
+        del f.attrs["build"]
+    f.attrs["record_checksum"] = _record_checksum(f, names)  # last: over every attribute
 
 
 # --------------------------------------------------------------------------- read
@@ -421,6 +462,8 @@ class TableInfo:
     grid_shape: tuple = ()
     format_version: int = FORMAT_VERSION
     compression: str = "none"
+    #: sha256 of the attributes and the force/height/contact data (None: a table from before it)
+    record_checksum: str | None = None
 
     def __post_init__(self) -> None:
         if not self.grid_shape:
@@ -539,6 +582,7 @@ def _read_info(f: h5py.File, path: str) -> TableInfo:
         command=str(a.get("command", "")),
         created=str(a.get("created", "")),
         checksum=checksum,
+        record_checksum=str(a["record_checksum"]) if "record_checksum" in a else None,
         source=str(a.get("source", "ham")),
         sensor=sensor,
         pose_dims=tuple(dims),
@@ -584,6 +628,7 @@ def verify_table(path: str | os.PathLike) -> TableInfo:
             _read_pressure(f, info, str(path), verify=True)
         else:
             _verify_streamed(f, info, str(path))
+        _check_record(f, info, str(path))
     return info
 
 
@@ -714,6 +759,8 @@ class GlanceTable:
                           for key in keys}  # fmt: skip
             except (OSError, KeyError) as exc:
                 raise HamError(f"cannot read glance table {str(path)!r}: {exc}") from None
+            if verify:  # cheap (attributes, small arrays): streamed tables too
+                _check_record(f, info, str(path))
         if stream:
             return cls(info, None, extras, _Stream(str(path), info))
         pressure = torch.from_numpy(np.stack(arrays).astype(np.float32, copy=False))
@@ -911,3 +958,4 @@ def _write_authors(g, src, arrays, grid, axes, world, command) -> None:
         grp.create_dataset("z", data=np.full((grid, grid), np.nan, np.float32))
         grp.create_dataset("contact", data=a.reshape(grid, grid, -1).max(-1) > 0)
     g.attrs["checksum"] = _checksum(g, list(AUTHORS_OBJECTS))
+    g.attrs["record_checksum"] = _record_checksum(g, list(AUTHORS_OBJECTS))
