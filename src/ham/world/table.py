@@ -193,17 +193,17 @@ def _record_checksum(f: h5py.File, names: list[str]) -> str:
 
 def _check_record(f: h5py.File, info: TableInfo, path: str) -> None:
     """The record checksum of a table that has one (tables built before it have none)."""
-    recorded = f.attrs.get("record_checksum")
+    recorded = info.record_checksum  # as _read_info read it
     if recorded is None:
         return
     try:
         got = _record_checksum(f, info.objects)
     except (OSError, KeyError) as exc:
         raise HamError(f"cannot read glance table {path!r}: {exc}") from None
-    if got != str(recorded):
+    if got != recorded:
         raise HamError(
             f"glance table {path!r} is corrupt: its attributes or force/height/contact data do "
-            f"not match their checksum (recorded {str(recorded)[:12]}..., data {got[:12]}...)"
+            f"not match their checksum (recorded {recorded[:12]}..., data {got[:12]}...)"
         )
 
 
