@@ -39,6 +39,11 @@ def check_choices(config) -> None:
             raise HamError(f"{f.name} = {value!r}; accepted: {', '.join(allowed)}")
 
 
+def with_article(word: str) -> str:
+    """``word`` after "a" or "an" ("a str", "an int", "an ApGymConfig"), for messages."""
+    return ("an " if word[:1] in "aeiouAEIOU" else "a ") + word
+
+
 def _accepted(kind) -> str | None:
     """What a field annotated ``kind`` accepts, in words, or None when this check leaves the
     field to its config (a nested config, a generic container it reads itself)."""
@@ -49,7 +54,7 @@ def _accepted(kind) -> str | None:
     if kind is float:
         return "a finite number"
     if kind in (str, dict) or dataclasses.is_dataclass(kind):
-        return ("an " if kind.__name__[0] in "AEIOU" else "a ") + kind.__name__
+        return with_article(kind.__name__)
     origin, args = typing.get_origin(kind), typing.get_args(kind)
     if origin is typing.Literal:
         return ", ".join(map(str, args))

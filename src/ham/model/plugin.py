@@ -19,7 +19,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from ham.errors import HamError
+from ham.errors import HamError, with_article
 from ham.model.core import CORES
 from ham.model.policy import POLICIES, LocationDistribution
 from ham.world import recorded_file, registering
@@ -110,8 +110,7 @@ def _shape(x) -> str:
     """A tensor's shape, else what ``x`` is ("an int", "a tuple")."""
     if isinstance(x, torch.Tensor):
         return str(tuple(x.shape))
-    kind = type(x).__name__
-    return ("an " if kind[0] in "aeiouAEIOU" else "a ") + kind
+    return with_article(type(x).__name__)
 
 
 def check_core(name: str, core, input_size: int, hidden_size: int) -> None:
