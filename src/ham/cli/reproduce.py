@@ -97,7 +97,9 @@ def add_commands(subparsers) -> None:
         BatchedOptions,
     )
     p.add_argument("--device", default=None, help="cpu or cuda (default cpu; grid: the file's)")
-    p.add_argument("--retries", type=int, default=1, help="re-runs of a failed run (default 1)")
+    p.add_argument(
+        "--retries", type=int, default=1, help="re-runs of a failed, not diverged, run (default 1)"
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--out", required=True, help="output folder; finished runs in it are skipped")

@@ -677,7 +677,11 @@ def execute(
 
     ``batched`` goes with the batched executors only.
 
-    Returns every run's last result by key and the results of the runs that failed every try.
+    A run that diverged is not retried: it would resume from its last checkpoint and repeat the
+    same numbers.
+
+    Returns every run's last result by key and the results of the runs that failed every try
+    (or diverged).
     """
     from tqdm.auto import tqdm
 
@@ -692,6 +696,7 @@ def execute(
         bar.set_postfix(failed=sum(x["status"] == "failed" for x in results.values()))
 
     batched = batched or BatchedOptions()
+    diverged: list = []
     for attempt in range(retries + 1):
         if not todo:
             break
@@ -711,6 +716,19 @@ def execute(
             _on_ray(ray_address, todo, tasks, on_result, workers)
         else:
             _on_pool(tasks, workers, on_result)
-        todo = [j for j in todo if results.get(j.key, {}).get("status") == "failed"]
+        failed = [j for j in todo if results.get(j.key, {}).get("status") == "failed"]
+        # a diverged run resumes from its last checkpoint and repeats the same numbers: a retry
+        # would only spend its steps again
+        new = [j for j in failed if _diverged(results[j.key])]
+        todo = [j for j in failed if not _diverged(results[j.key])]
+        diverged += new
+        if new and attempt < retries:
+            print(f"not retrying {len(new)} diverged run(s): each would resume from its "
+                  "checkpoint and diverge again", file=sys.stderr)  # fmt: skip
     bar.close()
-    return results, [results[j.key] for j in todo]
+    return results, [results[j.key] for j in diverged + todo]
+
+
+def _diverged(result: dict) -> bool:
+    """Whether a failed run's result is a divergence (NaN/inf in its loss or weights)."""
+    return result.get("error", "").startswith("DivergedError:")
