@@ -31,9 +31,9 @@ def registries_restored():
     loads stays out of the other tests."""
     from ham.learn import learners
     from ham.model import core, plugin, policy
-    from ham.world import objects, simulators
+    from ham.world import objects, recorded_file, simulators
 
-    registry = (objects._REGISTRY, objects._ORDER, objects._ORIGIN, objects._FILES, objects._LAZY,
+    registry = (recorded_file._RAN, objects._REGISTRY, objects._ORDER, objects._ORIGIN, objects._FILES, objects._LAZY,
                 core.CORES, policy.POLICIES, plugin._LOADED, simulators._SIMULATORS,
                 simulators._ORIGIN, simulators._LOADED, learners.LEARNERS, learners.READS)  # fmt: skip
     saved = [r.copy() for r in registry]

@@ -238,6 +238,56 @@ def test_a_plugin_core_or_policy_that_breaks_the_contract_is_one_line(tmp_path, 
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.py"]  # no run left
 
 
+#: a core that passes the contract check (2 episodes) and fails in training (8 a batch)
+LATE = (
+    CORE_HEAD + "    def forward(self, g, state):\n        if g.shape[0] != 2:\n"
+    "            raise ValueError(f'{g.shape[0]} episodes')\n        t = self.lin(g)\n"
+    "        return t, (t,)\n\n@register_core('late')\ndef f(i, h, **_):\n    return Core(i, h)\n"
+)
+
+
+def test_a_plugin_core_that_fails_in_training_is_one_line_naming_its_file_and_line(tmp_path):
+    (tmp_path / "late.py").write_text(LATE)
+    line = one_line_error(run_ham_inprocess("train", "--plugin", "late.py", "--core", "late",
+                                            *TRAIN, "--online", "--out", "r", cwd=tmp_path))  # fmt: skip
+    assert line == "ham: error: plugin 'late.py' raised ValueError at line 14: 8 episodes", line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["late.py"]  # failed at step 0: no run
+    # a grid's report names it too (the single-run and the batched executors' runs alike)
+    (tmp_path / "g.toml").write_text(
+        GRID.replace("mine.py", "late.py").replace('["lstm", "gru"]', '["late"]')
+    )
+    (tmp_path / "plugins").mkdir()
+    (tmp_path / "late.py").rename(tmp_path / "plugins" / "late.py")
+    for executor in ("local", "batched"):
+        r = run_ham_inprocess("reproduce", "grid", "g.toml", "--out", executor, "--executor",
+                              executor, "--workers", "1", "--quiet", cwd=tmp_path)  # fmt: skip
+        assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+        report = (tmp_path / executor / "report.md").read_text()
+        assert "- `core=late-s0`: plugin 'late.py' raised ValueError at line 14: 8 episodes" in (
+            report
+        ), report
+
+
+def test_a_failure_of_ours_is_not_put_on_a_user_file(tmp_path):
+    from ham.world import recorded_file
+
+    with registries_restored():
+        recorded_file.run_python("plugin", "mine.py", "def f():\n    return 1 / 0\n", "m")
+        try:
+            1 / 0
+        except ZeroDivisionError as exc:
+            assert recorded_file.raised_in(exc) is None
+        namespace: dict = {}
+        exec(compile("def f():\n    return 1 / 0\n", "mine.py", "exec"), namespace)
+        try:
+            namespace["f"]()
+        except ZeroDivisionError as exc:
+            assert recorded_file.raised_in(exc) == (
+                "plugin 'mine.py' raised ZeroDivisionError at line 2: division by zero"
+            )
+    assert "mine.py" not in recorded_file._RAN
+
+
 def test_the_contract_check_leaves_the_core_and_the_random_numbers_as_they_were(tmp_path):
     import torch
 

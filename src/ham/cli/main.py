@@ -510,6 +510,26 @@ def _out_of_memory(exc: BaseException, text: str) -> bool:
     )
 
 
+def _known_failure(exc: Exception) -> str | None:
+    """One line for a failure that is not a bug of ours, else None: the user's own code (a
+    plugin's core failing in training, past the check at build time) or out of memory."""
+    from ham.world.recorded_file import raised_in
+
+    user = raised_in(exc)
+    if user is not None:
+        return user
+    # NumPy's MemoryError; torch's CPU allocator and CUDA say it in a RuntimeError
+    text = " ".join(str(exc).split())
+    if isinstance(exc, MemoryError) or (
+        isinstance(exc, RuntimeError) and _out_of_memory(exc, text)
+    ):
+        return (
+            f"out of memory ({text[:300]}); accepted: a request that fits this machine (fewer "
+            "envs or glances, a smaller batch, model, grid or object set)"
+        )
+    return None
+
+
 def _empty_option(args: argparse.Namespace, argv: list[str]) -> str | None:
     """The first option or argument given an empty value (``--table ''``, ``--out=``, ``ham
     evaluate ''``): never meaningful in this CLI, and a command that reads ``if args.table:``
@@ -546,16 +566,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as exc:  # a file the user named that the checks did not foresee: still one line
         print(f"ham: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
-    except (MemoryError, RuntimeError) as exc:
-        # NumPy's MemoryError; torch's CPU allocator and CUDA say it in a RuntimeError
-        text = " ".join(str(exc).split())
-        if not (isinstance(exc, MemoryError) or _out_of_memory(exc, text)):
+    except Exception as exc:  # noqa: BLE001 - the failures named below; any other is a bug of ours
+        message = _known_failure(exc)
+        if message is None:
             raise
-        print(
-            f"ham: error: out of memory ({text[:300]}); accepted: a request that fits this "
-            "machine (fewer envs or glances, a smaller batch, model, grid or object set)",
-            file=sys.stderr,
-        )
+        print(f"ham: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("ham: interrupted", file=sys.stderr)

@@ -31,6 +31,7 @@ from typing import NamedTuple, Protocol
 
 from ham.errors import HamError, check_types
 from ham.experiments.runs import is_finished, run_dir
+from ham.world.recorded_file import raised_in
 
 EXECUTORS = ("local", "ray", "batched", "ray-batched")
 #: the executors that train runs of one shape as one batched model (:mod:`ham.learn.batched`)
@@ -93,6 +94,12 @@ def _ensure_table(path: Path, world: dict, grid: int) -> None:
     build_table(WorldConfig.from_dict(world), grid, path, progress=False, command="ham reproduce")
 
 
+def _error(exc: BaseException) -> str:
+    """A failed run's error: the exception, or the user's file and line it came from (a
+    plugin's core failing in training: :func:`ham.world.recorded_file.raised_in`)."""
+    return raised_in(exc) or f"{type(exc).__name__}: {exc}"
+
+
 def _safe_run(job: dict, root: str, world: dict, grid: int) -> dict:
     try:
         return run_job(job, root, world, grid)
@@ -102,7 +109,7 @@ def _safe_run(job: dict, root: str, world: dict, grid: int) -> dict:
         return {
             "key": job["key"],
             "status": "failed",
-            "error": f"{type(exc).__name__}: {exc}",
+            "error": _error(exc),
             "traceback": traceback.format_exc(limit=6),
         }
 
@@ -635,7 +642,7 @@ def _safe_batch(
     except BaseException as exc:  # noqa: BLE001 - a worker must report, not die silently
         if isinstance(exc, KeyboardInterrupt):
             raise
-        error = f"{type(exc).__name__}: {exc}"
+        error = _error(exc)
         tb = traceback.format_exc(limit=6)
         return [
             {"key": j["key"], "status": "failed", "error": error, "traceback": tb} for j in jobs

@@ -15,6 +15,10 @@ from pathlib import Path
 from ham.errors import HamError
 
 KEYS: tuple[str, ...] = ("name", "sha256", "source")
+#: The files whose Python this process ran (:func:`run_python`), name -> what ("plugin", ...):
+#: their code runs again later (a plugin core's forward in training), where :func:`raised_in`
+#: names them.
+_RAN: dict[str, str] = {}
 
 
 def one_line(exc: BaseException) -> str:
@@ -67,7 +71,29 @@ def run_python(what: str, name: str, source: str, module: str) -> None:
             f"{what} {name!r} has a syntax error at line {exc.lineno}: {exc.msg}"
         ) from None
     namespace = {"__name__": module, "__file__": name}
+    _RAN[name] = what
     call(what, name, exec, code, namespace)
+
+
+def _innermost(exc: BaseException, names) -> tuple[str, int] | None:
+    """The innermost line of the files ``names`` that ``exc`` passed through: (name, line)."""
+    tb, found = exc.__traceback__, None
+    while tb is not None:
+        if tb.tb_frame.f_code.co_filename in names:
+            found = (tb.tb_frame.f_code.co_filename, tb.tb_lineno)
+        tb = tb.tb_next
+    return found
+
+
+def raised_in(exc: BaseException) -> str | None:
+    """One line naming the user's file (one :func:`run_python` ran) and its innermost line that
+    ``exc`` passed through, e.g. ``plugin 'late.py' raised ValueError at line 17: late failure``;
+    None where ``exc`` passed through none of them (a failure of ours)."""
+    found = _innermost(exc, _RAN)
+    if found is None:
+        return None
+    name, line = found
+    return f"{_RAN[name]} {name!r} raised {type(exc).__name__} at line {line}: {one_line(exc)}"
 
 
 def call(what: str, name: str, fn, *args, **kwargs):
@@ -78,12 +104,8 @@ def call(what: str, name: str, fn, *args, **kwargs):
     except HamError as exc:
         raise HamError(f"{what} {name!r}: {one_line(exc)}") from None
     except (Exception, SystemExit) as exc:  # noqa: BLE001 - any failure of the user's file
-        tb, line = exc.__traceback__, None
-        while tb is not None:  # the innermost line of the file itself
-            if tb.tb_frame.f_code.co_filename == name:
-                line = tb.tb_lineno
-            tb = tb.tb_next
-        where = f" at line {line}" if line else ""
+        found = _innermost(exc, (name,))
+        where = f" at line {found[1]}" if found else ""
         raise HamError(
             f"{what} {name!r} raised {type(exc).__name__}{where}: {one_line(exc)}"
         ) from None
