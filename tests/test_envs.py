@@ -107,6 +107,10 @@ def test_raw_pressure_and_bad_input_is_named():
         HapticGlanceEnv(normalization="l3")
     with pytest.raises(HamError, match="glances = 0"):
         HapticGlanceEnv(glances=0)
+    with pytest.raises(
+        HamError, match=r"object_pose has unknown fields \['yaw'\]; accepted: yaw_max"
+    ):
+        HapticGlanceEnv(object_pose={"yaw": 0.1})
     env.step({"pose": np.zeros(2), "prediction": 0})
     with pytest.raises(HamError, match="after the episode ended"):
         env.step({"pose": np.zeros(2), "prediction": 0})

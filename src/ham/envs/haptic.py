@@ -41,7 +41,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from ham.errors import HamError
+from ham.errors import HamError, check_known_fields
 from ham.world.config import WorldConfig
 from ham.world.devices import check_device
 
@@ -115,6 +115,7 @@ class GlanceBackend:
             raise HamError(f"glance table {str(table)!r} does not exist")
         self.device = check_device(device)
         if isinstance(object_pose, dict):
+            check_known_fields(ObjectPoseConfig, object_pose, "object_pose")
             object_pose = ObjectPoseConfig(**object_pose)
         if object_pose is not None and not isinstance(object_pose, ObjectPoseConfig):
             raise HamError(
