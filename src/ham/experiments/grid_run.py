@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ham.errors import HamError
+from ham.errors import HamError, checked_arguments
 from ham.experiments.executors import (
     BATCHED_EXECUTORS,
     EXECUTORS,
@@ -41,11 +41,13 @@ from ham.experiments.runs import (
     per_object_accuracy,
     run_dir,
 )
+from ham.world.files import check_output_dir
 
 #: Keys of a run's config that may differ between invocations without making it another run.
 _PLACE_KEYS = ("device", "table")
 
 
+@checked_arguments
 def run_grid(
     grid: Grid | str | os.PathLike,
     out: str | os.PathLike,
@@ -87,9 +89,9 @@ def run_grid(
         grid = replace(grid, seeds=seeds, cells=cells)
     if device is not None:
         grid = replace(grid, base={**grid.base, "device": device})
+    if workers is not None and workers < 1:
+        raise HamError(f"workers = {workers}; accepted: an integer >= 1 (default: all cores)")
     workers = workers or os.cpu_count() or 1
-    if workers < 1:
-        raise HamError(f"workers = {workers}; accepted: >= 1")
     if not (isinstance(retries, int) and retries >= 0):
         raise HamError(f"retries = {retries!r}; accepted: an integer >= 0")
     if cache_dir is not None and not grid.table_cache:
@@ -97,7 +99,7 @@ def run_grid(
             f"--cache-dir {str(cache_dir)!r}: grid {grid.name!r} keeps no table in the cache; "
             "accepted: --cache-dir with a grid of [table] cache = true (docs/grids.md)"
         )
-    root = Path(out).resolve()
+    root = check_output_dir(out).resolve()
     tables = grid.table_paths(root, cache_dir)
     jobs = grid.jobs(tables)
     check_batched_options(executor, batched, [j.config.get("device", "cpu") for j in jobs])

@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ham.errors import HamError
+from ham.errors import HamError, checked_arguments
 from ham.experiments.executors import (
     EXECUTORS,
     BatchedOptions,
@@ -342,6 +342,7 @@ def table2_markdown(rows: dict) -> str:
 
 
 # --------------------------------------------------------------------------- the command
+@checked_arguments
 def reproduce(
     target: str,
     profile_name: str,
@@ -391,6 +392,11 @@ def reproduce(
         raise HamError(f"profile {profile_name!r}; accepted: {', '.join(PROFILES)}")
     if executor not in EXECUTORS:
         raise HamError(f"executor {executor!r}; accepted: {', '.join(EXECUTORS)}")
+    if cache_dir is not None and not table_cache:  # said, not silently ignored
+        raise HamError(
+            f"cache_dir = {str(cache_dir)!r} without table_cache; accepted: cache_dir with "
+            "table_cache=True (the glance table from the cache)"
+        )
     batched = batched or BatchedOptions()
     check_batched_options(executor, batched, [device])
     profile = PROFILES[profile_name]
@@ -409,7 +415,10 @@ def reproduce(
         raise HamError(f"retries = {retries!r}; accepted: an integer >= 0")
     check_device(device)
     root = check_output_dir(out).resolve()
-    world = world or WorldConfig()
+    if world is None:
+        world = WorldConfig()
+    elif not isinstance(world, WorldConfig):  # a name only a type checker sees: checked here
+        raise HamError(f"reproduce: world = {world!r}; accepted: a WorldConfig or None")
     # unknown objects, or too few to classify, are named before the folder is made
     HamConfig(n_objects=len(resolve_set(world.objects)))
     with ray_session(executor, ray_address, workers):  # before anything is written

@@ -32,7 +32,7 @@ from dataclasses import asdict, dataclass
 
 import torch
 
-from ham.errors import HamError
+from ham.errors import HamError, checked_arguments
 from ham.learn.environment import HapticEnv
 from ham.learn.stopping import stop_glances
 from ham.model.agent import HapticAttentionModel
@@ -115,6 +115,7 @@ def _batch_range(batches: int, progress: bool, desc: str) -> Iterable[int]:
 
 
 @torch.no_grad()
+@checked_arguments
 def evaluate(
     agent: HapticAttentionModel,
     env: HapticEnv,
@@ -203,6 +204,7 @@ def eval_result(
 
 
 @torch.no_grad()
+@checked_arguments
 def heatmap_data(
     agent: HapticAttentionModel,
     env: HapticEnv,

@@ -24,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import os
 import pickle
 import random
 import sys
@@ -37,8 +38,15 @@ import numpy as np
 import torch
 from torch import nn
 
-from ham.errors import HamError, check_choices, check_known_fields, check_seed, check_types
-from ham.world.files import atomic_write, folder_lock
+from ham.errors import (
+    HamError,
+    check_choices,
+    check_known_fields,
+    check_seed,
+    check_types,
+    checked_arguments,
+)
+from ham.world.files import atomic_write, check_output_dir, folder_lock
 
 ALGOS: tuple[str, ...] = ("ppo", "sac", "crossq")
 
@@ -372,7 +380,8 @@ def _dump(obj: Any, f) -> None:
     Pickler(f, protocol=5).dump(obj)
 
 
-def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dict:
+@checked_arguments
+def train_sb3(config: Sb3Config, out: str | os.PathLike, progress: bool = False) -> dict:
     """Train ``config.algo`` on ``config.env`` with a supervised prediction head; evaluate every
     ``eval_every`` environment steps; write ``out/metrics.json``, ``config.json``, the model, and
     after each evaluation ``out/history.json`` (the curve so far, for runs stopped early),
@@ -384,7 +393,7 @@ def train_sb3(config: Sb3Config, out: str | Path, progress: bool = False) -> dic
     from ham.world.devices import check_device
 
     check_device(config.device)  # a missing GPU is named before anything is written
-    out = Path(out)
+    out = check_output_dir(out)
     _check_empty(out)
 
     # The environment first: a bad id or keyword fails before anything is written.
@@ -438,7 +447,10 @@ def _read_config(out: Path) -> Sb3Config:
     return Sb3Config(**d)
 
 
-def resume_sb3(out: str | Path, env_steps: int | None = None, progress: bool = False) -> dict:
+@checked_arguments
+def resume_sb3(
+    out: str | os.PathLike, env_steps: int | None = None, progress: bool = False
+) -> dict:
     """Continue the run in ``out`` from its checkpoint (the last evaluation before it stopped)
     to its ``env_steps`` (or a new total ``env_steps``): the same numbers as a run never
     stopped."""

@@ -37,7 +37,14 @@ import torch
 from torch import nn
 from tqdm.auto import tqdm
 
-from ham.errors import HamError, check_choices, check_known_fields, check_seed, check_types
+from ham.errors import (
+    HamError,
+    check_choices,
+    check_known_fields,
+    check_seed,
+    check_types,
+    checked_arguments,
+)
 from ham.learn.ap_adapter import ApGymConfig, ApGymGlanceEnv
 from ham.learn.environment import HapticEnv, check_pose_noise
 from ham.learn.evaluation import EVAL_POLICIES, EvalResult, evaluate
@@ -889,6 +896,7 @@ def load_checkpoint(out: Path) -> dict:
         raise HamError(f"cannot read checkpoint {str(path)!r}: {exc}") from None
 
 
+@checked_arguments
 def load_run(
     out: str | os.PathLike,
     device: str | None = None,
@@ -928,6 +936,7 @@ def load_run(
 
 
 # --------------------------------------------------------------------------- the loop
+@checked_arguments
 def train(config: TrainConfig, out: str | os.PathLike, *, progress: bool = True) -> dict:
     """Train a fresh run into directory ``out``; returns the metrics (also in metrics.json)."""
     out = check_output_dir(out)
@@ -966,6 +975,7 @@ def _remove_run(out: Path, created: bool) -> None:
         out.rmdir()
 
 
+@checked_arguments
 def resume(
     out: str | os.PathLike,
     *,

@@ -26,6 +26,8 @@ def cache_dir(path: str | os.PathLike | None = None) -> Path:
     """``path``, else ``$HAM_CACHE_DIR``, else ``~/.cache/ham``."""
     if path is None:
         path = os.environ.get(CACHE_ENV) or Path.home() / ".cache" / "ham"
+    if not str(path).strip():  # Path("") would be the working folder
+        raise HamError(f"cache dir {str(path)!r}; accepted: a folder path")
     p = Path(path).expanduser()
     if p.exists() and not p.is_dir():
         raise HamError(f"cache dir {str(p)!r} is a file; accepted: a folder")

@@ -88,6 +88,8 @@ def check_output_dir(path: str | os.PathLike, *, what: str = "--out") -> Path:
     p = Path(text)
     if p.exists() and not p.is_dir():
         raise HamError(f"{what} {text!r} is a file; accepted: a folder (new or existing)")
+    if p.resolve() == Path(p.resolve().anchor):  # a run writes a dozen files and folders there
+        raise HamError(f"{what} {text!r} is the filesystem's root; accepted: a folder below it")
     if p.exists():
         if not os.access(p, os.W_OK | os.X_OK):
             raise HamError(f"{what} {text!r}: the folder is not writable")

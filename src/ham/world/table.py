@@ -63,7 +63,7 @@ import torch
 from tqdm.auto import tqdm
 
 import ham
-from ham.errors import HamError
+from ham.errors import HamError, checked_arguments
 from ham.world.config import WorldConfig, make_simulator
 from ham.world.files import atomic_write, check_output
 from ham.world.objects import load_objects
@@ -208,6 +208,7 @@ def _check_record(f: h5py.File, info: TableInfo, path: str) -> None:
 
 
 # --------------------------------------------------------------------------- build
+@checked_arguments
 def build_table(
     world: WorldConfig,
     grid: int | tuple[int, ...] | str,
@@ -243,6 +244,8 @@ def build_table(
 
 
 def _build_table(world, grid, out, batch, progress, command, compression, sim_kwargs) -> Path:
+    if batch is not None and batch < 1:
+        raise HamError(f"batch = {batch!r}; accepted: an integer >= 1 (poses a chunk) or None")
     dims = world_pose_dims(world)
     shape = grid_shape_for(grid, dims)
     if compression is not None and compression not in COMPRESSIONS:
@@ -592,6 +595,7 @@ def _read_info(f: h5py.File, path: str) -> TableInfo:
     )
 
 
+@checked_arguments
 def table_info(path: str | os.PathLike) -> TableInfo:
     """The table's self-description, with its structure checked (not its data: see verify_table)."""
     with _open(path) as f:
@@ -618,6 +622,7 @@ def _read_pressure(f: h5py.File, info: TableInfo, path: str, verify: bool) -> li
     return arrays
 
 
+@checked_arguments
 def verify_table(path: str | os.PathLike) -> TableInfo:
     """Check a table completely (``ham table verify``): attributes, shapes, at least one object,
     finite non-negative pressures and the sha256 checksum; a :class:`HamError` names the problem.
@@ -708,6 +713,7 @@ class GlanceTable:
         return self._stream is not None
 
     @classmethod
+    @checked_arguments
     def load(
         cls,
         path: str | os.PathLike,
@@ -732,6 +738,8 @@ class GlanceTable:
 
         if lookup not in LOOKUPS:
             raise HamError(f"lookup = {lookup!r}; accepted: {', '.join(LOOKUPS)}")
+        if max_memory < 0:
+            raise HamError(f"max_memory = {max_memory!r}; accepted: a byte count >= 0")
         device = check_device(device)
         with _open(path) as f:
             info = _read_info(f, str(path))
@@ -884,6 +892,7 @@ class _Stream:
 
 
 # --------------------------------------------------------------------------- authors' data
+@checked_arguments
 def import_authors(
     src: str | os.PathLike,
     out: str | os.PathLike,

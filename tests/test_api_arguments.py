@@ -1,0 +1,103 @@
+"""The public Python functions refuse an argument of the wrong type in one line naming the
+function and the argument (``ham.errors.checked_arguments``), as the configs do their fields
+(tests/test_config_types.py): a NaN for a world, a dict for a config or a string for a list of
+glances must not end as an AttributeError deep inside, nor be taken silently, and nothing is
+written."""
+
+from pathlib import Path
+
+import pytest
+
+from ham.errors import HamError
+from ham.experiments.grid_run import run_grid
+from ham.experiments.reproduce import reproduce
+from ham.learn.evaluation import evaluate, heatmap_data
+from ham.learn.sb3_agents import Sb3Config, resume_sb3, train_sb3
+from ham.learn.train import TrainConfig, load_run, resume, train
+from ham.world.cache import cache_dir
+from ham.world.config import WorldConfig
+from ham.world.files import check_output_dir
+from ham.world.table import (
+    GlanceTable,
+    build_table,
+    import_authors,
+    table_info,
+    verify_table,
+)
+
+#: the functions a user calls from Python (docs): each checks its arguments first
+PUBLIC = [build_table, GlanceTable.load, table_info, verify_table, import_authors, train, resume,
+          load_run, evaluate, heatmap_data, reproduce, run_grid, train_sb3, resume_sb3]  # fmt: skip
+
+GRID = '[base]\nsteps = 2\n[axes]\n"model.glances" = [1, 2]\n'
+
+
+def test_every_public_function_checks_its_arguments():
+    for fn in PUBLIC:
+        assert hasattr(fn, "__wrapped__"), fn.__qualname__
+
+
+CASES = {
+    "world": (lambda o: build_table(float("nan"), 3, o / "t.h5"),
+              "build_table: world = nan; accepted: a WorldConfig"),
+    "out-type": (lambda o: build_table(WorldConfig(), 3, 5),
+                 "build_table: out = 5; accepted: a path (a str or an os.PathLike)"),
+    "batch": (lambda o: build_table(WorldConfig(), 3, o / "t.h5", batch=0),
+              "batch = 0; accepted: an integer >= 1"),
+    "load-path": (lambda o: GlanceTable.load(None),
+                  "GlanceTable.load: path = None; accepted: a path (a str or an os.PathLike)"),
+    "load-memory": (lambda o: GlanceTable.load(o / "t.h5", max_memory=-1),
+                    "max_memory = -1; accepted: a byte count >= 0"),
+    "load-verify": (lambda o: GlanceTable.load(o / "t.h5", verify="no"),
+                    "GlanceTable.load: verify = 'no'; accepted: true or false"),
+    "info": (lambda o: table_info(b"t.h5"), "table_info: path = b't.h5'; accepted: a path"),
+    "import": (lambda o: import_authors(o / "a.h5", o / "t.h5", axes=["x"]),
+               "import_authors: axes = ['x']; accepted: a str"),
+    "config": (lambda o: train({}, o / "r"), "train: config = {}; accepted: a TrainConfig"),
+    "unknown": (lambda o: train(TrainConfig(), o / "r", progres=False),
+                "train: got an unexpected keyword argument 'progres'"),
+    "root": (lambda o: train(TrainConfig(), "/"),
+             "--out '/' is the filesystem's root; accepted: a folder below it"),
+    "resume": (lambda o: resume(o / "r", steps=2.5),
+               "resume: steps = 2.5; accepted: an integer or None"),
+    "load_run": (lambda o: load_run(o / "r", device=0),
+                 "load_run: device = 0; accepted: a str or None"),
+    "glances": (lambda o: reproduce("table1", "smoke", o / "p", glances=[1, "2"]),
+                "reproduce: glances = [1, '2']; accepted: a list of integers or None"),
+    "variants": (lambda o: reproduce("table1", "smoke", o / "p", variants="full"),
+                 "reproduce: variants = 'full'; accepted: a list of strings or None"),
+    "reproduce-world": (lambda o: reproduce("table1", "smoke", o / "p", world={}),
+                        "reproduce: world = {}; accepted: a WorldConfig or None"),
+    "cache": (lambda o: reproduce("table1", "smoke", o / "p", cache_dir=o / "c"),
+              "without table_cache; accepted: cache_dir with table_cache=True"),
+    "grid-batched": (lambda o: run_grid(o / "g.toml", o / "p", batched={}),
+                     "run_grid: batched = {}; accepted: a BatchedOptions or None"),
+    "grid-workers": (lambda o: run_grid(o / "g.toml", o / "p", workers=0),
+                     "workers = 0; accepted: an integer >= 1"),
+    "grid-out": (lambda o: run_grid(o / "g.toml", ""), "--out ''; accepted: a folder path"),
+    "sb3": (lambda o: train_sb3(Sb3Config(), None),
+            "train_sb3: out = None; accepted: a path (a str or an os.PathLike)"),
+    "sb3-file": (lambda o: train_sb3(Sb3Config(), o / "g.toml"), "is a file; accepted: a folder"),
+    "sb3-resume": (lambda o: resume_sb3(o / "r", env_steps="9"),
+                   "resume_sb3: env_steps = '9'; accepted: an integer or None"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_a_bad_argument_is_one_line_naming_it_and_nothing_is_written(tmp_path, name):
+    call, expected = CASES[name]
+    (tmp_path / "g.toml").write_text(GRID)
+    with pytest.raises(HamError) as err:
+        call(tmp_path)
+    assert expected in str(err.value) and "\n" not in str(err.value), str(err.value)
+    assert [p.name for p in tmp_path.iterdir()] == ["g.toml"]
+
+
+def test_the_root_and_an_empty_path_are_refused_as_folders():
+    with pytest.raises(HamError, match="'/' is the filesystem's root"):
+        check_output_dir("/")
+    with pytest.raises(HamError, match="'//..' is the filesystem's root"):
+        check_output_dir("//..")
+    with pytest.raises(HamError, match=r"cache dir ''; accepted: a folder path"):
+        cache_dir("")
+    assert check_output_dir(Path("/tmp")) == Path("/tmp")
