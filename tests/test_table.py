@@ -171,6 +171,8 @@ def test_a_change_outside_the_pressures_is_found_by_the_record_checksum(tmp_path
     for check in (verify_table, GlanceTable.load):
         with pytest.raises(HamError, match="is corrupt: its attributes or force/height/contact"):
             check(changed)
+    with pytest.raises(HamError, match=r"accepted: the table as built \(rebuild it with `ham"):
+        verify_table(changed)
     # a table from before the record checksum has none and loads
     with h5py.File(changed, "a") as f:
         del f.attrs["record_checksum"]

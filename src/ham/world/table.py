@@ -203,7 +203,8 @@ def _check_record(f: h5py.File, info: TableInfo, path: str) -> None:
     if got != recorded:
         raise HamError(
             f"glance table {path!r} is corrupt: its attributes or force/height/contact data do "
-            f"not match their checksum (recorded {recorded[:12]}..., data {got[:12]}...)"
+            f"not match their checksum (recorded {recorded[:12]}..., data {got[:12]}...); "
+            "accepted: the table as built (rebuild it with `ham table build`)"
         )
 
 
