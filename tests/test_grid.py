@@ -291,6 +291,38 @@ def test_a_run_written_before_a_field_existed_is_skipped_not_refused(tiny_run, t
     assert (run / "metrics.json").read_bytes() == before
 
 
+@pytest.mark.parametrize(
+    ("executor", "damage"),
+    [("local", b"\x00not json"), ("local", b"[1]"), ("local", b'{"steps": "x"}'),
+     ("batched", b"[1]")],
+)  # fmt: skip
+def test_a_finished_run_whose_metrics_are_damaged_writes_them_again(
+    tiny_run, tmp_path, executor, damage
+):
+    """A lost or damaged metrics.json (a full disk, a hand edit) made the rerun's report end in
+    a traceback; the run counts as unfinished now, resumes from its final checkpoint with no
+    step to take, and writes its metrics again, the same numbers."""
+    import shutil
+
+    from ham.experiments.grid_run import run_grid
+
+    out, _ = tiny_run
+    copy = tmp_path / "out"
+    shutil.copytree(out, copy)
+    metrics = copy / "runs" / "glances=2-s1" / "metrics.json"
+    before = metrics.read_bytes()
+    metrics.write_bytes(damage)
+    summary = run_grid(copy / "grid.json", copy, workers=1, retries=0, progress=False,
+                       executor=executor)  # fmt: skip
+    assert summary["skipped"] == 3 and summary["ran"] == 1
+    assert [f["key"] for f in summary["failures"]] == ["diverges-s0"]  # it diverges again
+    again, was = json.loads(metrics.read_bytes()), json.loads(before)
+    # the same numbers; the batched executor records the table at the copy's path
+    assert again["config"].pop("table").endswith("table_11.h5")
+    assert was["config"].pop("table").endswith("table_11.h5")
+    assert again == was
+
+
 def test_grid_arguments(tmp_path, capsys):
     from ham.cli.main import main
 

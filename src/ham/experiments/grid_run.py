@@ -39,6 +39,7 @@ from ham.experiments.runs import (
     has_evaluation,
     is_finished,
     per_object_accuracy,
+    read_metrics,
     run_dir,
 )
 from ham.world.files import check_output_dir
@@ -208,7 +209,7 @@ def aggregate(root: Path, grid: Grid, jobs: list[GridJob]) -> list[dict]:
             out = run_dir(root, j.key)
             if not is_finished(out, j.config["steps"]):
                 continue
-            metrics.append(json.loads((out / "metrics.json").read_text()))
+            metrics.append(read_metrics(out))
             for i, spec in enumerate(grid.evaluate):
                 if has_evaluation(out, spec, j.config["steps"]):
                     evals[i].append(json.loads(evaluation_path(out, spec).read_text()))
@@ -304,9 +305,8 @@ def draw_curves(root: Path, grid: Grid, jobs: list[GridJob], path: Path) -> Path
     for cell in grid.expand():
         hs = []
         for j in jobs:
-            p = run_dir(root, j.key) / "metrics.json"
-            if j.cell == cell.name and p.exists():
-                h = json.loads(p.read_text()).get("history", [])
+            if j.cell == cell.name:
+                h = read_metrics(run_dir(root, j.key)).get("history", [])
                 if h:
                     hs.append(h)
         if hs:

@@ -39,7 +39,13 @@ from ham.experiments.executors import (
     execute,
     ray_session,
 )
-from ham.experiments.runs import check_seed_count, is_finished, per_object_accuracy, run_dir
+from ham.experiments.runs import (
+    check_seed_count,
+    is_finished,
+    per_object_accuracy,
+    read_metrics,
+    run_dir,
+)
 
 if TYPE_CHECKING:
     from ham.world.config import WorldConfig
@@ -278,9 +284,9 @@ def _fmt(mean: float, sem: float, n: int) -> str:
 def load_metrics(root: Path, jobs: list[Job]) -> dict[str, dict]:
     out = {}
     for job in jobs:
-        path = run_dir(root, job.key) / "metrics.json"
-        if path.exists():
-            out[job.key] = json.loads(path.read_text())
+        m = read_metrics(run_dir(root, job.key))  # {}: none yet, or damaged
+        if m:
+            out[job.key] = m
     return out
 
 
@@ -519,11 +525,9 @@ def stopped_at_perfect(root: Path, jobs: list[Job]) -> dict[str, int]:
 
     out = {}
     for j in jobs:
-        path = run_dir(root, j.key) / "metrics.json"
-        if path.exists():
-            step = json.loads(path.read_text()).get(STOPPED_KEY)
-            if step is not None:
-                out[j.key] = step
+        step = read_metrics(run_dir(root, j.key)).get(STOPPED_KEY)
+        if isinstance(step, int) and not isinstance(step, bool):
+            out[j.key] = step
     return out
 
 
@@ -533,10 +537,7 @@ def per_object_markdown(root: Path, jobs: list[Job]) -> str | None:
     groups: dict[tuple, list[dict]] = {}
     objects: list[str] | None = None
     for j in jobs:
-        path = run_dir(root, j.key) / "metrics.json"
-        if not path.exists():
-            continue
-        m = json.loads(path.read_text())
+        m = read_metrics(run_dir(root, j.key))
         if not m.get("history"):
             continue
         acc = per_object_accuracy(m["history"][-1], m.get("objects", []))

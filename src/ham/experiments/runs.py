@@ -23,22 +23,30 @@ def run_dir(root: Path, key: str) -> Path:
     return Path(root) / "runs" / key
 
 
-def _metrics(out: Path) -> dict:
+def read_metrics(out: Path) -> dict:
+    """A run's metrics.json, or ``{}`` where it is missing or damaged (the run is then taken as
+    unfinished: resuming it from its checkpoint writes the file again)."""
     try:
-        return json.loads((Path(out) / "metrics.json").read_text())
+        d = json.loads((Path(out) / "metrics.json").read_text())
     except (OSError, ValueError):
         return {}
+    return d if isinstance(d, dict) else {}
+
+
+def _step(value) -> int | None:
+    return value if isinstance(value, int) and not isinstance(value, bool) else None
 
 
 def final_step(out: Path, steps: int) -> int:
     """The step a run ends at: ``steps``, or the step it stopped at with a perfect evaluation
     (``stopped_at_perfect``, :mod:`ham.learn.batched`: its best accuracy cannot change)."""
-    stopped = _metrics(out).get("stopped_at_perfect")
-    return steps if stopped is None else min(steps, int(stopped))
+    stopped = _step(read_metrics(out).get("stopped_at_perfect"))
+    return steps if stopped is None else min(steps, stopped)
 
 
 def is_finished(out: Path, steps: int) -> bool:
-    return int(_metrics(out).get("steps", -1)) >= final_step(out, steps)
+    done = _step(read_metrics(out).get("steps"))
+    return done is not None and done >= final_step(out, steps)
 
 
 def evaluation_path(out: Path, spec: dict) -> Path:

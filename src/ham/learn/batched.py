@@ -931,6 +931,9 @@ class BatchedRuns:
         self._bar.close()
         for w in self._writers.values():
             w.close()
+        for i in range(len(self.runs)):  # a run that took no step here (finished, its
+            if not isinstance(self.results.get(i), str):  # metrics.json lost) has it again
+                _write_json(self.outs[i] / METRICS_FILE, self.metrics(i))
         for i in self._writers:
             if self._n_train:
                 _write_json(
@@ -1085,6 +1088,7 @@ def train_batched(
 def _stopped_at(out: Path) -> int | None:
     """The step a run stopped at with a perfect evaluation (``None``: it did not)."""
     try:
-        return json.loads((out / METRICS_FILE).read_text()).get(STOPPED_KEY)
-    except (OSError, ValueError):
+        step = json.loads((out / METRICS_FILE).read_text()).get(STOPPED_KEY)
+    except (OSError, ValueError, AttributeError):  # none, or damaged: taken as not stopped
         return None
+    return step if isinstance(step, int) and not isinstance(step, bool) else None

@@ -1333,6 +1333,8 @@ def train_loop(run: Run, out: Path, progress: bool) -> dict:
     finally:
         bar.close()
         writer.close()
+    if not n_train:  # a finished run resumed (a grid's whose metrics.json was lost): write it again
+        _write_json(out / METRICS_FILE, run.metrics())
     if n_train:
         _write_json(
             out / TIMING_FILE,
