@@ -323,6 +323,21 @@ def test_a_finished_run_whose_metrics_are_damaged_writes_them_again(
     assert again == was
 
 
+def test_a_damaged_config_of_a_finished_run_is_not_a_traceback(tiny_run, tmp_path):
+    """A run's config.json that is JSON but not a dict (damaged) was a TypeError in the check
+    for another config; it counts as unreadable now, and the finished run is skipped."""
+    import shutil
+
+    from ham.experiments.grid_run import run_grid
+
+    out, _ = tiny_run
+    copy = tmp_path / "out"
+    shutil.copytree(out, copy)
+    (copy / "runs" / "glances=1-s0" / "config.json").write_text("[1]")
+    summary = run_grid(copy / "grid.json", copy, workers=1, retries=0, progress=False)
+    assert summary["skipped"] == 4
+
+
 def test_grid_arguments(tmp_path, capsys):
     from ham.cli.main import main
 

@@ -150,6 +150,8 @@ def _check_existing_runs(root: Path, jobs: list[GridJob]) -> None:
             old = json.loads(path.read_text())
         except (OSError, ValueError):
             continue
+        if not isinstance(old, dict):  # damaged, as unreadable text: no config to compare
+            continue
         old, new = _canonical(old), _canonical(job.config)
         for k in _PLACE_KEYS:
             old.pop(k, None)
