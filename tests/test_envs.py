@@ -101,6 +101,9 @@ def test_raw_pressure_and_bad_input_is_named():
     assert obs["pressure"].sum() > 1.0  # raw Pa, not normalized
     with pytest.raises(HamError, match="nan"):
         env.step({"pose": np.array([np.nan, 0.0]), "prediction": 0})
+    for pose in (["0.5", "0.1"], [True, False]):  # a string or a flag is no number (was cast)
+        with pytest.raises(HamError, match=r"accepted: 1 x 2 numbers in \[-1, 1\]"):
+            env.step({"pose": pose, "prediction": 0})
     with pytest.raises(HamError, match=r"object id 7 out of range; accepted: 0\.\.3"):
         env.step({"pose": np.zeros(2), "prediction": 7})
     with pytest.raises(HamError, match="normalization = 'l3'"):

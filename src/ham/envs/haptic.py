@@ -172,7 +172,10 @@ class GlanceBackend:
 def check_poses(pose: Any, n: int, k: int = 2) -> np.ndarray:
     """Action poses as ``(n, k)`` float32 clipped to ``[-1, 1]``; NaN or a bad shape: HamError."""
     try:
-        q = np.asarray(pose, dtype=np.float64)
+        q = np.asarray(pose)
+        if q.dtype.kind not in "iuf":  # not strings ("0.5" would convert), booleans, objects
+            raise TypeError(q.dtype)
+        q = q.astype(np.float64)
     except (TypeError, ValueError):
         raise HamError(f"pose {pose!r}; accepted: {n} x {k} numbers in [-1, 1]") from None
     if q.size != k * n:
