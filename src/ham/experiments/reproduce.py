@@ -45,6 +45,7 @@ from ham.experiments.runs import (
     per_object_accuracy,
     read_metrics,
     run_dir,
+    stopped_at,
 )
 
 if TYPE_CHECKING:
@@ -521,14 +522,8 @@ def write_outputs(
 def stopped_at_perfect(root: Path, jobs: list[Job]) -> dict[str, int]:
     """The runs that ``--stop-at-perfect`` stopped: run key -> the step of their perfect
     evaluation (their curves end there)."""
-    from ham.learn.batched import STOPPED_KEY
-
-    out = {}
-    for j in jobs:
-        step = read_metrics(run_dir(root, j.key)).get(STOPPED_KEY)
-        if isinstance(step, int) and not isinstance(step, bool):
-            out[j.key] = step
-    return out
+    steps = {j.key: stopped_at(run_dir(root, j.key)) for j in jobs}
+    return {k: s for k, s in steps.items() if s is not None}
 
 
 def per_object_markdown(root: Path, jobs: list[Job]) -> str | None:

@@ -37,10 +37,16 @@ def _step(value) -> int | None:
     return value if isinstance(value, int) and not isinstance(value, bool) else None
 
 
+def stopped_at(out: Path) -> int | None:
+    """The step a run stopped at with a perfect evaluation (``stopped_at_perfect``,
+    :mod:`ham.learn.batched`), or None: it did not (or its metrics.json is damaged)."""
+    return _step(read_metrics(out).get("stopped_at_perfect"))
+
+
 def final_step(out: Path, steps: int) -> int:
     """The step a run ends at: ``steps``, or the step it stopped at with a perfect evaluation
-    (``stopped_at_perfect``, :mod:`ham.learn.batched`: its best accuracy cannot change)."""
-    stopped = _step(read_metrics(out).get("stopped_at_perfect"))
+    (:func:`stopped_at`: its best accuracy cannot change)."""
+    stopped = stopped_at(out)
     return steps if stopped is None else min(steps, stopped)
 
 

@@ -931,8 +931,10 @@ class BatchedRuns:
         self._bar.close()
         for w in self._writers.values():
             w.close()
-        for i in range(len(self.runs)):  # a run that took no step here (finished, its
-            if not isinstance(self.results.get(i), str):  # metrics.json lost) has it again
+        # every run's metrics.json once more (not a diverged one's): a run that took no step
+        # here (finished, its metrics.json lost) gets it back
+        for i in range(len(self.runs)):
+            if not isinstance(self.results.get(i), str):
                 _write_json(self.outs[i] / METRICS_FILE, self.metrics(i))
         for i in self._writers:
             if self._n_train:

@@ -1333,14 +1333,14 @@ def train_loop(run: Run, out: Path, progress: bool) -> dict:
     finally:
         bar.close()
         writer.close()
-    if not n_train:  # a finished run resumed (a grid's whose metrics.json was lost): write it again
-        _write_json(out / METRICS_FILE, run.metrics())
     if n_train:
         _write_json(
             out / TIMING_FILE,
             {"steps_timed": n_train, "ms_per_step": 1000 * t_train / n_train,
              "torch_threads": torch.get_num_threads(), "device": c.device},
         )  # fmt: skip
+    else:  # a finished run resumed (a grid's, whose metrics.json was lost): write it again
+        _write_json(out / METRICS_FILE, run.metrics())
     return run.metrics()
 
 
