@@ -402,13 +402,21 @@ def _start_build(world: WorldConfig, out, sim_kwargs: dict):
     """What both table formats' builds start from: the checked output path and its ``.partial``
     twin, the world's objects and names, its JSON and its simulator."""
     out = check_output(out, (".h5", ".hdf5"), what="glance table")
+    try:  # first: a misspelled option leaves no folder
+        sim = make_simulator(world, **sim_kwargs)
+    except TypeError as exc:
+        if not (sim_kwargs and "unexpected keyword argument" in str(exc)):
+            raise
+        raise HamError(
+            f"build_table: {exc}; accepted: the options of simulator {world.simulator!r}"
+        ) from None
     if out.parent and not out.parent.exists():
         out.parent.mkdir(parents=True, exist_ok=True)
     partial = out.with_name(out.name + ".partial")
     objs = world.resolve_objects()
     names = [o.name for o in objs]
     world_json = json.dumps(world.to_dict(), sort_keys=True)
-    return out, partial, objs, names, world_json, make_simulator(world, **sim_kwargs)
+    return out, partial, objs, names, world_json, sim
 
 
 def _open_partial(partial: Path):

@@ -1,0 +1,190 @@
+"""A sweep of odd values over the public Python functions: ``python -m tests.fuzz_api [FN ...]``.
+
+The Python API's counterpart of tests/fuzz_cli.py, and like it not a test module: it runs by
+hand (a few minutes). Each function starts from a valid call on a small table (3 x 3) and a
+2-step run; each of its parameters is given each value of ``ODD`` in turn, one call per value,
+in a fresh working folder. The training loop and the executors are replaced by a sentinel, so
+that an accepted call is recorded as accepted instead of training. A call is flagged when
+
+* it raises anything but a :class:`ham.errors.HamError` (an AttributeError deep inside),
+* its HamError spans more than one line,
+* it is refused and leaves files in its working folder,
+* it accepts a value no parameter means (NaN, inf, bytes, a bare ``object()``).
+
+The exit code is the number of flagged calls. Examples::
+
+    python -m tests.fuzz_api
+    python -m tests.fuzz_api build_table reproduce
+    python -m tests.fuzz_api --list
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import inspect
+import math
+import shutil
+import sys
+import tempfile
+import traceback
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+#: odd values given to every parameter in turn
+ODD: list = [math.nan, math.inf, -1, 0, 1.5, "abc", "", None, True, [], {}, object(),
+             np.int64(2), "/", b"x"]  # fmt: skip
+
+
+class Accepted(Exception):
+    """Raised by the sentinel in place of training: the call passed every check."""
+
+
+def _never_meant(value) -> bool:
+    if isinstance(value, float) and not math.isfinite(value):
+        return True
+    return isinstance(value, bytes) or type(value) is object
+
+
+def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
+    """name -> (function, its valid keyword arguments); builds the table and run they read."""
+    from ham.experiments.grid_run import run_grid
+    from ham.experiments.reproduce import reproduce
+    from ham.learn.evaluation import evaluate, heatmap_data
+    from ham.learn.train import TrainConfig, load_run, resume, train
+    from ham.world.config import WorldConfig
+    from ham.world.table import GlanceTable, build_table, import_authors, table_info, verify_table
+
+    table = tmp / "t3.h5"
+    build_table(WorldConfig(), 3, table, progress=False)
+    config = TrainConfig(steps=2, batch_size=4, eval_every=2, eval_batches=1, table=str(table))
+    run_out = tmp / "run"
+    (tmp / "g.toml").write_text('name = "g"\n[base]\nsteps = 2\nbatch_size = 4\n[axes]\n'
+                                '"model.glances" = [1, 2]\n')  # fmt: skip
+    needs_run = {"evaluate", "heatmap_data", "load_run", "resume"}
+    run = None
+    if not only or needs_run & set(only):
+        train(config, run_out, progress=False)
+        run = load_run(run_out)
+    agent_env = {} if run is None else {"agent": run.agent, "env": run.env}
+    return {
+        "evaluate": (evaluate, {**agent_env, "batches": 1}),
+        "heatmap_data": (heatmap_data, {**agent_env, "batches": 1, "bins": 3}),
+        "build_table": (
+            build_table,
+            {"world": WorldConfig(), "grid": 3, "out": "x.h5", "progress": False},
+        ),  # fmt: skip
+        "GlanceTable.load": (GlanceTable.load, {"path": table}),
+        "table_info": (table_info, {"path": table}),
+        "verify_table": (verify_table, {"path": table}),
+        "import_authors": (import_authors, {"src": tmp / "none.h5", "out": "imp.h5"}),
+        "load_run": (load_run, {"out": run_out}),
+        "train": (train, {"config": config, "out": "fresh", "progress": False}),
+        "resume": (resume, {"out": run_out, "progress": False}),
+        "reproduce": (
+            reproduce,
+            {
+                "target": "table2",
+                "profile_name": "smoke",
+                "out": "rp",
+                "progress": False,
+                "workers": 1,
+            },
+        ),  # fmt: skip
+        "run_grid": (
+            run_grid,
+            {"grid": tmp / "g.toml", "out": "gr", "progress": False, "workers": 1},
+        ),  # fmt: skip
+    }
+
+
+@contextlib.contextmanager
+def _sentinels():
+    """The training loop and the executors raise :class:`Accepted` instead of running."""
+    import ham.experiments.grid_run as grid_run
+    import ham.experiments.reproduce as reproduce
+    import ham.learn.train as train
+
+    def stop(*args, **kwargs):
+        raise Accepted
+
+    saved = [(m, n, getattr(m, n)) for m, n in
+             ((train, "train_loop"), (reproduce, "execute"), (grid_run, "execute"))]  # fmt: skip
+    for m, n, _ in saved:
+        setattr(m, n, stop)
+    try:
+        yield
+    finally:
+        for m, n, f in saved:
+            setattr(m, n, f)
+
+
+def sweep(name: str, fn: Callable, base: dict, tmp: Path) -> tuple[int, list[str]]:
+    """Every parameter of ``fn`` given every odd value; returns (calls, flag lines)."""
+    from ham.errors import HamError
+
+    # keyword parameters (not a **kwargs), and one unknown keyword
+    params = [name for name, p in inspect.signature(fn).parameters.items()
+              if name not in ("agent", "env") and p.kind != p.VAR_KEYWORD] + ["fuzz_unknown"]  # fmt: skip
+    calls, flags = 0, []
+    for param in params:
+        for value in ODD:
+            kwargs = {**base, param: value}
+            work = Path(tempfile.mkdtemp(dir=tmp))
+            label = f"{name}({param}={value!r})"
+            calls += 1
+            try:
+                with contextlib.chdir(work), _sentinels():
+                    fn(**kwargs)
+                accepted = True
+            except Accepted:
+                accepted = True
+            except HamError as exc:
+                accepted = False
+                if "\n" in str(exc):
+                    flags.append(f"FLAG {label}: a message of several lines: {exc}")
+                if any(work.iterdir()):
+                    flags.append(f"FLAG {label}: refused, and left {sorted(work.iterdir())[:3]}")
+            except Exception as exc:  # noqa: BLE001 - what the sweep is looking for
+                accepted = False
+                where = traceback.extract_tb(exc.__traceback__)[-1]
+                flags.append(f"FLAG {label}: {type(exc).__name__}: {exc} "
+                             f"({Path(where.filename).name}:{where.lineno})")  # fmt: skip
+            if accepted and _never_meant(value):
+                flags.append(f"FLAG {label}: accepted")
+            shutil.rmtree(work, ignore_errors=True)
+    return calls, flags
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m tests.fuzz_api", description=__doc__)
+    parser.add_argument("functions", nargs="*", help="functions to sweep (default: all)")
+    parser.add_argument("--list", action="store_true", help="list the functions and exit")
+    args = parser.parse_args(argv)
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        cases = _cases(tmp, args.functions)
+        if args.list:
+            for name, (fn, _) in cases.items():
+                print(name, " ".join(inspect.signature(fn).parameters))
+            return 0
+        unknown = [f for f in args.functions if f not in cases]
+        if unknown:
+            parser.error(f"unknown function(s) {unknown}; accepted: {', '.join(cases)}")
+        total, flagged = 0, []
+        for name in args.functions or list(cases):
+            fn, base = cases[name]
+            calls, flags = sweep(name, fn, base, tmp)
+            total += calls
+            flagged += flags
+            for line in flags:
+                print(line)
+            print(f"{name}: {calls} calls, {len(flags)} flagged", flush=True)
+    print(f"{total} calls: {len(flagged)} flagged")
+    return len(flagged)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
