@@ -385,6 +385,7 @@ def reproduce(
     ``table_cache``: take the glance table from the table cache (:mod:`ham.world.cache`, in
     ``cache_dir``), built there once, instead of ``OUT/table_<N>.h5`` (a preset's slow world).
     """
+    from ham.learn.evaluation import EVAL_POLICIES
     from ham.model.agent import HamConfig
     from ham.world.cache import cached_table
     from ham.world.config import WorldConfig
@@ -399,6 +400,8 @@ def reproduce(
         raise HamError(f"profile {profile_name!r}; accepted: {', '.join(PROFILES)}")
     if executor not in EXECUTORS:
         raise HamError(f"executor {executor!r}; accepted: {', '.join(EXECUTORS)}")
+    if eval_policy is not None and eval_policy not in EVAL_POLICIES:  # before OUT is made
+        raise HamError(f"eval_policy = {eval_policy!r}; accepted: {', '.join(EVAL_POLICIES)}")
     if cache_dir is not None and not table_cache:  # said, not silently ignored
         raise HamError(
             f"cache_dir = {str(cache_dir)!r} without table_cache; accepted: cache_dir with "
