@@ -67,12 +67,18 @@ def test_the_same_wrapper_serves_ap_gym():
         ("crossq", {"learning_starts": 32, "batch_size": 32}),
     ],
 )
-def test_train_writes_metrics_with_env_steps(tmp_path, algo, kwargs):
+def test_train_writes_metrics_with_env_steps(tmp_path, monkeypatch, algo, kwargs):
+    import tempfile
+
     config = Sb3Config(
         algo=algo, env="ham/HapticGlanceAP-v0", env_kwargs={"glances": 2}, env_steps=128,
         eval_every=64, eval_episodes=8, algo_kwargs=kwargs,
     )  # fmt: skip
+    (tmp_path / "temp").mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "temp"))
     m = train_sb3(config, tmp_path / algo)
+    # SB3's default logger made an empty SB3-<time> folder in the temp dir at each run
+    assert not list((tmp_path / "temp").glob("SB3-*"))
     saved = json.loads((tmp_path / algo / "metrics.json").read_text())
     assert saved["env_steps"] == m["env_steps"] >= 128
     assert 0 <= saved["final_accuracy"] <= 1 and len(saved["accuracy_per_glance"]) == 2

@@ -498,6 +498,7 @@ def _log_eval(writer, row: dict) -> None:
 def _learn(config: Sb3Config, out: Path, model, eval_env, history: list, seconds: float,
            progress: bool, resumed: bool = False) -> dict:  # fmt: skip
     from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.logger import Logger
     from torch.utils.tensorboard import SummaryWriter
     from tqdm.auto import tqdm
 
@@ -543,6 +544,8 @@ def _learn(config: Sb3Config, out: Path, model, eval_env, history: list, seconds
             if saved[0] is not None and len(history) > saved[0]:  # an evaluation since
                 saved[0] = _checkpoint(len(history))  # the last checkpoint
 
+    # a logger of no outputs: SB3's default makes an empty folder in the temp dir at each learn()
+    model.set_logger(Logger(folder=None, output_formats=[]))
     try:
         model.learn(
             total_timesteps=config.env_steps - model.num_timesteps,
