@@ -281,8 +281,8 @@ _BUFFER_ARRAYS = ("observations", "next_observations", "actions", "rewards", "do
 def _compact_buffer(model):
     """The replay buffer's arrays cut to their filled rows while the model is pickled (SB3
     allocates all ``buffer_size`` rows up front: 1M rows of a CircleSquare observation are
-    3.5 GB, of which 250k steps fill a quarter), and the logger left out (it holds open
-    files; :meth:`learn` makes a new one)."""
+    3.5 GB, of which 250k steps fill a quarter), and the logger left out (no part of a
+    run's state: :func:`_learn` gives the model a new one before it learns)."""
     buf = getattr(model, "replay_buffer", None)
     big: dict[str, np.ndarray] = {}
     if buf is not None:
