@@ -215,8 +215,8 @@ BAD_PARTS = {
         )
         + "    def distribution(self, tau):\n        z = tau[:, :2]\n"
         "        return Dist(z, z + 1)\n",
-        "policy 'wrong' of 'bad.py' gave samples [[3.0, 3.0], [3.0, 3.0]]; accepted: poses (2, 2) "
-        "in [-1, 1]",
+        "policy 'wrong' of 'bad.py' sampled [[3.0, 3.0], [3.0, 3.0]] outside [-1, 1]; accepted: "
+        "poses (2, 2) in [-1, 1]",
     ),
     "log_prob": (
         POLICY_HEAD.replace("    pass", "    def log_prob(self, q):\n        return q")
@@ -266,6 +266,38 @@ def test_a_plugin_core_that_fails_in_training_is_one_line_naming_its_file_and_li
         assert "- `core=late-s0`: plugin 'late.py' raised ValueError at line 14: 8 episodes" in (
             report
         ), report
+
+
+#: a core and a policy that keep the contract on the check's 2 episodes and break it on a
+#: training batch (8): a shape, not an exception, so no user line to name; the model checks
+LATE_SHAPES = {
+    "core": (
+        CORE_HEAD + "    def forward(self, g, state):\n        t = self.lin(g[:2])\n"
+        "        return t, (t,)\n\n@register_core('wrong')\ndef f(i, h, **_):\n"
+        "    return Core(i, h)\n",
+        "ham: error: core 'wrong' of 'bad.py' gave tau (2, 256) for 8 episodes; accepted: "
+        "(8, 256), hidden_size floats per episode",
+    ),
+    "policy": (
+        POLICY_HEAD.replace(
+            "    pass", "    def sample(self, generator):\n        return self.mu.clamp(-1, 1)[:2]"
+        )
+        + "    def distribution(self, tau):\n        z = torch.tanh(tau[:, :2])\n"
+        "        return Dist(z, z.abs() + 1)\n",
+        "ham: error: policy 'wrong' of 'bad.py' sampled (2, 2) for 8 episodes; accepted: poses "
+        "(8, 2) in [-1, 1]",
+    ),
+}
+
+
+@pytest.mark.parametrize("part", list(LATE_SHAPES))
+def test_a_plugin_part_that_breaks_the_contract_only_in_training_is_one_line(tmp_path, part):
+    text, expected = LATE_SHAPES[part]
+    (tmp_path / "bad.py").write_text(text)
+    line = one_line_error(run_ham_inprocess("train", "--plugin", "bad.py", f"--{part}", "wrong",
+                                            *TRAIN, "--online", "--out", "r", cwd=tmp_path))  # fmt: skip
+    assert line == expected, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.py"]
 
 
 def test_a_failure_of_ours_is_not_put_on_a_user_file(tmp_path):

@@ -35,7 +35,16 @@ from ham.model.baseline import Baseline
 from ham.model.classifier import Classifier
 from ham.model.core import ACTIVATIONS, CORES, State, make_core
 from ham.model.location_net import STD_ACTIVATIONS, uniform_locations
-from ham.model.plugin import build_part, check_core, check_policy, load_plugin
+from ham.model.plugin import (
+    BUILTIN_CORES,
+    BUILTIN_POLICIES,
+    build_part,
+    check_core,
+    check_policy,
+    check_poses,
+    check_tau,
+    load_plugin,
+)
 from ham.model.policy import (
     POLICIES,
     FirstPose,
@@ -432,6 +441,9 @@ class HapticAttentionModel(nn.Module):
         # a core or policy of the user's own keeps the contract the model relies on
         check_core(c.core, self.core, self.tactile.out_features, c.hidden_units)
         check_policy(c.policy, self.location, c.hidden_units, len(c.pose_dims))
+        # and keeps it at every glance: a batch of 8 can break what 2 episodes kept
+        self._own_core = c.core not in BUILTIN_CORES
+        self._own_policy = c.policy not in BUILTIN_POLICIES
 
     @property
     def chooses_first_glance(self) -> bool:
@@ -501,7 +513,18 @@ class HapticAttentionModel(nn.Module):
         height: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, State]:
         """One glance through tactile network and core: ``(p_s, q_s[, h_s]) -> tau_{1:s}``."""
-        return self.core(self.tactile(pressure, self.where(q, height)), state)
+        tau, state = self.core(self.tactile(pressure, self.where(q, height)), state)
+        if self._own_core:
+            check_tau(self.config.core, tau, pressure.shape[0], self.config.hidden_units)
+        return tau, state
+
+    def _act(self, dist: LocationDistribution, generator, greedy: bool, batch: int):
+        """The pose ``dist`` acts on (:meth:`LocationDistribution.act`), checked for a policy of
+        the user's own."""
+        q = dist.act(generator, greedy)
+        if self._own_policy:
+            check_poses(self.config.policy, q, batch, len(self.config.pose_dims))
+        return q
 
     def glance_step(
         self, env, objects: torch.Tensor, q: torch.Tensor, state: State
@@ -536,7 +559,7 @@ class HapticAttentionModel(nn.Module):
         first_baseline = None
         if self.chooses_first_glance:
             dist, first_baseline = self.first_glance(batch, objects.device, generator, greedy)
-            q = dist.act(generator, greedy)
+            q = self._act(dist, generator, greedy, batch)
             dists.append(dist)
         elif self.config.first_glance == "probe":  # not the policy's: glances 2..S are
             q = self.first_probe.first_poses(batch, generator, objects.device)
@@ -559,7 +582,7 @@ class HapticAttentionModel(nn.Module):
             where = getattr(env, "observed_location", None)
             position = q if where is None else where
             dist = self.next_distribution(tau, q, logits[-1], glance=s + 1, position=position)
-            q = dist.act(generator, greedy)
+            q = self._act(dist, generator, greedy, batch)
             dists.append(dist)
         return Episode(
             objects=objects,

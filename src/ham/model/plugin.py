@@ -30,7 +30,9 @@ SUFFIXES: tuple[str, ...] = (".py",)
 #: that imports point down the layers.
 REGISTRIES: dict[str, dict] = {"core": CORES, "policy": POLICIES}
 #: label -> the names a registry holds before any plugin (its built-in ones)
-_BUILTIN: dict[str, tuple[str, ...]] = {"core": tuple(CORES), "policy": tuple(POLICIES)}
+BUILTIN_CORES: tuple[str, ...] = tuple(CORES)
+BUILTIN_POLICIES: tuple[str, ...] = tuple(POLICIES)
+_BUILTIN: dict[str, tuple[str, ...]] = {"core": BUILTIN_CORES, "policy": BUILTIN_POLICIES}
 #: label -> how a plugin registers one (for the error of a plugin that registers nothing; the
 #: learners' too before ham.learn is imported)
 _HOW: dict[str, str] = {
@@ -137,12 +139,35 @@ def check_core(name: str, core, input_size: int, hidden_size: int) -> None:
             if not (isinstance(out, tuple) and len(out) == 2):
                 raise HamError(f"{what} returned {_shape(out)}; accepted: a pair (tau, state)")
             tau, state = out
-            if not (isinstance(tau, torch.Tensor) and tau.is_floating_point()
-                    and tuple(tau.shape) == (2, hidden_size)):  # fmt: skip
-                raise HamError(
-                    f"{what} gave tau {_shape(tau)} for 2 episodes; accepted: (2, {hidden_size}), "
-                    "hidden_size floats per episode"
-                )
+            check_tau(name, tau, 2, hidden_size)
+
+
+def check_tau(name: str, tau, batch: int, hidden_size: int) -> None:
+    """The core ``name``'s output ``tau`` for ``batch`` episodes is ``(batch, hidden_size)``
+    floats: tried by :func:`check_core`, and by the model at every glance of a core that is not
+    built in (a core can keep the contract on two episodes and break it on a training batch)."""
+    if not (isinstance(tau, torch.Tensor) and tau.is_floating_point()
+            and tuple(tau.shape) == (batch, hidden_size)):  # fmt: skip
+        raise HamError(
+            f"core {name!r} of {_file_of(CORES[name])!r} gave tau {_shape(tau)} for {batch} "
+            f"episodes; accepted: ({batch}, {hidden_size}), hidden_size floats per episode"
+        )
+
+
+def check_poses(name: str, q, batch: int, dims: int) -> None:
+    """The poses ``q`` the policy ``name`` chose for ``batch`` episodes are ``(batch, dims)`` in
+    ``[-1, 1]``: tried by :func:`check_policy`, and by the model at every glance of a policy
+    that is not built in."""
+    accepted = f"poses ({batch}, {dims}) in [-1, 1]"
+    if not (isinstance(q, torch.Tensor) and tuple(q.shape) == (batch, dims)):
+        got = f"{_shape(q)} for {batch} episodes"
+    elif not bool(((q >= -1) & (q <= 1)).all()):
+        got = f"{q.tolist() if q.numel() <= 8 else 'values'} outside [-1, 1]"
+    else:
+        return
+    raise HamError(
+        f"policy {name!r} of {_file_of(POLICIES[name])!r} sampled {got}; accepted: {accepted}"
+    )
 
 
 def check_policy(name: str, policy, hidden_size: int, dims: int) -> None:
@@ -168,10 +193,8 @@ def check_policy(name: str, policy, hidden_size: int, dims: int) -> None:
         need(isinstance(d, LocationDistribution), _shape(d),
              "a ham.model.policy.LocationDistribution")  # fmt: skip
         q = recorded_file.call(label, file, d.sample, torch.Generator().manual_seed(0))
+        check_poses(name, q, 2, dims)
         poses = f"poses (2, {dims}) in [-1, 1]"
-        need(isinstance(q, torch.Tensor) and tuple(q.shape) == (2, dims),
-             f"samples {_shape(q)}", poses)  # fmt: skip
-        need(bool(((q >= -1) & (q <= 1)).all()), f"samples {q.tolist()}", poses)
         for method, arg in (("log_prob", (q,)), ("entropy", ())):
             v = recorded_file.call(label, file, getattr(d, method), *arg)
             need(isinstance(v, torch.Tensor) and tuple(v.shape) == (2,),
