@@ -523,6 +523,38 @@ def test_stop_at_perfect(tmp_path):
     assert "full-concat2-g1-s0" not in report
 
 
+def test_each_run_folder_is_held_while_the_batch_trains(tmp_path, monkeypatch):
+    """As ``train`` and ``resume`` hold their folder, a batch holds each of its runs': a
+    ``ham train --resume`` of one of them at the same time is refused, and the other way round;
+    a batch that did not start leaves no folder it made."""
+    from ham.world.files import folder_lock
+
+    configs = [tiny(s, steps=4) for s in (0, 5)]
+    outs = [tmp_path / "b0", tmp_path / "b5"]
+    outs[1].mkdir()
+    with folder_lock(outs[1]):  # another process resuming b5 (flock: per open file)
+        with pytest.raises(HamError, match="run folder '.*b5' is in use by another ham process"):
+            train_batched(configs, outs)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b5"] and not any(outs[1].iterdir())
+    # a batch refused for its configs leaves none of the folders it made
+    with pytest.raises(HamError, match="differ in more than seed"):
+        train_batched([tiny(0), tiny(1, batch_size=4)], [tmp_path / "x", tmp_path / "y"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b5"]
+    # while the batch trains, each run's folder is held: train() into it is refused
+    seen = []
+    real = batched.BatchedRuns.train
+
+    def train_and_try(self, progress=False):
+        with pytest.raises(HamError, match="is in use by another ham process"):
+            train(configs[0], outs[0], progress=False)
+        seen.append(True)
+        return real(self, progress)
+
+    monkeypatch.setattr(batched.BatchedRuns, "train", train_and_try)
+    train_batched(configs, outs)
+    assert seen and all(is_finished(o, 4) for o in outs)
+
+
 def test_refused_configs(tmp_path):
     with pytest.raises(HamError, match="learner 'info' cannot be batched; accepted: hybrid"):
         train_batched([tiny(0, learner="info")], [tmp_path / "a"])

@@ -70,6 +70,7 @@ from ham.learn.train import (
 from ham.model.agent import Episode
 from ham.model.location_net import truncated_normal, uniform_locations
 from ham.model.policy import TruncatedGaussian, Uniform
+from ham.world.files import folder_lock
 from ham.world.source import check_model_fits, make_source
 
 STOPPED_KEY = "stopped_at_perfect"
@@ -1014,15 +1015,20 @@ def train_groups(groups: list[BatchedRuns], progress: bool = False) -> list[list
 
 
 # --------------------------------------------------------------------------- entry points
-def _open_runs(configs: list[TrainConfig], outs: list[Path]) -> list[Run]:
-    """The runs of ``configs`` with one shared glance source; a directory holding a checkpoint
-    is resumed from it (its config.json, to the given ``steps``)."""
+def _check_outs(configs: list[TrainConfig], outs: list[Path]) -> None:
+    """One directory for each run of a batch, none shared."""
     if not configs:
         raise HamError("no runs to batch; accepted: one config or more")
     if len(configs) != len(outs):
         raise HamError(f"{len(configs)} configs but {len(outs)} directories; give one each")
     if len({str(o.resolve()) for o in outs}) != len(outs):
         raise HamError("two runs of one batch share a directory; give each its own")
+
+
+def _open_runs(configs: list[TrainConfig], outs: list[Path]) -> list[Run]:
+    """The runs of ``configs`` with one shared glance source; a directory holding a checkpoint
+    is resumed from it (its config.json, to the given ``steps``)."""
+    _check_outs(configs, outs)
     for c in configs:
         check_batchable(c)
     keys = {shape_key(c, glances=False) for c in configs}
@@ -1059,6 +1065,28 @@ def train_batched(
     step replayed as one CUDA graph (:meth:`BatchedRuns._graphed_step`; not yet measured on a
     GPU)."""
     outs = [Path(o) for o in outs]
+    _check_outs(configs, outs)
+    made = [o for o in outs if not o.exists()]
+    try:
+        with contextlib.ExitStack() as locks:
+            for out in outs:  # each run's folder held, as train and resume hold theirs: a
+                out.mkdir(parents=True, exist_ok=True)  # `ham train --resume` of one of them
+                locks.enter_context(folder_lock(out))  # at the same time is refused
+            return _train_batched(configs, outs, stop_at_perfect, progress, cuda_graph)
+    except BaseException:
+        for f in made:  # a batch that did not start leaves no folder behind
+            with contextlib.suppress(OSError):  # not empty: the run started
+                f.rmdir()
+        raise
+
+
+def _train_batched(
+    configs: list[TrainConfig],
+    outs: list[Path],
+    stop_at_perfect: bool,
+    progress: bool,
+    cuda_graph: bool,
+) -> list[dict | str]:
     configs = list(configs)
     resumed = []
     for k, (c, out) in enumerate(zip(configs, outs, strict=True)):
@@ -1074,13 +1102,13 @@ def train_batched(
             configs[k] = saved
             resumed.append(k)
     runs = _open_runs(configs, outs)
-    for k in resumed:
-        runs[k].load_state_dict(load_checkpoint(outs[k]))
-        if runs[k].step > configs[k].steps:
-            raise HamError(f"the run in {str(outs[k])!r} is at step {runs[k].step}, beyond "
-                           f"steps {configs[k].steps}")  # fmt: skip
-    stopped = {k: s for k, out in enumerate(outs) if (s := _stopped_at(out)) is not None}
     try:
+        for k in resumed:
+            runs[k].load_state_dict(load_checkpoint(outs[k]))
+            if runs[k].step > configs[k].steps:
+                raise HamError(f"the run in {str(outs[k])!r} is at step {runs[k].step}, beyond "
+                               f"steps {configs[k].steps}")  # fmt: skip
+        stopped = {k: s for k, out in enumerate(outs) if (s := _stopped_at(out)) is not None}
         return BatchedRuns(runs, outs, stop_at_perfect, stopped, cuda_graph).train(progress)
     finally:
         for r in runs:
