@@ -37,7 +37,7 @@ from pathlib import Path
 
 #: odd values given to every option in turn
 ODD = ["", " ", "nan", "inf", "-inf", "1e309", "-1", "0", "-0", "1.5", "abc", "99999999999",
-       "/", "/dev/null", "x.h5", "{}", "é"]  # fmt: skip
+       "1" + "0" * 30, "/", "/dev/null", "x.h5", "{}", "é"]  # fmt: skip
 #: values that no option of this CLI accepts (exit 0 on them is flagged)
 NEVER_OK = {"", " ", "nan", "inf", "-inf", "1e309", "abc"}
 #: options that name a file or folder: any name is one (only '' is flagged when accepted)

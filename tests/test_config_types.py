@@ -39,7 +39,7 @@ CONFIGS = {
 #: Values of the wrong type for each simple annotation (for ``X | None`` those of ``X`` but None).
 WRONG = {
     bool: [0, 1, 1.0, "true", None, [], math.nan],
-    int: [1.5, 2.0, True, "3", None, [], math.nan],
+    int: [1.5, 2.0, True, "3", None, [], math.nan, 2**63, -(2**63) - 1],  # beyond torch's
     float: [math.nan, math.inf, -math.inf, True, "0.5", None, [], {}],
     str: [0, 1.5, True, None, [], {}, math.nan],
     dict: [0, "a", [], None, math.nan],
@@ -100,6 +100,13 @@ def test_numbers_of_numpy_and_ints_for_floats_are_accepted():
 def test_literals_tuples_and_optionals_say_what_they_take(kwargs, message):
     with pytest.raises(HamError, match="^" + re.escape(message)):
         MujocoConfig(**kwargs)
+
+
+def test_an_integer_beyond_64_bits_is_refused_for_its_size():
+    # an overflow inside torch before (``zeros(): ... Overflow when unpacking long long``)
+    with pytest.raises(HamError, match=r"^glances = 10{30}; accepted: an integer of at most 64"):
+        HamConfig(glances=10**30)
+    assert HamConfig(n_objects=2**63 - 1).n_objects == 2**63 - 1  # the largest torch takes
 
 
 def test_a_nested_config_must_be_its_dataclass():

@@ -166,7 +166,14 @@ def test_the_agent_grid_is_the_old_script(tmp_path):
         ('name = "x"\nseeds = 0\n', r"seeds = 0; accepted: a count from 1 to 10000 or a list of up to 10000 distinct"),
         ('name = "x"\nevaluate = [{policy = "greedy"}]\n',
          r"evaluate\[0\]: policy 'greedy'; accepted: mean, sample"),
-        ('name = "x"\n[table]\ngrid = 1\n', r"table grid = 1; accepted: an integer >= 2"),
+        ('name = "x"\n[table]\ngrid = 1\n', r"table grid = 1; accepted: an integer 2..2001"),
+        ('name = "x"\n[table]\ngrid = 99999\n', r"table grid = 99999; accepted: an integer 2..2001"),
+        ('name = "x"\nevaluate = [{batches = 0}]\n', r"batches = 0; accepted: an integer 1 .. 2\*\*63-1"),
+        # an empty table flattened to nothing: the key was dropped without a word
+        ('name = "x"\n[base]\nsteps = {}\n', r"grid 'x' base: steps = \{\}; accepted: a value \(an empty table"),
+        ('name = "x"\n[[cells]]\nname = {}\n', r"grid 'x' cells\[0\]: name = \{\}; accepted: a value"),
+        ('name = "x"\n[axes]\nmodel.glances = {}\n', r"axis 'model.glances' = \{\}; accepted: a non-empty list"),
+        ('name = "x"\n[base]\nmodel.glances = 1e30\n', r"glances = 1e\+30; accepted: an integer"),
         ('name = "x"\nkey = "{varient}"\n[axes]\nvariant = [{name = "a"}]\n',
          r"key '\{varient\}' cannot be formatted .*accepted fields: variant, model.glances"),
         ('name = "x"\nkey = "{name}"\n', r"key '\{name\}' names the axes' cells, but there are no axes"),
@@ -336,6 +343,23 @@ def test_a_damaged_config_of_a_finished_run_is_not_a_traceback(tiny_run, tmp_pat
     (copy / "runs" / "glances=1-s0" / "config.json").write_text("[1]")
     summary = run_grid(copy / "grid.json", copy, workers=1, retries=0, progress=False)
     assert summary["skipped"] == 4
+
+
+def test_a_run_too_large_for_the_machine_is_one_line_in_the_report(tmp_path):
+    """A model whose size overflows inside torch (an LSTM of 4 x 2**62 rows) fails its run with
+    the CLI's one line, not torch's C++ frames (the report read "TypeError: empty(): ...
+    Exception raised from THPUtils_unpackLong ..." over many lines)."""
+    from ham.experiments.grid_run import run_grid
+
+    (tmp_path / "g.toml").write_text(
+        f'name = "huge"\n[base]\nsteps = 2\neval_batches = 1\nmodel.hidden_units = {2**62}\n'
+    )
+    summary = run_grid(tmp_path / "g.toml", tmp_path / "o", workers=1, retries=0, progress=False)
+    assert [f["key"] for f in summary["failures"]] == ["base-s0"]
+    report = (tmp_path / "o" / "report.md").read_text()
+    line = next(x for x in report.splitlines() if x.startswith("- `base-s0`"))
+    assert line.startswith("- `base-s0`: out of memory (empty(): argument 'size' failed"), line
+    assert line.endswith("a smaller batch, model, grid or object set)"), line
 
 
 def test_grid_arguments(tmp_path, capsys):

@@ -79,11 +79,16 @@ def _accepted(kind) -> str | None:
     return None
 
 
+#: Integers torch and NumPy take: a larger one (``glances = 10**30``) overflowed deep inside
+#: (``zeros(): ... Overflow when unpacking long long``).
+_INT64 = 2**63
+
+
 def _fits(kind, v) -> bool:
     if kind is bool:
         return isinstance(v, bool)
     if kind is int:
-        return isinstance(v, numbers.Integral) and not isinstance(v, bool)
+        return isinstance(v, numbers.Integral) and not isinstance(v, bool) and -_INT64 <= v < _INT64
     if kind is float:
         return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
     if kind in (str, dict) or dataclasses.is_dataclass(kind):
@@ -115,7 +120,42 @@ def check_types(config) -> None:
         accepted = _accepted(hints[f.name])
         value = getattr(config, f.name)
         if accepted is not None and not _fits(hints[f.name], value):
-            raise HamError(f"{f.name} = {value!r}; accepted: {accepted}")
+            raise HamError(f"{f.name} = {value!r}; accepted: {_sized(accepted, value)}")
+
+
+#: What torch says of a size it cannot hold (``--hidden-units 4611686018427387904``: its LSTM's
+#: 4 x hidden rows), and of memory it cannot get (the CPU allocator's; CUDA's has its own type).
+_TOO_LARGE = (
+    "can't allocate memory",
+    "Storage size calculation overflowed",
+    "Overflow when unpacking long long",
+    "cannot be represented as a SymInt",
+)
+
+
+def too_large(exc: BaseException) -> str | None:
+    """One line for an out-of-memory error or a tensor size that overflows (NumPy's
+    ``MemoryError``, torch's ``OutOfMemoryError``, its allocator's ``RuntimeError``, a size
+    beyond 64 bits), else None: a request too large for the machine, not a bug."""
+    text = " ".join(str(exc).split())
+    if not (
+        isinstance(exc, MemoryError)
+        or type(exc).__name__ == "OutOfMemoryError"
+        or (isinstance(exc, (RuntimeError, TypeError)) and any(w in text for w in _TOO_LARGE))
+    ):
+        return None
+    text = text.split(" Exception raised from ")[0]  # torch's C++ frames follow
+    return (
+        f"out of memory ({text[:300]}); accepted: a request that fits this machine (fewer "
+        "envs or glances, a smaller batch, model, grid or object set)"
+    )
+
+
+def _sized(accepted: str, value) -> str:
+    """``accepted``, saying "of at most 64 bits" when ``value`` is an integer too large for it."""
+    if isinstance(value, numbers.Integral) and not isinstance(value, bool):
+        return accepted.replace("an integer", "an integer of at most 64 bits")
+    return accepted
 
 
 def check_known_fields(cls, d: dict, what: str) -> None:
@@ -177,7 +217,9 @@ def checked_arguments(fn):
         for name, kind, accepted in checks:
             if name in bound.arguments and not _fits(kind, bound.arguments[name]):
                 value = bound.arguments[name]
-                raise HamError(f"{fn.__qualname__}: {name} = {value!r}; accepted: {accepted}")
+                raise HamError(
+                    f"{fn.__qualname__}: {name} = {value!r}; accepted: {_sized(accepted, value)}"
+                )
         return fn(*args, **kwargs)
 
     return wrapper

@@ -27,7 +27,7 @@ from ham.cli.options import (  # noqa: F401
     print_json,
     world_from_args,
 )
-from ham.errors import HamError
+from ham.errors import HamError, too_large
 from ham.world.files import check_output
 
 PNG = (".png",)
@@ -502,32 +502,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _out_of_memory(exc: BaseException, text: str) -> bool:
-    """torch's out-of-memory errors: ``torch.OutOfMemoryError`` (CUDA), the CPU allocator's, or
-    a tensor whose byte count overflows (``--hidden-units 99999999999``)."""
-    return type(exc).__name__ == "OutOfMemoryError" or any(
-        words in text for words in ("can't allocate memory", "Storage size calculation overflowed")
-    )
-
-
 def _known_failure(exc: Exception) -> str | None:
     """One line for a failure that is not a bug of ours, else None: the user's own code (a
-    plugin's core failing in training, past the check at build time) or out of memory."""
+    plugin's core failing in training, past the check at build time), or a request too large
+    for this machine (:func:`ham.errors.too_large`)."""
     from ham.world.recorded_file import raised_in
 
-    user = raised_in(exc)
-    if user is not None:
-        return user
-    # NumPy's MemoryError; torch's CPU allocator and CUDA say it in a RuntimeError
-    text = " ".join(str(exc).split())
-    if isinstance(exc, MemoryError) or (
-        isinstance(exc, RuntimeError) and _out_of_memory(exc, text)
-    ):
-        return (
-            f"out of memory ({text[:300]}); accepted: a request that fits this machine (fewer "
-            "envs or glances, a smaller batch, model, grid or object set)"
-        )
-    return None
+    return raised_in(exc) or too_large(exc)
 
 
 def _empty_option(args: argparse.Namespace, argv: list[str]) -> str | None:

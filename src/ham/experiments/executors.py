@@ -29,7 +29,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import NamedTuple, Protocol
 
-from ham.errors import HamError, check_types
+from ham.errors import HamError, check_types, too_large
 from ham.experiments.runs import is_finished, run_dir
 from ham.world.recorded_file import raised_in
 
@@ -97,7 +97,7 @@ def _ensure_table(path: Path, world: dict, grid: int) -> None:
 def _error(exc: BaseException) -> str:
     """A failed run's error: the exception, or the user's file and line it came from (a
     plugin's core failing in training: :func:`ham.world.recorded_file.raised_in`)."""
-    return raised_in(exc) or f"{type(exc).__name__}: {exc}"
+    return raised_in(exc) or too_large(exc) or f"{type(exc).__name__}: {exc}"
 
 
 def _safe_run(job: dict, root: str, world: dict, grid: int) -> dict:

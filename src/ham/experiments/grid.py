@@ -81,6 +81,10 @@ def flatten(d: Mapping, prefix: str = "", where: str = "grid") -> dict[str, Any]
     out: dict[str, Any] = {}
     for k, v in d.items():
         key = f"{prefix}{k}"
+        if isinstance(v, Mapping) and not v:  # it would flatten to nothing: set nothing, silently
+            raise HamError(
+                f"{where}: {key} = {{}}; accepted: a value (an empty table sets nothing)"
+            )
         inner = flatten(v, key + ".", where).items() if isinstance(v, Mapping) else [(key, v)]
         for kk, vv in inner:
             if kk in out:  # TOML's "model.glances" and model.glances are two keys, one override
@@ -206,6 +210,7 @@ class Grid:
     # ------------------------------------------------------------------ validation
     def __post_init__(self) -> None:
         from ham.learn.evaluation import EVAL_POLICIES
+        from ham.world.table import MAX_GRID as MAX_TABLE_GRID
 
         w = f"grid {self.name!r}"
         if not (isinstance(self.name, str) and _NAME.match(self.name)):
@@ -245,9 +250,12 @@ class Grid:
         if self.table_grid is not None and not (
             isinstance(self.table_grid, int)
             and not isinstance(self.table_grid, bool)
-            and self.table_grid >= 2
+            and 2 <= self.table_grid <= MAX_TABLE_GRID
         ):
-            raise HamError(f"{w}: table grid = {self.table_grid!r}; accepted: an integer >= 2")
+            raise HamError(
+                f"{w}: table grid = {self.table_grid!r}; accepted: an integer "
+                f"2..{MAX_TABLE_GRID} (the paper uses 201)"
+            )
         evals = []
         for i, spec in enumerate(self.evaluate):
             where = f"{w} evaluate[{i}]"
@@ -263,9 +271,12 @@ class Grid:
                 raise HamError(
                     f"{where}: policy {s['policy']!r}; accepted: {', '.join(EVAL_POLICIES)}"
                 )
-            for k, low in (("batches", 1), ("seed", 0)):
-                if not (isinstance(s[k], int) and not isinstance(s[k], bool) and s[k] >= low):
-                    raise HamError(f"{where}: {k} = {s[k]!r}; accepted: an integer >= {low}")
+            for k, low in (("batches", 1), ("seed", 0)):  # as `ham evaluate` takes them
+                if not (isinstance(s[k], int) and not isinstance(s[k], bool)
+                        and low <= s[k] < 2**63):  # fmt: skip
+                    raise HamError(
+                        f"{where}: {k} = {s[k]!r}; accepted: an integer {low} .. 2**63-1"
+                    )
             if s in evals:
                 raise HamError(f"{where}: {s} is listed twice")
             evals.append(s)
@@ -348,7 +359,8 @@ class Grid:
             if not isinstance(c, Mapping):
                 raise HamError(f"{w} cells[{i}] = {c!r}; accepted: a table of overrides")
             own_world = c.get("world")
-            where = f"{w} cell {c.get('name', i)!r}"
+            name = c.get("name")
+            where = f"{w} cell {name!r}" if isinstance(name, str) and name else f"{w} cells[{i}]"
             c = flatten({k: x for k, x in c.items() if k != "world"}, where=where)
             if "name" in c and not (isinstance(c["name"], str) and c["name"]):
                 raise HamError(
@@ -689,7 +701,7 @@ def _resolve_world(own, under: Mapping, where: str):
 def _axis_items(axes: Mapping):
     """Axis name -> values; TOML's ``model.glances = [...]`` arrives nested, so flatten it."""
     for k, v in axes.items():
-        if isinstance(v, Mapping):
+        if isinstance(v, Mapping) and v:  # an empty one is refused as an axis's values
             for kk, vv in _axis_items(v):
                 yield f"{k}.{kk}", vv
         else:

@@ -98,9 +98,13 @@ def nearest_index(q: torch.Tensor, grid: int) -> torch.Tensor:
     return torch.round((q + 1.0) * (0.5 * (grid - 1))).long().clamp_(0, grid - 1)
 
 
+#: The largest grid of a glance table: 2001 x 2001 poses (4 million glances an object).
+MAX_GRID = 2001
+
+
 def _check_grid(grid: int) -> None:
-    if not (isinstance(grid, int) and not isinstance(grid, bool) and 2 <= grid <= 2001):
-        raise HamError(f"grid = {grid!r}; accepted: an integer 2..2001 (the paper uses 201)")
+    if not (isinstance(grid, int) and not isinstance(grid, bool) and 2 <= grid <= MAX_GRID):
+        raise HamError(f"grid = {grid!r}; accepted: an integer 2..{MAX_GRID} (the paper uses 201)")
 
 
 def grid_shape_for(grid, pose_dims: tuple[str, ...]) -> tuple[int, ...]:
@@ -554,7 +558,7 @@ def _read_info(f: h5py.File, path: str) -> TableInfo:
         )
     if len(set(names)) != len(names):
         raise HamError(f"glance table {path!r} lists an object twice: {names}")
-    if not (len(shape) == len(dims) >= 1 and all(2 <= g <= 2001 for g in shape)):
+    if not (len(shape) == len(dims) >= 1 and all(2 <= g <= MAX_GRID for g in shape)):
         raise HamError(
             f"glance table {path!r} has grid {'x'.join(map(str, shape))} over pose dims "
             f"{','.join(dims)}; accepted: 2..2001 points on each pose axis"
