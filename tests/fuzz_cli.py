@@ -16,6 +16,7 @@ exit code is the number of flagged calls (0: none). Examples::
 
     python -m tests.fuzz_cli evaluate heatmap --limit 30
     python -m tests.fuzz_cli reproduce --options seeds glances
+    python -m tests.fuzz_cli train evaluate --values 1000000000000000000000000000000
     python -m tests.fuzz_cli --list
 """
 
@@ -211,6 +212,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--limit", type=float, default=60.0, help="seconds per call (60)")
     parser.add_argument("--list", action="store_true", help="list each command's options")
     parser.add_argument("--options", nargs="+", metavar="NAME", help="only these (seeds: --seeds)")
+    parser.add_argument("--values", nargs="+", metavar="V", help="only these values (default: ODD)")
     args = parser.parse_args(argv)
     unknown = [c for c in args.commands if c not in BASE]
     if unknown:
@@ -237,8 +239,9 @@ def main(argv: list[str] | None = None) -> int:
             swept = [*places, *_options(base)]
             if args.options:
                 swept = [o for o in swept if str(o).lstrip("-") in args.options]
+            values = args.values or ODD
             for option in swept:
-                for value in ODD:
+                for value in values:
                     cwd = _fresh(root)
                     if isinstance(option, int):
                         call = [*base[:option], value, *base[option + 1 :]]
@@ -254,7 +257,7 @@ def main(argv: list[str] | None = None) -> int:
                     elif outcome == "slow":
                         slow.append(f"{command} {option} {value!r}")
                     shutil.rmtree(cwd, ignore_errors=True)
-                print(f"{command} {option}: {len(ODD)} values", flush=True)
+                print(f"{command} {option}: {len(values)} values", flush=True)
     finally:
         shutil.rmtree(root, ignore_errors=True)
     minutes = (time.monotonic() - start) / 60

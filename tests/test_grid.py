@@ -358,8 +358,8 @@ def test_a_run_too_large_for_the_machine_is_one_line_in_the_report(tmp_path):
     assert [f["key"] for f in summary["failures"]] == ["base-s0"]
     report = (tmp_path / "o" / "report.md").read_text()
     line = next(x for x in report.splitlines() if x.startswith("- `base-s0`"))
-    assert line.startswith("- `base-s0`: out of memory (empty(): argument 'size' failed"), line
-    assert line.endswith("a smaller batch, model, grid or object set)"), line
+    assert line.startswith("- `base-s0`: too large to hold (empty(): argument 'size' failed"), line
+    assert line.endswith("a smaller batch, model, sensor, grid or object set)"), line
 
 
 def test_grid_arguments(tmp_path, capsys):

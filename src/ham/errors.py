@@ -123,31 +123,39 @@ def check_types(config) -> None:
             raise HamError(f"{f.name} = {value!r}; accepted: {_sized(accepted, value)}")
 
 
-#: What torch says of a size it cannot hold (``--hidden-units 4611686018427387904``: its LSTM's
-#: 4 x hidden rows), and of memory it cannot get (the CPU allocator's; CUDA's has its own type).
-_TOO_LARGE = (
-    "can't allocate memory",
+#: What torch and NumPy say of a size they cannot hold: ``--hidden-units 4611686018427387904``
+#: (its LSTM's 4 x hidden rows overflow 64 bits), ``--pitch 1e30`` (a pad of 10**28 m, sampled
+#: every 1.25 mm).
+_OVERFLOW = (
     "Storage size calculation overflowed",
     "Overflow when unpacking long long",
     "cannot be represented as a SymInt",
+    "Maximum allowed dimension exceeded",  # NumPy: an array beyond its index range
+    "Maximum allowed size exceeded",
+    "array is too big",
 )
 
 
 def too_large(exc: BaseException) -> str | None:
-    """One line for an out-of-memory error or a tensor size that overflows (NumPy's
-    ``MemoryError``, torch's ``OutOfMemoryError``, its allocator's ``RuntimeError``, a size
-    beyond 64 bits), else None: a request too large for the machine, not a bug."""
-    text = " ".join(str(exc).split())
-    if not (
+    """One line for a request too large for the machine, not a bug, else None: out of memory
+    (NumPy's ``MemoryError``, torch's ``OutOfMemoryError`` and its CPU allocator's
+    ``RuntimeError``) or a size beyond what torch or NumPy can index (:data:`_OVERFLOW`)."""
+    text = " ".join(str(exc).split()).split(" Exception raised from ")[0]  # torch's C++ frames
+    if (
         isinstance(exc, MemoryError)
         or type(exc).__name__ == "OutOfMemoryError"
-        or (isinstance(exc, (RuntimeError, TypeError)) and any(w in text for w in _TOO_LARGE))
+        or (isinstance(exc, RuntimeError) and "can't allocate memory" in text)
     ):
+        what = "out of memory"
+    elif isinstance(exc, (RuntimeError, TypeError, ValueError)) and any(
+        w in text for w in _OVERFLOW
+    ):
+        what = "too large to hold"
+    else:
         return None
-    text = text.split(" Exception raised from ")[0]  # torch's C++ frames follow
     return (
-        f"out of memory ({text[:300]}); accepted: a request that fits this machine (fewer "
-        "envs or glances, a smaller batch, model, grid or object set)"
+        f"{what} ({text[:300]}); accepted: a request that fits this machine (fewer envs or "
+        "glances, a smaller batch, model, sensor, grid or object set)"
     )
 
 
