@@ -40,7 +40,7 @@ CONFIGS = {
 WRONG = {
     bool: [0, 1, 1.0, "true", None, [], math.nan],
     int: [1.5, 2.0, True, "3", None, [], math.nan, 2**63, -(2**63) - 1],  # beyond torch's
-    float: [math.nan, math.inf, -math.inf, True, "0.5", None, [], {}],
+    float: [math.nan, math.inf, -math.inf, True, "0.5", None, [], {}, 1e300, -1e39, 10**400],
     str: [0, 1.5, True, None, [], {}, math.nan],
     dict: [0, "a", [], None, math.nan],
 }
@@ -107,6 +107,13 @@ def test_an_integer_beyond_64_bits_is_refused_for_its_size():
     with pytest.raises(HamError, match=r"^glances = 10{30}; accepted: an integer of at most 64"):
         HamConfig(glances=10**30)
     assert HamConfig(n_objects=2**63 - 1).n_objects == 2**63 - 1  # the largest torch takes
+
+
+def test_a_number_beyond_float32_is_refused_for_its_size():
+    # finite, and an overflow in the optimizer's float32 step before
+    with pytest.raises(HamError, match=r"^lr = 1e\+300; accepted: a finite number within float32"):
+        TrainConfig(lr=1e300)
+    assert TrainConfig(lr=3e38).lr == 3e38  # within float32: it diverges, as a large lr does
 
 
 def test_a_nested_config_must_be_its_dataclass():

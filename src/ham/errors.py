@@ -84,13 +84,24 @@ def _accepted(kind) -> str | None:
 _INT64 = 2**63
 
 
+#: Numbers torch's float32 tensors hold: ``lr = 1e300`` was finite here and an overflow in the
+#: optimizer (``value cannot be converted to type float without overflow``).
+_FLOAT32_MAX = 3.4028234663852886e38
+
+
 def _fits(kind, v) -> bool:
     if kind is bool:
         return isinstance(v, bool)
     if kind is int:
         return isinstance(v, numbers.Integral) and not isinstance(v, bool) and -_INT64 <= v < _INT64
     if kind is float:
-        return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+        # abs() first: an int beyond a double's range (10**400) makes isfinite raise
+        return (
+            isinstance(v, numbers.Real)
+            and not isinstance(v, bool)
+            and abs(v) <= _FLOAT32_MAX
+            and math.isfinite(v)
+        )
     if kind in (str, dict) or dataclasses.is_dataclass(kind):
         return isinstance(v, kind)
     origin, args = typing.get_origin(kind), typing.get_args(kind)
@@ -160,9 +171,13 @@ def too_large(exc: BaseException) -> str | None:
 
 
 def _sized(accepted: str, value) -> str:
-    """``accepted``, saying "of at most 64 bits" when ``value`` is an integer too large for it."""
+    """``accepted``, saying "of at most 64 bits" when ``value`` is an integer too large for it,
+    and "within float32" when it is a number beyond what float32 holds."""
     if isinstance(value, numbers.Integral) and not isinstance(value, bool):
-        return accepted.replace("an integer", "an integer of at most 64 bits")
+        accepted = accepted.replace("an integer", "an integer of at most 64 bits")
+    real = isinstance(value, numbers.Real) and not isinstance(value, bool)
+    if real and _FLOAT32_MAX < abs(value) != math.inf:  # nan compares False; no float() of 10**400
+        accepted = accepted.replace("finite number", "finite number within float32 (|x| <= 3.4e38)")
     return accepted
 
 

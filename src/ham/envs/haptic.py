@@ -51,13 +51,16 @@ RENDER_MODES: tuple[str, ...] = ("rgb_array",)
 RENDER_SIZE = 128
 
 
+def _count(name: str, v: Any) -> int:
+    """``v`` as an int 1 .. 2**63-1 (what NumPy and torch index), or a HamError naming it."""
+    if not (isinstance(v, (int, np.integer)) and not isinstance(v, bool) and 1 <= v < 2**63):
+        raise HamError(f"{name} = {v!r}; accepted: an integer 1 .. 2**63-1")
+    return int(v)
+
+
 def check_glances(glances: Any) -> int:
     """``glances`` as an int >= 1, or a :class:`HamError`."""
-    if not (
-        isinstance(glances, (int, np.integer)) and not isinstance(glances, bool) and glances >= 1
-    ):
-        raise HamError(f"glances = {glances!r}; accepted: an integer >= 1")
-    return int(glances)
+    return _count("glances", glances)
 
 
 def reset_option(options: Any, key: str) -> Any:
@@ -400,11 +403,7 @@ VECTOR_METADATA = {
 
 def check_num_envs(num_envs) -> int:
     """``num_envs`` as an int >= 1, or a HamError naming it."""
-    if not (
-        isinstance(num_envs, (int, np.integer)) and not isinstance(num_envs, bool) and num_envs >= 1
-    ):
-        raise HamError(f"num_envs = {num_envs!r}; accepted: an integer >= 1")
-    return int(num_envs)
+    return _count("num_envs", num_envs)
 
 
 class HapticGlanceVectorEnv(gym.vector.VectorEnv):
