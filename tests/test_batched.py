@@ -434,6 +434,23 @@ def test_a_diverged_run_stops_alone(tmp_path):
         assert_same_run(outs[s], tmp_path / f"single{s}")
 
 
+def test_an_adam_update_beyond_float32_stops_its_run_alone(tmp_path):
+    """Adam at lr 3e38 (within float32) makes an update that float32 cannot hold: torch raised a
+    RuntimeError that ended the whole group; now that run diverges alone, as ``ham train``
+    says for a single run."""
+    configs = [tiny(s, steps=4, optimizer="adam", lr=lr) for s, lr in ((0, 1e-3), (1, 3e38))]
+    outs = [tmp_path / "b0", tmp_path / "b1"]
+    results = train_batched(configs, outs)
+    assert results[1] == (
+        "training diverged at step 1: the optimizer's update overflows float32 (lr 3e+38)"
+    )
+    train(configs[0], tmp_path / "single0", progress=False)
+    assert_same_run(outs[0], tmp_path / "single0", atol=1e-4)  # Adam's, as the tests above
+    with pytest.raises(HamError, match=r"^training diverged at step 1: the optimizer's update"):
+        train(configs[1], tmp_path / "single1", progress=False)
+    assert not (tmp_path / "single1").exists()  # failed at its first step: no run left
+
+
 class _HostReads(TorchDispatchMode):
     """The operators that read a tensor's value back to the host (``item``, ``bool``) or make a
     tensor of Python values (``torch.tensor``): on a GPU each is a wait or a copy."""

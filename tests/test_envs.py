@@ -226,6 +226,22 @@ def test_adapter_presents_an_ap_gym_env_like_haptic_env(ap_gym):
     env.close()
 
 
+def test_a_step_length_too_short_for_float32_moves_the_glimpse_by_it(ap_gym):
+    """With ``max_step_length=1e-300`` an absolute move of 0.5 is 5e299 steps, inf in float32:
+    ap_gym's cap made it inf / inf = NaN and its glimpse lookup failed (a traceback). The move
+    is capped here as ap_gym caps it (one step), so the glimpse moves by the step length."""
+    from ham.learn.ap_adapter import ApGymGlanceEnv
+
+    env = ApGymGlanceEnv("CircleSquare-s15-nograd-v0", 4, max_step_length=1e-300, seed=1)
+    labels = env.sample_objects()
+    env.glance(labels, torch.zeros(4, 2))
+    start = env.observed_location.clone()
+    x = env.glance(labels, torch.tensor([[0.5, -0.5]]).repeat(4, 1))
+    assert torch.isfinite(x).all()
+    torch.testing.assert_close(env.observed_location, start)  # moved by 1e-300 at most
+    env.close()
+
+
 def test_ham_trains_on_an_offline_ap_gym_env_and_beats_random_locations(ap_gym, tmp_path):
     """A short real run through the HAM's own training loop on ap_gym's CircleSquare (15 x 15
     px, no gradient; built locally, no download). Both agents: 2 glances, the same seed,

@@ -395,12 +395,19 @@ class ApGymGlanceEnv:
                     f"poses of shape {qn.shape}; accepted: ({self.batch_size}, 2) finite values"
                 )
             if self.actions == "relative":
-                action = qn
+                action = qn.astype(np.float32)
             else:
-                action = (qn - self._obs[self.position_key]) / self.env_max_step
+                move = qn - self._obs[self.position_key]
+                with np.errstate(over="ignore"):
+                    action = (move / self.env_max_step).astype(np.float32)
+                far = ~np.isfinite(action).all(-1)
+                if far.any():  # a step length so short (1e-300) that the move overflows float32
+                    # (ap_gym's cap then made inf / inf = NaN): its cap, a unit step toward q
+                    unit = move[far] / np.linalg.norm(move[far], axis=-1, keepdims=True)
+                    action[far] = unit.astype(np.float32)
             prediction = np.zeros((self.batch_size, self.n_objects), dtype=np.float32)
             obs, _, terminated, truncated, info = env.step(
-                {"action": action.astype(np.float32), "prediction": prediction}
+                {"action": action, "prediction": prediction}
             )
             if (
                 np.any(terminated | truncated)

@@ -64,6 +64,7 @@ from ham.learn.train import (
     _write_atomic,
     _write_json,
     load_checkpoint,
+    overflowed,
     read_run_config,
     stream_seed,
 )
@@ -283,6 +284,7 @@ class BatchedRuns:
         self.stop_at_perfect = stop_at_perfect
         self.results: dict[int, dict | str] = {}  # run index -> metrics, or the error line
         self.stopped: dict[int, int] = dict(stopped or {})  # run index -> the step it stopped
+        self._overflowed: dict[int, str] = {}  # run index -> its Adam update's overflow
         self.active = [
             i for i in range(len(self.runs)) if not self._done(i) and i not in self.stopped
         ]
@@ -626,6 +628,8 @@ class BatchedRuns:
             if loss_ok[k]:
                 r.step += 1
             try:
+                if i in self._overflowed:
+                    raise HamError(self._overflowed.pop(i))
                 if not loss_ok[k]:
                     _check_loss(r, self.numbers[0, k])
                 if not weights_ok[k]:
@@ -707,7 +711,13 @@ class BatchedRuns:
                     r, params = runs[k], self._params[self.active[k]]
                     for name, p in params.items():
                         p.grad = grads[name][k] if name in grads else None
-                    r.optimizer.step()
+                    try:
+                        r.optimizer.step()
+                    except RuntimeError as exc:  # an update beyond float32: this run diverged
+                        diverged = overflowed(r, exc)
+                        if diverged is None:
+                            raise
+                        self._overflowed[self.active[k]] = str(diverged)
                     for p in params.values():
                         p.grad = None
         with torch.no_grad():

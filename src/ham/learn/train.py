@@ -1033,6 +1033,22 @@ def _saved_step(run: Run) -> int:
     return run.history[-1]["step"] if run.history else 0
 
 
+#: torch's words for an update beyond float32 (Adam at lr 3e38: its first step is lr / (1 - beta1))
+_UPDATE_OVERFLOW = "cannot be converted to type float without overflow"
+
+
+def overflowed(run: Run, exc: BaseException) -> DivergedError | None:
+    """The run's divergence when ``exc`` is an optimizer's update that overflowed float32 (a
+    RuntimeError in place of the NaN/inf weights an SGD step leaves), else None."""
+    if isinstance(exc, RuntimeError) and _UPDATE_OVERFLOW in str(exc):
+        lr = run.optimizer.param_groups[0]["lr"]
+        return DivergedError(
+            f"training diverged at step {run.step + 1}: the optimizer's update overflows "
+            f"float32 (lr {lr:g})"
+        )
+    return None
+
+
 def _check_loss(run: Run, loss: torch.Tensor) -> None:
     """Stop a diverged run with the step named: NaN or inf in the loss."""
     if not bool(torch.isfinite(loss)):
@@ -1306,7 +1322,13 @@ def train_loop(run: Run, out: Path, progress: bool) -> dict:
             _save(run, out)
         while run.step < c.steps:
             t0 = time.perf_counter()
-            loss = train_step(run)
+            try:
+                loss = train_step(run)
+            except RuntimeError as exc:
+                diverged = overflowed(run, exc)
+                if diverged is None:
+                    raise
+                raise diverged from None
             lr = optimizer.param_groups[0]["lr"]
 
             loss_sum += loss.total.detach()

@@ -15,6 +15,7 @@ every table and run. ``make_simulator`` builds the simulator it names:
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 
 from ham.errors import HamError, check_known_fields, check_types
@@ -96,7 +97,8 @@ class WorldConfig:
         # The foam must carry the glance's stop force on the whole face before it is compressed
         # through: softer, and even the flat box blocks the pad with no 2 N reading.
         s, need = self.sensor, self.glance.force_threshold
-        lowest = need / (s.foam_thickness * s.size**2)
+        volume = s.foam_thickness * s.size**2  # 0.0 for a pad of 1e-300 m: none carries it
+        lowest = need / volume if volume > 0 else math.inf
         if s.foam_stiffness < lowest:
             least_size = (need / (s.foam_thickness * s.foam_stiffness)) ** 0.5
             # no stiffness can help a pad that needs more than the most we accept: name only size
