@@ -35,7 +35,7 @@ import numpy as np
 
 #: odd values given to every parameter in turn
 ODD: list = [math.nan, math.inf, -1, 0, 1.5, "abc", "", None, True, [], {}, object(),
-             np.int64(2), "/", b"x", 10**30, 1e300]  # fmt: skip
+             np.int64(2), "/", b"x", 10**30, 1e300, 3e38, 1e-300]  # fmt: skip
 
 
 class Accepted(Exception):
