@@ -7,6 +7,7 @@ that record, without the flag.
 
 import hashlib
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -170,7 +171,7 @@ BAD_FILES = [
     ("flat0.py", "register(HapticObject.from_heightmap('z', [0.0, 0.0]))",
      "object 'z': every height is 0 (no block)"),
     ("width0.py", "register(HapticObject.from_function('w', np.ones_like, width=0))",
-     "object 'w': width = 0; accepted: a number in (0, 0.2] (m)"),
+     "object 'w': width = 0; accepted: a number in [0.001, 0.2] (m)"),
     ("widthneg.py", "register(HapticObject.from_heightmap('w', [0.01, 0.02], width=-0.09))",
      "object 'w': width = -0.09"),
     ("depth0.py", "register(HapticObject.from_polyline('d', [(0, 0.01), (0.09, 0.01)], depth=0.0))",
@@ -316,8 +317,11 @@ def test_object_options_that_would_be_ignored_are_refused(own, tmp_path):
     "kwargs, message",
     [
         ({"height": 0.0}, "object 'a': height = 0.0; accepted: a number in (0, 0.09] (m)"),
-        ({"width": float("nan")}, "object 'a': width = nan; accepted: a number in (0, 0.2] (m)"),
-        ({"depth": 0.3}, "object 'a': depth = 0.3; accepted: a number in (0, 0.2] (m)"),
+        ({"width": math.nan}, "object 'a': width = nan; accepted: a number in [0.001, 0.2]"),
+        ({"depth": 0.3}, "object 'a': depth = 0.3; accepted: a number in [0.001, 0.2] (m)"),
+        # a block of 1e-300 m was an IndexError (extended glance) or NumPy's "Maximum allowed
+        # dimension exceeded" (the fast simulator's narrow-peak window): found by a sweep
+        ({"depth": 1e-300}, "object 'a': depth = 1e-300; accepted: a number in [0.001, 0.2]"),
         ({"profile": 3}, "object 'a': profile 3 is not a function"),
         ({"name": "1"}, "object name '1'; accepted: a letter or '_' first"),
         ({"description": "two\nlines"}, "description 'two\\nlines'; accepted: one line of text"),

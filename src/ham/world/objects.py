@@ -61,6 +61,10 @@ BLOCK_HEIGHT = 0.045
 #: Largest width and depth (m) of a user's object: objects stand 0.3 m apart in the MuJoCo scene,
 #: so a block up to 20 cm wide stays out of the pad's reach in the neighbouring zone.
 MAX_SIZE = 0.2
+#: Smallest width and depth (m): a millimetre, a little below the pad's read-out spacing (1.25
+#: mm). A block of 1e-300 m made the fast simulator's search for narrow peaks a window of 10**296
+#: samples (and the extended glance an index out of range).
+MIN_SIZE = 0.001
 #: The block height limit (m): no surface point above the block's 9 cm edge.
 MAX_HEIGHT = BLOCK_SIZE
 #: Samples of a height function checked by :meth:`HapticObject.from_function` (the simulators'
@@ -94,9 +98,10 @@ def check_name(name: object) -> str:
 
 def _check_size(name: str, what: str, value: object) -> float:
     ok = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)
-    if not ok or not (math.isfinite(value) and 0 < value <= MAX_SIZE):
+    if not ok or not (math.isfinite(value) and MIN_SIZE <= value <= MAX_SIZE):
         raise HamError(
-            f"object {name!r}: {what} = {value!r}; accepted: a number in (0, {MAX_SIZE}] (m)"
+            f"object {name!r}: {what} = {value!r}; accepted: a number in [{MIN_SIZE}, "
+            f"{MAX_SIZE}] (m)"
         )
     return float(value)
 
