@@ -172,6 +172,17 @@ def _config(**kw) -> TrainConfig:
     return fit_to_ap_gym(TrainConfig(normalization="none", **base), env)
 
 
+def test_a_diverged_sac_run_is_a_divergence(tmp_path):
+    """A NaN loss of the sac learner is a :class:`DivergedError` as the other learners' are (a
+    plain HamError before: a grid retried the run, which diverged again)."""
+    pytest.importorskip("ap_gym")
+    from ham.errors import DivergedError
+
+    with pytest.raises(DivergedError, match=r"^the sac learner diverged: its \w+ loss is nan"):
+        train(_config(lr=1e30), tmp_path / "r", progress=False)
+    assert not (tmp_path / "r").exists()  # at its first step: no run left
+
+
 def test_sac_run_on_ap_gym_checkpoints_and_resumes_bit_identically(tmp_path):
     pytest.importorskip("ap_gym")
     full = train(_config(), tmp_path / "full", progress=False)

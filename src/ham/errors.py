@@ -43,6 +43,16 @@ def check_choices(config) -> None:
             raise HamError(f"{f.name} = {value!r}; accepted: {', '.join(allowed)}")
 
 
+class DivergedError(HamError):
+    """Training met NaN or inf: in the loss, or in the weights after an update (raised by the
+    learn layer's loops, :mod:`ham.learn.train`, and its learners', :mod:`ham.learn.off_policy`).
+
+    ``saved_step``: the step of the checkpoint the run's folder keeps (set by
+    :func:`ham.learn.train.train` and ``resume``; None where nothing was kept)."""
+
+    saved_step: int | None = None
+
+
 def with_article(word: str) -> str:
     """``word`` after "a" or "an" ("a str", "an int", "an ApGymConfig"), for messages."""
     return ("an " if word[:1] in "aeiouAEIOU" else "a ") + word

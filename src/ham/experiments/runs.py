@@ -37,22 +37,25 @@ def _step(value) -> int | None:
     return value if isinstance(value, int) and not isinstance(value, bool) else None
 
 
-def stopped_at(out: Path) -> int | None:
+def stopped_at(out: Path, metrics: dict | None = None) -> int | None:
     """The step a run stopped at with a perfect evaluation (``stopped_at_perfect``,
-    :mod:`ham.learn.batched`), or None: it did not (or its metrics.json is damaged)."""
-    return _step(read_metrics(out).get("stopped_at_perfect"))
+    :mod:`ham.learn.batched`), or None: it did not (or its metrics.json is damaged);
+    ``metrics``: its metrics.json, if read already."""
+    return _step((read_metrics(out) if metrics is None else metrics).get("stopped_at_perfect"))
 
 
-def final_step(out: Path, steps: int) -> int:
+def final_step(out: Path, steps: int, metrics: dict | None = None) -> int:
     """The step a run ends at: ``steps``, or the step it stopped at with a perfect evaluation
-    (:func:`stopped_at`: its best accuracy cannot change)."""
-    stopped = stopped_at(out)
+    (:func:`stopped_at`: its best accuracy cannot change); ``metrics``: its metrics.json, if
+    read already."""
+    stopped = stopped_at(out, metrics)
     return steps if stopped is None else min(steps, stopped)
 
 
 def is_finished(out: Path, steps: int) -> bool:
-    done = _step(read_metrics(out).get("steps"))
-    return done is not None and done >= final_step(out, steps)
+    metrics = read_metrics(out)  # once: its steps, and the step it stopped at
+    done = _step(metrics.get("steps"))
+    return done is not None and done >= final_step(out, steps, metrics)
 
 
 def evaluation_path(out: Path, spec: dict) -> Path:

@@ -47,7 +47,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from ham.errors import HamError
+from ham.errors import DivergedError, HamError
 from ham.learn.info_loss import GainLoss, information_gain
 from ham.model.agent import HapticAttentionModel
 from ham.model.policy import LocationDistribution, SquashedGaussian, TruncatedGaussian
@@ -359,7 +359,7 @@ def sac_update(
     for name in ("total", "critic", "alpha"):
         v = getattr(loss, name)
         if not bool(torch.isfinite(v)):
-            raise HamError(f"the sac learner diverged: its {name} loss is {v.item()}")
+            raise DivergedError(f"the sac learner diverged: its {name} loss is {v.item()}")
     optimizer.zero_grad(set_to_none=True)
     sac.critic_optimizer.zero_grad(set_to_none=True)
     sac.alpha_optimizer.zero_grad(set_to_none=True)

@@ -38,6 +38,7 @@ from torch import nn
 from tqdm.auto import tqdm
 
 from ham.errors import (
+    DivergedError,
     HamError,
     check_choices,
     check_known_fields,
@@ -1017,15 +1018,6 @@ def _resume(out: Path, recorded, steps, env_steps, progress: bool, table) -> dic
             raise
     finally:
         run.close()
-
-
-class DivergedError(HamError):
-    """Training met NaN or inf: in the loss, or in the weights after an update.
-
-    ``saved_step``: the step of the checkpoint the run's folder keeps (set by :func:`train` and
-    :func:`resume`; None where nothing was kept)."""
-
-    saved_step: int | None = None
 
 
 def _saved_step(run: Run) -> int:
