@@ -337,6 +337,16 @@ def test_cli_resume_trains_a_finished_run_further_as_if_never_stopped(
         (["--algo", "ppo", "--algo-kwargs", "[1]"], "accepted: a JSON object"),
         (["--algo", "ppo", "--algo-kwargs", "{x"], "not JSON"),
         (["--algo", "ppo", "--algo-kwargs", '{"nope": 1}'], "unexpected keyword argument 'nope'"),
+        # hyperparameters that break the algorithm only when it trains (tracebacks before)
+        (["--algo", "ppo", "--no-progress", "--algo-kwargs",
+          '{"learning_rate": 1e300, "n_steps": 16, "batch_size": 16}'],
+         "ppo failed at env step 16: RuntimeError: value cannot be converted to type float without "
+         "overflow; accepted: algo_kwargs ppo trains with"),
+        (["--algo", "ppo", "--no-progress", "--algo-kwargs",
+          '{"ent_coef": "abc", "n_steps": 16, "batch_size": 16}'],
+         "ppo failed at env step 16: TypeError: only integer tensors"),
+        (["--algo", "ppo", "--algo-kwargs", '{"policy_kwargs": {"net_arch": [1000000000000000000000]}}'],
+         "for ppo: too large to hold (empty(): argument 'size' failed"),
         (["--algo", "ppo", "--device", "tpu"], "device 'tpu'; accepted: cpu, cuda or cuda:N"),
         # not the active-classification protocol (ap_gym wraps it with an empty prediction)
         (["--algo", "ppo", "--env", "CartPole-v1"],

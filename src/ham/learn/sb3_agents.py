@@ -27,6 +27,7 @@ import math
 import os
 import pickle
 import random
+import shutil
 import sys
 import time
 from dataclasses import asdict, dataclass, field, replace
@@ -45,6 +46,7 @@ from ham.errors import (
     check_seed,
     check_types,
     checked_arguments,
+    too_large,
 )
 from ham.world.files import atomic_write, check_output_dir, folder_lock
 
@@ -416,13 +418,23 @@ def train_sb3(config: Sb3Config, out: str | os.PathLike, progress: bool = False)
             **config.algo_kwargs,
         )  # fmt: skip
     except (TypeError, ValueError, AssertionError) as exc:
-        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        msg = too_large(exc) or (str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
         raise HamError(f"algo_kwargs {config.algo_kwargs!r} for {config.algo}: {msg}") from None
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     with folder_lock(out):  # another process starting the same --out: refused
         _check_empty(out)  # again: another process may have started first and written since
         _write_json(out / "config.json", asdict(config))
-        return _learn(config, out, model, eval_env, [], 0.0, progress)
+        try:
+            return _learn(config, out, model, eval_env, [], 0.0, progress)
+        except HamError:
+            if not (out / CHECKPOINT).exists():  # refused before its first checkpoint: nothing
+                for name in ("config.json", "history.json"):  # left, the same command runs again
+                    (out / name).unlink(missing_ok=True)
+                shutil.rmtree(out / "tb", ignore_errors=True)
+                if created and not any(out.iterdir()):
+                    out.rmdir()
+            raise
 
 
 def _check_empty(out: Path) -> None:
@@ -552,6 +564,17 @@ def _learn(config: Sb3Config, out: Path, model, eval_env, history: list, seconds
             callback=Evaluate(),
             reset_num_timesteps=not resumed,
         )
+    except (RuntimeError, ValueError, TypeError) as exc:
+        if not config.algo_kwargs:  # the algorithm's defaults: a bug, of ours or of SB3's
+            raise
+        # the user's hyperparameters broke it mid-training: a learning rate beyond float32
+        # (RuntimeError), NaN in the policy (torch.distributions' ValueError), a string ent_coef
+        first = (str(exc).splitlines() or [""])[0]
+        raise HamError(
+            f"algo_kwargs {config.algo_kwargs!r}: {config.algo} failed at env step "
+            f"{model.num_timesteps}: {too_large(exc) or f'{type(exc).__name__}: {first}'}; "
+            f"accepted: algo_kwargs {config.algo} trains with"
+        ) from None
     finally:
         bar.close()
         writer.close()
