@@ -345,6 +345,12 @@ def test_cli_resume_trains_a_finished_run_further_as_if_never_stopped(
         (["--algo", "ppo", "--no-progress", "--algo-kwargs",
           '{"ent_coef": "abc", "n_steps": 16, "batch_size": 16}'],
          "ppo failed at env step 16: TypeError: only integer tensors"),
+        (["--algo", "ppo", "--no-progress", "--algo-kwargs",
+          '{"n_epochs": 0, "n_steps": 16, "batch_size": 16}'],
+         "ppo failed at env step 16: UnboundLocalError: cannot access local variable"),
+        (["--algo", "sac", "--no-progress", "--algo-kwargs",
+          '{"train_freq": 0, "learning_starts": 8, "batch_size": 8}'],
+         "sac failed at env step 0: AssertionError: Should at least collect one step or episode."),
         (["--algo", "ppo", "--algo-kwargs", '{"policy_kwargs": {"net_arch": [1000000000000000000000]}}'],
          "for ppo: too large to hold (empty(): argument 'size' failed"),
         (["--algo", "ppo", "--device", "tpu"], "device 'tpu'; accepted: cpu, cuda or cuda:N"),
@@ -361,6 +367,23 @@ def test_cli_refuses_bad_inputs_in_one_line_and_writes_nothing(tmp_path, ham_mai
     assert r.returncode == 2 and message in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
     assert not (tmp_path / "run").exists()
+
+
+def test_a_failure_of_our_code_in_training_is_not_put_on_the_algo_kwargs(tmp_path, monkeypatch):
+    """Only what the algorithm's own code raises is blamed on the hyperparameters: our
+    evaluation callback runs inside SB3's learn() too, and its failure stays a traceback."""
+    from ham.learn import sb3_agents
+
+    def broken(*args, **kwargs):
+        raise ValueError("a bug of ours")
+
+    monkeypatch.setattr(sb3_agents, "evaluate_agent", broken)
+    config = Sb3Config(
+        algo="ppo", env="ham/HapticGlanceAP-v0", env_kwargs={"glances": 2}, env_steps=32,
+        eval_every=16, eval_episodes=2, algo_kwargs={"n_steps": 16, "batch_size": 16},
+    )  # fmt: skip
+    with pytest.raises(ValueError, match="a bug of ours"):
+        train_sb3(config, tmp_path / "r")
 
 
 def test_cli_names_a_missing_gpu_before_writing(tmp_path, ham_cli):

@@ -30,6 +30,7 @@ import random
 import shutil
 import sys
 import time
+import traceback
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -507,6 +508,15 @@ def _log_eval(writer, row: dict) -> None:
     writer.add_scalar("time/seconds", row["seconds"], step)
 
 
+def _raised_by_the_algorithm(exc: BaseException) -> bool:
+    """Whether ``exc`` came from the algorithm's own code (SB3, torch, NumPy): no frame of this
+    package between :func:`_learn`'s call of ``learn`` and where it was raised (our callback's
+    evaluation and our environments run inside ``learn`` too)."""
+    package = str(Path(__file__).resolve().parents[1])  # .../ham
+    frames = traceback.extract_tb(exc.__traceback__)[1:]  # [0]: _learn itself
+    return not any(f.filename.startswith(package) for f in frames)
+
+
 def _learn(config: Sb3Config, out: Path, model, eval_env, history: list, seconds: float,
            progress: bool, resumed: bool = False) -> dict:  # fmt: skip
     from stable_baselines3.common.callbacks import BaseCallback
@@ -564,11 +574,12 @@ def _learn(config: Sb3Config, out: Path, model, eval_env, history: list, seconds
             callback=Evaluate(),
             reset_num_timesteps=not resumed,
         )
-    except (RuntimeError, ValueError, TypeError) as exc:
-        if not config.algo_kwargs:  # the algorithm's defaults: a bug, of ours or of SB3's
-            raise
+    except Exception as exc:
+        if not (config.algo_kwargs and _raised_by_the_algorithm(exc)):
+            raise  # the algorithm's defaults, or code of ours: a bug, of ours or of SB3's
         # the user's hyperparameters broke it mid-training: a learning rate beyond float32
-        # (RuntimeError), NaN in the policy (torch.distributions' ValueError), a string ent_coef
+        # (RuntimeError), NaN in the policy (torch.distributions' ValueError), a string or
+        # 10**30 ent_coef (TypeError, OverflowError), n_epochs 0 (SB3's UnboundLocalError)
         first = (str(exc).splitlines() or [""])[0]
         raise HamError(
             f"algo_kwargs {config.algo_kwargs!r}: {config.algo} failed at env step "
