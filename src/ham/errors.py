@@ -183,7 +183,8 @@ def too_large(exc: BaseException) -> str | None:
 def _sized(accepted: str, value) -> str:
     """``accepted``, saying "of at most 64 bits" when ``value`` is an integer too large for it,
     and "within float32" when it is a number beyond what float32 holds."""
-    if isinstance(value, numbers.Integral) and not isinstance(value, bool):
+    integer = isinstance(value, numbers.Integral) and not isinstance(value, bool)
+    if integer and not -_INT64 <= value < _INT64:
         accepted = accepted.replace("an integer", "an integer of at most 64 bits")
     real = isinstance(value, numbers.Real) and not isinstance(value, bool)
     if real and _FLOAT32_MAX < abs(value) != math.inf:  # nan compares False; no float() of 10**400
