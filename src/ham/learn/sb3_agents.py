@@ -27,7 +27,6 @@ import math
 import os
 import pickle
 import random
-import shutil
 import sys
 import time
 import traceback
@@ -430,11 +429,9 @@ def train_sb3(config: Sb3Config, out: str | os.PathLike, progress: bool = False)
             return _learn(config, out, model, eval_env, [], 0.0, progress)
         except HamError:
             if not (out / CHECKPOINT).exists():  # refused before its first checkpoint: nothing
-                for name in ("config.json", "history.json"):  # left, the same command runs again
-                    (out / name).unlink(missing_ok=True)
-                shutil.rmtree(out / "tb", ignore_errors=True)
-                if created and not any(out.iterdir()):
-                    out.rmdir()
+                from ham.learn.train import remove_run  # left, the same command runs again
+
+                remove_run(out, created, ("config.json", "history.json"))
             raise
 
 

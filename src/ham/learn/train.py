@@ -953,7 +953,7 @@ def train(config: TrainConfig, out: str | os.PathLike, *, progress: bool = True)
                 return train_loop(run, out, progress)
             except Exception as exc:
                 if run.step == 0:  # failed before its first step (out of memory, a plugin's
-                    _remove_run(out, created)  # error): no run left, the same command runs again
+                    remove_run(out, created)  # error): no run left, the same command runs again
                     raise
                 if isinstance(exc, DivergedError):
                     exc.saved_step = _saved_step(run)
@@ -967,9 +967,15 @@ def _check_no_run(out: Path) -> None:
         raise HamError(f"{str(out)!r} already holds a run; continue it with --resume {out}")
 
 
-def _remove_run(out: Path, created: bool) -> None:
-    """Remove what :func:`train` wrote in ``out`` (and ``out`` itself if it made it)."""
-    for name in (CONFIG_FILE, METRICS_FILE, CHECKPOINT_FILE, TIMING_FILE):
+def remove_run(
+    out: Path,
+    created: bool,
+    names: tuple[str, ...] = (CONFIG_FILE, METRICS_FILE, CHECKPOINT_FILE, TIMING_FILE),
+) -> None:
+    """Remove what a run that failed before its first step wrote in ``out``: the files
+    ``names`` (:func:`train`'s; ``ham sb3`` names its own) and its TensorBoard events, and
+    ``out`` itself if the run made it and it is empty now."""
+    for name in names:
         (out / name).unlink(missing_ok=True)
     shutil.rmtree(out / "tb", ignore_errors=True)
     if created and not any(out.iterdir()):

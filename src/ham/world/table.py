@@ -561,7 +561,7 @@ def _read_info(f: h5py.File, path: str) -> TableInfo:
     if not (len(shape) == len(dims) >= 1 and all(2 <= g <= MAX_GRID for g in shape)):
         raise HamError(
             f"glance table {path!r} has grid {'x'.join(map(str, shape))} over pose dims "
-            f"{','.join(dims)}; accepted: 2..2001 points on each pose axis"
+            f"{','.join(dims)}; accepted: 2..{MAX_GRID} points on each pose axis"
         )
     n = sensor["taxels"]
     if version == FORMAT_VERSION:
