@@ -15,6 +15,7 @@ import gymnasium as gym
 import h5py
 import numpy as np
 import pytest
+import torch
 
 import ham.envs  # noqa: F401 - registers ham/HapticGlance-v0
 from ham.cli.main import main as cli_main
@@ -68,6 +69,20 @@ def test_pitch_must_be_positive(pitch):
 def test_pitch_must_be_a_finite_number(pitch):
     with pytest.raises(HamError, match="^pitch = .*; accepted: a finite number$"):
         SensorConfig(pitch=pitch)
+
+
+def test_fully_compressed_foam_may_press_at_most_1e15_pa():
+    """Beyond it no material holds, and a 16 x 16 image's L2 norm overflows float32 (its
+    normalized image would be all zeros): refused, the largest accepted glances finite."""
+    with pytest.raises(HamError, match=r"^foam_stiffness \* foam_thickness = 1e\+12 Pa/m \* 1001 m "
+                       r"\(the pressure of fully compressed foam\); accepted: at most 1e\+15 Pa$"):  # fmt: skip
+        SensorConfig(foam_stiffness=1e12, foam_thickness=1001.0)
+    world = WorldConfig(sensor=SensorConfig(foam_stiffness=1e12, foam_thickness=1000.0))
+    r = make_simulator(world).glance(torch.arange(3), torch.zeros(3), torch.zeros(3))
+    assert (
+        torch.isfinite(normalize(r.pressure)).all()
+        and normalize(r.pressure).norm(dim=-1).min() > 0.99
+    )
 
 
 def test_numpy_taxels_are_stored_as_int():

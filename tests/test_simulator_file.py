@@ -118,7 +118,7 @@ BAD = {
     ),  # fmt: skip
     "negative.py": (
         _glance_returning("dataclasses.replace(r, pressure=r.pressure - 1)"),
-        "returned a pressure of -1.0 Pa; accepted: finite values >= 0",
+        "returned a pressure of -1.0 Pa; accepted: finite values in [0, 1e+15] Pa",
     ),  # fmt: skip
     "nan.py": (
         _glance_returning("dataclasses.replace(r, pressure=r.pressure * float('nan'))"),
@@ -127,6 +127,31 @@ BAD = {
     "force.py": (
         _glance_returning("dataclasses.replace(r, force=r.force[:1])"),
         "returned force (1,) for 81 glances; accepted: a tensor (81,)",
+    ),  # fmt: skip
+    "huge.py": (
+        _glance_returning("dataclasses.replace(r, pressure=torch.full_like(r.pressure, 2.0**60))"),
+        "returned a pressure of 1.152921504606847e+18 Pa; accepted: finite values in [0, 1e+15]",
+    ),  # fmt: skip
+    "complex.py": (
+        _glance_returning("dataclasses.replace(r, force=r.force.to(torch.complex64))"),
+        "returned force of torch.complex64; accepted: real numbers",
+    ),  # fmt: skip
+    "z.py": (
+        _glance_returning("dataclasses.replace(r, z=r.z * float('inf'))"),
+        "returned z inf; accepted: finite numbers",
+    ),  # fmt: skip
+    "pose.py": (
+        _glance_returning("dataclasses.replace(r, phi=r.phi / 0.0)"),
+        "returned phi -inf; accepted: finite numbers",
+    ),  # fmt: skip
+    "contact.py": (
+        _glance_returning("dataclasses.replace(r, contact=r.contact.float() / 2)"),
+        "returned contact 0.5; accepted: booleans (or 0 / 1)",
+    ),  # fmt: skip
+    "meta.py": (
+        _glance_returning("dataclasses.replace(r, height=r.height.to('meta'))"),
+        "returned height (81,) on the meta device (no data) for 81 glances; accepted: a tensor "
+        "(81,) on the CPU or a GPU",
     ),  # fmt: skip
     "result.py": (_glance_returning("r.pressure"), "returned a Tensor; accepted: a GlanceResult"),
     "raises.py": (_glance_returning("1 / 0"), "raised ZeroDivisionError at line {line}"),
@@ -162,6 +187,28 @@ def test_a_bad_simulator_file_is_one_line_and_leaves_nothing(tmp_path, name):
         with pytest.raises(HamError):
             simulators.load_simulator_file(record)
     assert (dict(simulators._SIMULATORS), objects.names(), dict(simulators._LOADED)) == before
+
+
+def test_a_glance_of_other_real_types_is_taken_as_the_built_in_types(tmp_path):
+    """float64 or integer numbers, 0/1 integer flags, a result that requires grad (a
+    differentiable simulator): checked, then float32 and bool, detached, as the fast glance's."""
+    (tmp_path / "typed.py").write_text(_glance_returning(
+        "dataclasses.replace(r, pressure=r.pressure.double().requires_grad_(True), "
+        "force=r.force.double(), z=r.z.half(), contact=r.contact.long(), "
+        "blocked=r.blocked.to(torch.uint8), phi=r.phi.requires_grad_(True))"
+    ).replace("import torch\n", "import dataclasses, torch\n"))  # fmt: skip
+    record = simulators.read_simulator_file(tmp_path / "typed.py")
+    ids, q = torch.tensor([0, 1, 2]), torch.tensor([-0.5, 0.0, 0.5])
+    with registries_restored():
+        simulators.load_simulator_file(record)
+        world = WorldConfig(simulator="bad", simulator_file=record)
+        sim = make_simulator(world)
+        r = sim.glance(ids, q, q)
+        b = type(sim.inner).__mro__[1].glance(sim.inner, ids, q, q)  # the binary pad's own
+    for field in ("pressure", "force", "z", "phi", "contact", "blocked"):
+        got, want = getattr(r, field), getattr(b, field)
+        assert got.dtype == want.dtype and not got.requires_grad, field
+        assert torch.equal(got, want) or field == "z" and torch.allclose(got, want, atol=1e-4)
 
 
 def test_the_simulator_a_world_names_is_checked(tmp_path):

@@ -42,6 +42,10 @@ READOUTS: tuple[str, ...] = ("taxels", "gazebo")
 #: Stiffer foam than this is rigid within float32's resolution of z (2 N on 64 cm^2 compresses it
 #: 0.3 nm, below the ~4 nm spacing of float32 heights near 4.5 cm).
 MAX_FOAM_STIFFNESS = 1e12
+#: Most pressure a taxel may read (Pa): far beyond any material (diamond fails near 1e11 Pa), and
+#: small enough that the L2 norm of a 128 x 128 image stays finite in float32 (beyond it the
+#: normalized image would silently be all zeros).
+MAX_PRESSURE = 1e15
 
 Normalization = Literal["l2", "l1", "none"]
 NORMALIZATIONS: tuple[str, ...] = ("l2", "l1", "none")
@@ -94,6 +98,13 @@ class SensorConfig:
         _positive("foam_stiffness", self.foam_stiffness)
         _at_most("foam_stiffness", self.foam_stiffness, MAX_FOAM_STIFFNESS, "Pa/m (rigid beyond)")
         _positive("foam_thickness", self.foam_thickness)
+        # fully compressed foam presses with stiffness * thickness: the most a taxel reads
+        if self.foam_stiffness * self.foam_thickness > MAX_PRESSURE:
+            raise HamError(
+                f"foam_stiffness * foam_thickness = {self.foam_stiffness:g} Pa/m * "
+                f"{self.foam_thickness:g} m (the pressure of fully compressed foam); accepted: at "
+                f"most {MAX_PRESSURE:g} Pa"
+            )
         h = self.housing_thickness
         if (
             isinstance(h, bool)

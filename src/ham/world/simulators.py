@@ -14,20 +14,24 @@ contacts out otherwise (docs/plugins/binary_pad.py: taxels that only say touched
 
 Every glance of a registered simulator is checked (:class:`CheckedSimulator`): the result must be
 a :class:`ham.world.glance.GlanceResult` with one ``N x N`` image per glance (``N`` the pad's
-taxels), finite and non-negative, and any failure of the user's code is one line naming the file
-and its line.
+taxels) of pressures in ``[0, MAX_PRESSURE]`` Pa, one finite number per glance in ``force``,
+``z``, ``height`` and the pose fields, and 0/1 ``contact`` and ``blocked``; real tensors on the
+CPU or a GPU of any dtype, taken as the built-in simulators give them (float32, bool, detached).
+Any failure of the user's code is one line naming the file and its line.
 """
 
 from __future__ import annotations
 
 import inspect
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import torch
 
 from ham.errors import HamError, check_new_name
 from ham.world import recorded_file, registering
+from ham.world.sensor import MAX_PRESSURE
 
 #: The simulators of the package itself; no file or program may register these names.
 BUILT_IN: tuple[str, ...] = ("fast", "mujoco")
@@ -147,6 +151,20 @@ def _who(name: str) -> tuple[str, str]:
 
 
 _REPEATED_GLANCES = 8  # how many of a simulator's first glances are glanced again
+#: The tensors of a GlanceResult that a registered simulator's glance is checked for.
+_RESULT_FIELDS = (
+    "pressure",
+    "force",
+    "z",
+    "contact",
+    "blocked",
+    "x",
+    "phi",
+    "y",
+    "phi_y",
+    "height",
+)
+_FLAGS = ("contact", "blocked")
 
 
 def _close(a: torch.Tensor, b: torch.Tensor, scale: float | None = None) -> bool:
@@ -211,32 +229,57 @@ class CheckedSimulator:
         )
         if not isinstance(r, GlanceResult):
             raise self._error(f"returned a {type(r).__name__}; accepted: a GlanceResult")
-        side = self.sensor.taxels
-        p = r.pressure
-        if not isinstance(p, torch.Tensor) or tuple(p.shape) != (n, side, side):
-            got = tuple(p.shape) if isinstance(p, torch.Tensor) else type(p).__name__
-            raise self._error(
-                f"returned pressure {got} for {n} glances; accepted: a tensor ({n}, {side}, {side})"
-            )
-        if not bool(torch.isfinite(p).all()) or bool((p < 0).any()):
-            bad = p[~torch.isfinite(p) | (p < 0)][0].item()
-            raise self._error(f"returned a pressure of {bad!r} Pa; accepted: finite values >= 0")
-        for field in ("force", "z", "contact", "blocked"):
-            v = getattr(r, field)
-            if not isinstance(v, torch.Tensor) or tuple(v.shape) != (n,):
-                got = tuple(v.shape) if isinstance(v, torch.Tensor) else type(v).__name__
-                raise self._error(
-                    f"returned {field} {got} for {n} glances; accepted: a tensor ({n},)"
-                )
+        r = self._checked(r, n)
         if not self._repeated and n:
             self._repeated = True
             self._check_repeatable(r, object_ids, q_x, q_phi, kwargs)
         return r
 
+    def _checked(self, r, n: int):
+        """``r`` with every field checked (a tensor of the right shape, real and finite, on a
+        real device; ``contact`` and ``blocked`` 0/1) and in the built-in simulators' types:
+        float32 numbers and bool flags, detached from any autograd graph."""
+        side = self.sensor.taxels
+        out = {}
+        for field in _RESULT_FIELDS:
+            v, shape = getattr(r, field), (n, side, side) if field == "pressure" else (n,)
+            if not isinstance(v, torch.Tensor) or tuple(v.shape) != shape or v.is_meta:
+                got = type(v).__name__ if not isinstance(v, torch.Tensor) else tuple(v.shape)
+                where = " on the meta device (no data)" if getattr(v, "is_meta", False) else ""
+                raise self._error(
+                    f"returned {field} {got}{where} for {n} glances; accepted: a tensor {shape} "
+                    "on the CPU or a GPU"
+                )
+            if v.is_complex():
+                raise self._error(f"returned {field} of {v.dtype}; accepted: real numbers")
+            v = v.detach()
+            if field in _FLAGS:
+                if v.dtype != torch.bool and bool(((v != 0) & (v != 1)).any()):
+                    bad = v[(v != 0) & (v != 1)][0].item()
+                    raise self._error(f"returned {field} {bad!r}; accepted: booleans (or 0 / 1)")
+                out[field] = v.bool()
+                continue
+            v = v.float()
+            ok = torch.isfinite(v)
+            if field == "pressure":
+                ok &= (v >= 0) & (v <= MAX_PRESSURE)
+            if not bool(ok.all()):
+                bad = v[~ok][0].item()
+                if field == "pressure":
+                    raise self._error(
+                        f"returned a pressure of {bad!r} Pa; accepted: finite values in "
+                        f"[0, {MAX_PRESSURE:g}] Pa"
+                    )
+                raise self._error(f"returned {field} {bad!r}; accepted: finite numbers")
+            out[field] = v
+        return replace(r, **out)
+
     def _check_repeatable(self, r, object_ids, q_x, q_phi, kwargs) -> None:
         """Glance the first few of the first batch again: the same object and pose must give
         the same glance, or a table built twice differs and a resumed online run glances
         otherwise than an uninterrupted one (noise must be a function of object and pose)."""
+        from ham.world.glance import GlanceResult
+
         n = len(object_ids)
         k = min(n, _REPEATED_GLANCES)
         again = recorded_file.call(
@@ -246,6 +289,8 @@ class CheckedSimulator:
             *(_head(v, k, n) for v in (object_ids, q_x, q_phi)),
             **{key: _head(v, k, n) for key, v in kwargs.items()},
         )
+        if isinstance(again, GlanceResult):
+            again = self._checked(again, k)
         for field in ("pressure", "force", "z", "contact", "blocked"):
             a, b = getattr(r, field)[:k], getattr(again, field, None)
             if not isinstance(b, torch.Tensor) or b.shape != a.shape or not _close(a, b):

@@ -68,7 +68,7 @@ from ham.world.config import WorldConfig, make_simulator
 from ham.world.files import atomic_write, check_output
 from ham.world.objects import load_objects
 from ham.world.poses import result_height, simulate, world_pose_dims
-from ham.world.sensor import SensorConfig
+from ham.world.sensor import MAX_PRESSURE, SensorConfig
 
 FORMAT = "ham-glance-table"
 FORMAT_VERSION = 1
@@ -152,15 +152,15 @@ def _python_command(call: str) -> str:
 
 
 def _check_pressure(path: str, name: str, a: np.ndarray) -> None:
-    """Finite, non-negative pressures (Pa), or a :class:`HamError` naming the first bad value."""
+    """Pressures in ``[0, MAX_PRESSURE]`` Pa, or a :class:`HamError` naming the first bad value."""
     # two reductions (NaN propagates into both) instead of a mask over 16 M values
     lo, hi = a.min(initial=0.0), a.max(initial=0.0)
-    if np.isfinite(lo) and np.isfinite(hi) and lo >= 0:
+    if np.isfinite(lo) and np.isfinite(hi) and lo >= 0 and hi <= MAX_PRESSURE:
         return
-    i = tuple(int(k) for k in np.argwhere(~np.isfinite(a) | (a < 0))[0])
+    i = tuple(int(k) for k in np.argwhere(~((a >= 0) & (a <= MAX_PRESSURE)))[0])
     raise HamError(
         f"glance table {path!r} is corrupt: objects/{name}/pressure holds {float(a[i])} at index "
-        f"{i}; accepted: finite pressures >= 0 Pa"
+        f"{i}; accepted: pressures in [0, {MAX_PRESSURE:g}] Pa"
     )
 
 
