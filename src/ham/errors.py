@@ -94,6 +94,18 @@ def _accepted(kind) -> str | None:
 _INT64 = 2**63
 
 
+def check_integer(name: str, value: object, low: int = 0) -> int:
+    """``value`` as an int ``low .. 2**63-1`` (a count or seed torch and NumPy take), or a
+    :class:`HamError` naming it: ``name = VALUE; accepted: an integer LOW .. 2**63-1``."""
+    if not (
+        isinstance(value, numbers.Integral)
+        and not isinstance(value, bool)
+        and low <= value < _INT64
+    ):
+        raise HamError(f"{name} = {value!r}; accepted: an integer {low} .. 2**63-1")
+    return int(value)
+
+
 #: Numbers torch's float32 tensors hold: ``lr = 1e300`` was finite here and an overflow in the
 #: optimizer (``value cannot be converted to type float without overflow``).
 _FLOAT32_MAX = 3.4028234663852886e38

@@ -41,7 +41,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from ham.errors import HamError, check_known_fields
+from ham.errors import HamError, check_integer, check_known_fields
 from ham.world.config import WorldConfig
 from ham.world.devices import check_device
 
@@ -51,16 +51,9 @@ RENDER_MODES: tuple[str, ...] = ("rgb_array",)
 RENDER_SIZE = 128
 
 
-def _count(name: str, v: Any) -> int:
-    """``v`` as an int 1 .. 2**63-1 (what NumPy and torch index), or a HamError naming it."""
-    if not (isinstance(v, (int, np.integer)) and not isinstance(v, bool) and 1 <= v < 2**63):
-        raise HamError(f"{name} = {v!r}; accepted: an integer 1 .. 2**63-1")
-    return int(v)
-
-
 def check_glances(glances: Any) -> int:
     """``glances`` as an int >= 1, or a :class:`HamError`."""
-    return _count("glances", glances)
+    return check_integer("glances", glances, 1)
 
 
 def reset_option(options: Any, key: str) -> Any:
@@ -403,7 +396,7 @@ VECTOR_METADATA = {
 
 def check_num_envs(num_envs) -> int:
     """``num_envs`` as an int >= 1, or a HamError naming it."""
-    return _count("num_envs", num_envs)
+    return check_integer("num_envs", num_envs, 1)
 
 
 class HapticGlanceVectorEnv(gym.vector.VectorEnv):

@@ -48,7 +48,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from ham.errors import HamError
+from ham.errors import HamError, check_integer
 from ham.experiments.runs import MAX_SEEDS
 
 #: Top-level keys of a grid file.
@@ -272,11 +272,10 @@ class Grid:
                     f"{where}: policy {s['policy']!r}; accepted: {', '.join(EVAL_POLICIES)}"
                 )
             for k, low in (("batches", 1), ("seed", 0)):  # as `ham evaluate` takes them
-                if not (isinstance(s[k], int) and not isinstance(s[k], bool)
-                        and low <= s[k] < 2**63):  # fmt: skip
-                    raise HamError(
-                        f"{where}: {k} = {s[k]!r}; accepted: an integer {low} .. 2**63-1"
-                    )
+                try:
+                    check_integer(k, s[k], low)
+                except HamError as exc:
+                    raise HamError(f"{where}: {exc}") from None
             if s in evals:
                 raise HamError(f"{where}: {s} is listed twice")
             evals.append(s)

@@ -32,7 +32,7 @@ from dataclasses import asdict, dataclass
 
 import torch
 
-from ham.errors import HamError, checked_arguments
+from ham.errors import HamError, check_integer, checked_arguments
 from ham.learn.environment import HapticEnv
 from ham.learn.stopping import stop_glances
 from ham.model.agent import HapticAttentionModel
@@ -79,10 +79,8 @@ def path_lengths(locations: torch.Tensor) -> torch.Tensor:
 
 
 def _check(batches: int, policy: str, seed: int = 0) -> None:
-    if not (isinstance(batches, int) and batches >= 1):
-        raise HamError(f"batches = {batches!r}; accepted: an integer >= 1")
-    if not (isinstance(seed, int) and not isinstance(seed, bool) and 0 <= seed < 2**63):
-        raise HamError(f"seed = {seed!r}; accepted: an integer 0 .. 2**63-1")
+    check_integer("batches", batches, 1)
+    check_integer("seed", seed)
     if policy not in EVAL_POLICIES:
         raise HamError(f"evaluation policy {policy!r}; accepted: {', '.join(EVAL_POLICIES)}")
 
