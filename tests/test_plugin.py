@@ -185,7 +185,21 @@ BAD_PARTS = {
         CORE_HEAD + "    def forward(self, g, state):\n        t = self.lin(g)[:, :-3]\n"
         "        return t, (t,)\n\n@register_core('wrong')\ndef f(i, h, **_):\n"
         "    return Core(i, h)\n",
-        "core 'wrong' of 'bad.py' gave tau (2, 253) for 2 episodes; accepted: (2, 256)",
+        "core 'wrong' of 'bad.py' gave tau (2, 253) of torch.float32 on cpu for 2 episodes; "
+        "accepted: (2, 256) of torch.float32 on cpu (its input's)",
+    ),
+    "dtype": (  # float64 tau met float32 weights: a traceback deep in the classifier
+        CORE_HEAD + "    def forward(self, g, state):\n        t = self.lin(g).double()\n"
+        "        return t, (t,)\n\n@register_core('wrong')\ndef f(i, h, **_):\n"
+        "    return Core(i, h)\n",
+        "core 'wrong' of 'bad.py' gave tau (2, 256) of torch.float64 on cpu for 2 episodes; "
+        "accepted: (2, 256) of torch.float32 on cpu (its input's)",
+    ),
+    "meta": (
+        CORE_HEAD + "    def forward(self, g, state):\n        t = self.lin(g).to('meta')\n"
+        "        return t, (t,)\n\n@register_core('wrong')\ndef f(i, h, **_):\n"
+        "    return Core(i, h)\n",
+        "core 'wrong' of 'bad.py' gave tau (2, 256) of torch.float32 on meta for 2 episodes",
     ),
     "pair": (
         CORE_HEAD + "    def forward(self, g, state):\n        return self.lin(g)\n\n"
@@ -217,6 +231,25 @@ BAD_PARTS = {
         "        return Dist(z, z + 1)\n",
         "policy 'wrong' of 'bad.py' sampled [[3.0, 3.0], [3.0, 3.0]] outside [-1, 1]; accepted: "
         "poses (2, 2) in [-1, 1]",
+    ),
+    "pose dtype": (  # float64 poses met float32 weights: a traceback in the where-network
+        POLICY_HEAD.replace(
+            "    pass", "    def sample(self, generator):\n        return self.mu.double()"
+        )
+        + "    def distribution(self, tau):\n        z = torch.tanh(tau[:, :2])\n"
+        "        return Dist(z, z.abs() + 1)\n",
+        "policy 'wrong' of 'bad.py' sampled poses of torch.float64 on cpu; accepted: poses (2, 2) "
+        "in [-1, 1] of torch.float32 on cpu (the model's)",
+    ),
+    "pose grad": (
+        POLICY_HEAD.replace(
+            "    pass",
+            "    def sample(self, generator):\n        return self.mu.detach().requires_grad_()",
+        )
+        + "    def distribution(self, tau):\n        z = torch.tanh(tau[:, :2])\n"
+        "        return Dist(z, z.abs() + 1)\n",
+        "policy 'wrong' of 'bad.py' sampled poses that require grad; accepted: poses (2, 2) in "
+        "[-1, 1] without a gradient (detach them: the policy learns through log_prob)",
     ),
     "log_prob": (
         POLICY_HEAD.replace("    pass", "    def log_prob(self, q):\n        return q")
@@ -275,8 +308,9 @@ LATE_SHAPES = {
         CORE_HEAD + "    def forward(self, g, state):\n        t = self.lin(g[:2])\n"
         "        return t, (t,)\n\n@register_core('wrong')\ndef f(i, h, **_):\n"
         "    return Core(i, h)\n",
-        "ham: error: core 'wrong' of 'bad.py' gave tau (2, 256) for 8 episodes; accepted: "
-        "(8, 256), hidden_size floats per episode",
+        "ham: error: core 'wrong' of 'bad.py' gave tau (2, 256) of torch.float32 on cpu for 8 "
+        "episodes; accepted: (8, 256) of torch.float32 on cpu (its input's), hidden_size floats "
+        "per episode",
     ),
     "policy": (
         POLICY_HEAD.replace(

@@ -1036,9 +1036,8 @@ def _check_outs(configs: list[TrainConfig], outs: list[Path]) -> None:
 
 
 def _open_runs(configs: list[TrainConfig], outs: list[Path]) -> list[Run]:
-    """The runs of ``configs`` with one shared glance source; a directory holding a checkpoint
-    is resumed from it (its config.json, to the given ``steps``)."""
-    _check_outs(configs, outs)
+    """The runs of ``configs`` (one directory each in ``outs``, checked by
+    :func:`train_batched`) with one shared glance source."""
     for c in configs:
         check_batchable(c)
     keys = {shape_key(c, glances=False) for c in configs}

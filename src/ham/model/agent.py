@@ -513,9 +513,10 @@ class HapticAttentionModel(nn.Module):
         height: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, State]:
         """One glance through tactile network and core: ``(p_s, q_s[, h_s]) -> tau_{1:s}``."""
-        tau, state = self.core(self.tactile(pressure, self.where(q, height)), state)
+        g = self.tactile(pressure, self.where(q, height))
+        tau, state = self.core(g, state)
         if self._own_core:
-            check_tau(self.config.core, tau, pressure.shape[0], self.config.hidden_units)
+            check_tau(self.config.core, tau, pressure.shape[0], self.config.hidden_units, g)
         return tau, state
 
     def _act(self, dist: LocationDistribution, generator, greedy: bool, batch: int):
@@ -523,7 +524,8 @@ class HapticAttentionModel(nn.Module):
         the user's own."""
         q = dist.act(generator, greedy)
         if self._own_policy:
-            check_poses(self.config.policy, q, batch, len(self.config.pose_dims))
+            like = next(self.parameters())  # the model's dtype and device
+            check_poses(self.config.policy, q, batch, len(self.config.pose_dims), like)
         return q
 
     def glance_step(

@@ -139,28 +139,45 @@ def check_core(name: str, core, input_size: int, hidden_size: int) -> None:
             if not (isinstance(out, tuple) and len(out) == 2):
                 raise HamError(f"{what} returned {_shape(out)}; accepted: a pair (tau, state)")
             tau, state = out
-            check_tau(name, tau, 2, hidden_size)
+            check_tau(name, tau, 2, hidden_size, g)
 
 
-def check_tau(name: str, tau, batch: int, hidden_size: int) -> None:
+def check_tau(name: str, tau, batch: int, hidden_size: int, like: torch.Tensor) -> None:
     """The core ``name``'s output ``tau`` for ``batch`` episodes is ``(batch, hidden_size)``
-    floats: tried by :func:`check_core`, and by the model at every glance of a core that is not
-    built in (a core can keep the contract on two episodes and break it on a training batch)."""
-    if not (isinstance(tau, torch.Tensor) and tau.is_floating_point()
-            and tuple(tau.shape) == (batch, hidden_size)):  # fmt: skip
-        raise HamError(
-            f"core {name!r} of {_file_of(CORES[name])!r} gave tau {_shape(tau)} for {batch} "
-            f"episodes; accepted: ({batch}, {hidden_size}), hidden_size floats per episode"
-        )
+    floats of the dtype and on the device of its input ``like``: tried by :func:`check_core`, and
+    by the model at every glance of a core that is not built in (a core can keep the contract on
+    two episodes and break it on a training batch)."""
+    if (
+        isinstance(tau, torch.Tensor)
+        and tuple(tau.shape) == (batch, hidden_size)
+        and tau.dtype == like.dtype
+        and tau.device == like.device
+    ):
+        return
+    got = _shape(tau)
+    if isinstance(tau, torch.Tensor):
+        got += f" of {tau.dtype} on {tau.device}"
+    raise HamError(
+        f"core {name!r} of {_file_of(CORES[name])!r} gave tau {got} for {batch} episodes; "
+        f"accepted: ({batch}, {hidden_size}) of {like.dtype} on {like.device} (its input's), "
+        "hidden_size floats per episode"
+    )
 
 
-def check_poses(name: str, q, batch: int, dims: int) -> None:
+def check_poses(name: str, q, batch: int, dims: int, like: torch.Tensor) -> None:
     """The poses ``q`` the policy ``name`` chose for ``batch`` episodes are ``(batch, dims)`` in
-    ``[-1, 1]``: tried by :func:`check_policy`, and by the model at every glance of a policy
-    that is not built in."""
+    ``[-1, 1]``, of the dtype and on the device of ``like`` (the model's), and carry no gradient
+    (the policy learns through ``log_prob``): tried by :func:`check_policy`, and by the model at
+    every glance of a policy that is not built in."""
     accepted = f"poses ({batch}, {dims}) in [-1, 1]"
     if not (isinstance(q, torch.Tensor) and tuple(q.shape) == (batch, dims)):
         got = f"{_shape(q)} for {batch} episodes"
+    elif q.dtype != like.dtype or q.device != like.device:
+        got = f"poses of {q.dtype} on {q.device}"
+        accepted += f" of {like.dtype} on {like.device} (the model's)"
+    elif q.requires_grad:
+        got = "poses that require grad"
+        accepted += " without a gradient (detach them: the policy learns through log_prob)"
     elif not bool(((q >= -1) & (q <= 1)).all()):
         got = f"{q.tolist() if q.numel() <= 8 else 'values'} outside [-1, 1]"
     else:
@@ -193,7 +210,7 @@ def check_policy(name: str, policy, hidden_size: int, dims: int) -> None:
         need(isinstance(d, LocationDistribution), _shape(d),
              "a ham.model.policy.LocationDistribution")  # fmt: skip
         q = recorded_file.call(label, file, d.sample, torch.Generator().manual_seed(0))
-        check_poses(name, q, 2, dims)
+        check_poses(name, q, 2, dims, tau)
         poses = f"poses (2, {dims}) in [-1, 1]"
         for method, arg in (("log_prob", (q,)), ("entropy", ())):
             v = recorded_file.call(label, file, getattr(d, method), *arg)
