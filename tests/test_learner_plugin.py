@@ -70,6 +70,19 @@ def test_the_same_plugin_learner_and_seed_give_the_same_numbers(tmp_path, small_
     assert a == b
 
 
+def test_a_0_1_reward_of_ints_or_bools_is_taken_as_floats(tmp_path, small_table):
+    """Rewards as a user may count them (correct or not) train and log as the float rewards do:
+    the same seed gives the same history (before, a traceback in the reward's mean)."""
+    (tmp_path / "f.py").write_text(_learner("loss"))
+    (tmp_path / "b.py").write_text(_learner("dataclasses.replace(loss, reward=loss.reward.bool())")
+                                   .replace("import torch\n", "import dataclasses, torch\n"))  # fmt: skip
+    for name in ("f", "b"):
+        ok(run_ham_inprocess("train", "--table", small_table, "--plugin", f"{name}.py",
+                             "--learner", "bad", *TRAIN, "--out", name, cwd=tmp_path))  # fmt: skip
+    f, b = (json.loads((tmp_path / d / "metrics.json").read_text())["history"] for d in "fb")
+    assert f == b and any("reward" in json.dumps(h) for h in f)
+
+
 def _learner(body: str, reads: str = "()") -> str:
     return (
         "import torch\nfrom ham.learn.hybrid_loss import HybridLoss, hybrid_loss\n"
@@ -103,6 +116,20 @@ BAD = {
             "loss.baseline, loss.reward)"
         ),  # fmt: skip
         "returned classification (1,); accepted: a scalar tensor",
+    ),
+    "complex.py": (  # a traceback in backward() before
+        _learner(
+            "HybridLoss(loss.total.to(torch.complex64), loss.classification, loss.reinforce, "
+            "loss.baseline, loss.reward)"
+        ),  # fmt: skip
+        "returned total of torch.complex64 on cpu; accepted: real numbers on cpu (the episode's)",
+    ),
+    "meta.py": (
+        _learner(
+            "HybridLoss(loss.total, loss.classification, loss.reinforce, loss.baseline, "
+            "loss.reward.to('meta'))"
+        ),  # fmt: skip
+        "returned reward of torch.float32 on meta; accepted: real numbers on cpu",
     ),
     "raises.py": (_learner("1 / 0"), "plugin 'raises.py' raised ZeroDivisionError at line 7"),
     "reads.py": (_learner("loss", "('lr',)"), "learner 'bad' reads 'lr'; accepted: a tuple"),

@@ -17,6 +17,7 @@ baseline).
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
 import torch
 
@@ -90,8 +91,9 @@ def unknown_learner(name: object) -> HamError:
 
 def learner_loss(name: str, episode, config) -> HybridLoss:
     """The loss of the learner of your own ``name`` on ``episode``, checked: a
-    :class:`HybridLoss` whose ``total`` is a finite-typed scalar with a gradient, ``reward``
-    one value per episode; any failure is one line naming the plugin file and its line."""
+    :class:`HybridLoss` of real tensors on the episode's device: ``total`` a scalar with a
+    gradient, the parts scalars, ``reward`` one value per episode (integer or bool rewards become
+    floats); any failure is one line naming the plugin file and its line."""
     loss_fn = LEARNERS.get(name)
     if loss_fn is None:
         raise unknown_learner(name)
@@ -104,15 +106,20 @@ def learner_loss(name: str, episode, config) -> HybridLoss:
 
     if not isinstance(loss, HybridLoss):
         raise bad(f"returned a {type(loss).__name__}; accepted: a ham.learn.hybrid_loss.HybridLoss")
-    for field in ("total", "classification", "reinforce", "baseline"):
-        v = getattr(loss, field)
-        if not (isinstance(v, torch.Tensor) and v.dim() == 0):
+    batch, device = episode.objects.shape[0], episode.logits.device
+    for field in ("total", "classification", "reinforce", "baseline", "reward"):
+        v, shape = getattr(loss, field), (batch,) if field == "reward" else ()
+        if not (isinstance(v, torch.Tensor) and tuple(v.shape) == shape):
             got = tuple(v.shape) if isinstance(v, torch.Tensor) else type(v).__name__
-            raise bad(f"returned {field} {got}; accepted: a scalar tensor")
+            accepted = f"a tensor ({batch},), one per episode" if shape else "a scalar tensor"
+            raise bad(f"returned {field} {got}; accepted: {accepted}")
+        if v.is_complex() or v.device != device:
+            raise bad(
+                f"returned {field} of {v.dtype} on {v.device}; accepted: real numbers on "
+                f"{device} (the episode's)"
+            )
     if not loss.total.requires_grad:
         raise bad("returned a total with no gradient; accepted: a loss of the episode's outputs")
-    batch = episode.objects.shape[0]
-    if not (isinstance(loss.reward, torch.Tensor) and tuple(loss.reward.shape) == (batch,)):
-        got = tuple(loss.reward.shape) if isinstance(loss.reward, torch.Tensor) else loss.reward
-        raise bad(f"returned reward {got!r}; accepted: a tensor ({batch},), one per episode")
+    if not loss.reward.is_floating_point():  # 0/1 or bool rewards: logged as the paper's are
+        loss = replace(loss, reward=loss.reward.to(episode.logits.dtype))
     return loss
