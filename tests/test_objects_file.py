@@ -162,6 +162,14 @@ BAD_FILES = [
      "object 's': profile h(x) failed on an array x of shape (4097,): TypeError"),
     ("nan.py", "register(HapticObject.from_function('n', lambda x: np.full_like(x, np.nan)))",
      "object 'n': height nan at x = -0.045 m is not finite"),
+    ("complex.py", "register(HapticObject.from_function('c', lambda x: np.full_like(x, 0.02) + 0j))",
+     "object 'c': profile h(x) returned complex values; accepted: real heights (m)"),  # was taken
+    ("text.py", "register(HapticObject.from_surface('t', lambda x, y: np.full(x.shape, '0.02')))",
+     "object 't': surface h(x, y) returned text values"),  # and failed later in MuJoCo
+    ("ragged.py", "register(HapticObject.from_function('r', lambda x: [[0.02]] + [[0.0, 0.0]]))",
+     "object 'r': profile h(x) returned list that is no array"),
+    ("text.json", '{"objects": [{"name": "t", "heightmap": ["0.01", "0.02"]}]}',
+     "objects file 'text.json': object 't': heightmap must be a 1-D list of >= 2 heights"),
     ("inf.py", "register(HapticObject.from_heightmap('i', [0.01, np.inf]))",
      "object 'i': height inf at x = 0.045 m is not finite"),
     ("below.py", "register(HapticObject.from_polyline('b', [(-0.045, -0.01), (0.045, 0.02)]))",

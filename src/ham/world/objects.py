@@ -227,13 +227,13 @@ class HapticObject:
         xs = np.linspace(-0.5 * width, 0.5 * width, PROFILE_SAMPLES)
         try:
             out = profile(xs.copy())
-            hs = np.asarray(out, dtype=np.float64)
         except Exception as exc:  # noqa: BLE001 - the user's function: any failure is bad input
             msg = " ".join(str(exc).split())
             raise HamError(
                 f"object {name!r}: profile h(x) failed on an array x of shape {xs.shape}: "
                 f"{type(exc).__name__}: {msg}"
             ) from None
+        hs = _real_heights(name, "profile h(x)", out)
         if hs.shape != xs.shape:
             raise HamError(
                 f"object {name!r}: profile h(x) returned shape {hs.shape} for x of shape "
@@ -258,10 +258,7 @@ class HapticObject:
         Two consecutive points with the same x make a vertical step.
         """
         check_name(name)
-        try:
-            pts = np.asarray(points, dtype=np.float64)
-        except (TypeError, ValueError):
-            pts = None
+        pts = _numbers(points)
         if pts is None or pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
             got = "not numbers" if pts is None else f"shape {pts.shape}"
             raise HamError(f"object {name!r}: polyline must be N >= 2 points (x, z), got {got}")
@@ -308,12 +305,13 @@ class HapticObject:
         ys = np.linspace(-0.5 * depth, 0.5 * depth, SURFACE_SAMPLES)
         gx, gy = (g.reshape(-1) for g in np.meshgrid(xs, ys))
         try:
-            hs = np.asarray(surface(gx.copy(), gy.copy()), dtype=np.float64)
+            out = surface(gx.copy(), gy.copy())
         except Exception as exc:  # noqa: BLE001 - the user's function: any failure is bad input
             raise HamError(
                 f"object {name!r}: surface h(x, y) failed on arrays of shape {gx.shape}: "
                 f"{type(exc).__name__}: {recorded_file.one_line(exc)}"
             ) from None
+        hs = _real_heights(name, "surface h(x, y)", out)
         if hs.shape != gx.shape:
             raise HamError(
                 f"object {name!r}: surface h(x, y) returned shape {hs.shape} for x, y of shape "
@@ -339,10 +337,7 @@ class HapticObject:
         """An object from heights (m) on an even ``(ny, nx)`` grid spanning the base (row ``j``
         at ``y = -depth/2 + j * depth / (ny - 1)``), bilinear between samples."""
         check_name(name)
-        try:
-            hs = np.asarray(heights, dtype=np.float64)
-        except (TypeError, ValueError):
-            hs = None
+        hs = _numbers(heights)
         if hs is None or hs.ndim != 2 or min(hs.shape) < 2:
             got = "not numbers" if hs is None else f"shape {hs.shape}"
             raise HamError(
@@ -395,13 +390,12 @@ class HapticObject:
             what = f"image {str(image)!r}"
             grey = _read_png(name, Path(image))
         else:
-            try:
-                grey = np.asarray(image, dtype=np.float64)
-            except (TypeError, ValueError):
+            grey = _numbers(image, bools=True)  # a bool mask is an image of 0 and 1
+            if grey is None:
                 raise HamError(
                     f"object {name!r}: image of type {type(image).__name__}; accepted: a PNG file "
                     "or an array (rows, cols) of grey levels in [0, 1]"
-                ) from None
+                )
         grey = _grey_levels(name, what, grey)
         h = height
         number = isinstance(h, (int, float, np.integer, np.floating)) and not isinstance(h, bool)
@@ -472,10 +466,7 @@ class HapticObject:
     ) -> HapticObject:
         """An object from heights (m) sampled evenly across the block, joined by straight lines."""
         check_name(name)
-        try:
-            hs = np.asarray(heights, dtype=np.float64)
-        except (TypeError, ValueError):
-            hs = None
+        hs = _numbers(heights)
         if hs is None or hs.ndim != 1 or len(hs) < 2:
             raise HamError(f"object {name!r}: heightmap must be a 1-D list of >= 2 heights (m)")
         width = _check_size(name, "width", width)
@@ -631,6 +622,38 @@ def mesh_top(triangles: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarra
             np.maximum.at(top, (jj * nx + ii)[inside], z[inside])
         start = stop
     return top.reshape(ny, nx)
+
+
+def _numbers(values: object, bools: bool = False) -> np.ndarray | None:
+    """``values`` (nested lists, an array) as float64 when they are real numbers, else None:
+    text (``"0.01"``, which NumPy would parse), complex numbers, bools (unless ``bools``) and
+    ragged lists are not heights."""
+    try:
+        a = np.asarray(values)
+    except (TypeError, ValueError):
+        return None
+    if a.dtype.kind not in "iuf" + ("b" if bools else ""):
+        return None
+    return a.astype(np.float64)
+
+
+def _real_heights(name: str, what: str, out: object) -> np.ndarray:
+    """The heights a user's function returned, as float64: real numbers (an array, a list, a
+    tensor), or a HamError (complex heights lost their imaginary part with only a warning, and
+    strings were parsed here and failed later in MuJoCo's outline)."""
+    try:
+        a = np.asarray(out)
+    except Exception as exc:  # noqa: BLE001 - the user's value: any failure is bad input
+        raise HamError(
+            f"object {name!r}: {what} returned {type(out).__name__} that is no array: "
+            f"{recorded_file.one_line(exc)}; accepted: real heights (m)"
+        ) from None
+    if a.dtype.kind not in "iuf":
+        kind = {"c": "complex", "U": "text", "S": "text", "b": "bool"}.get(a.dtype.kind, a.dtype)
+        raise HamError(
+            f"object {name!r}: {what} returned {kind} values; accepted: real heights (m)"
+        )
+    return a.astype(np.float64)
 
 
 def _check_heights(name: str, xs: np.ndarray, hs: np.ndarray, ys: np.ndarray | None = None) -> None:
