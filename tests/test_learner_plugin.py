@@ -103,6 +103,13 @@ BAD = {
         ),  # fmt: skip
         "returned a total with no gradient",
     ),
+    "leaf.py": (  # a tensor of its own that requires grad: it trained nothing, silently
+        _learner(
+            "HybridLoss(loss.total.detach().requires_grad_(), loss.classification, "
+            "loss.reinforce, loss.baseline, loss.reward)"
+        ),  # fmt: skip
+        "returned a total with no gradient; accepted: a loss of the episode's outputs",
+    ),
     "shape.py": (
         _learner(
             "HybridLoss(loss.total, loss.classification, loss.reinforce, loss.baseline, "

@@ -118,7 +118,7 @@ def learner_loss(name: str, episode, config) -> HybridLoss:
                 f"returned {field} of {v.dtype} on {v.device}; accepted: real numbers on "
                 f"{device} (the episode's)"
             )
-    if not loss.total.requires_grad:
+    if loss.total.grad_fn is None:  # detached, or a leaf of its own: it would train nothing
         raise bad("returned a total with no gradient; accepted: a loss of the episode's outputs")
     if not loss.reward.is_floating_point():  # 0/1 or bool rewards: logged as the paper's are
         loss = replace(loss, reward=loss.reward.to(episode.logits.dtype))
