@@ -2,7 +2,7 @@
 
 The CLI sweep (tests/fuzz_cli.py) gives odd values to options; this one gives them to what a
 user's file hands back to the package, where no option parser stands guard: each field of a
-simulator file's glance, a plugin core's ``tau``, a plugin policy's poses, a plugin learner's
+simulator file's glance (and its ``describe()``), a plugin core's ``tau``, a plugin policy's poses, a plugin learner's
 loss parts and reward, and an objects file's height function. Each case is a small file written
 from a template with one value replaced (NaN, inf, a float64 or complex tensor, PyTorch's
 ``meta`` device, a NumPy array, ...), run through the real CLI in this process
@@ -62,9 +62,9 @@ class Odd:
         r = self.fast.glance(object_ids, q_x, q_phi, **kwargs)
         return dataclasses.replace(r, {field}=MAKE(r.{field}))
     def describe(self):
-        return self.fast.describe()
+        return DESCRIBE(self.fast.describe())
 
-MAKE = {make}
+MAKE, DESCRIBE = {make}, {describe}
 register_simulator("odd", Odd)
 """
 _FIELDS = ("pressure", "force", "z", "height", "x", "phi", "y", "phi_y", "contact", "blocked")
@@ -95,6 +95,19 @@ _GLANCE_VALUES = [
 ]  # fmt: skip
 
 
+#: what describe() returns instead of the fast simulator's dict d: (name, DESCRIBE, expectation)
+_DESCRIPTIONS = [
+    ("int-key", "lambda d: {**d, 1: 2}", "refuse"),
+    ("tuple-key", "lambda d: {(1, 2): 3}", "refuse"),
+    ("none", "lambda d: None", "refuse"),
+    ("text", "lambda d: 'fast'", "refuse"),
+    ("nan", "lambda d: {**d, 'x': float('nan')}", "take"),
+    ("tensor", "lambda d: {**d, 'x': torch.tensor(1.0)}", "take"),
+    ("set", "lambda d: {**d, 'x': {'y': {1, 2}}}", "take"),
+    ("empty", "lambda d: {}", "take"),
+]
+
+
 def _simulator_cases() -> list[Case]:
     build = ["table", "build", "--simulator-file", "odd.py", "--grid", "5", "--out", "t.h5",
              "--quiet"]  # fmt: skip
@@ -105,9 +118,13 @@ def _simulator_cases() -> list[Case]:
     for field in _FIELDS:
         for name, make, pressure, numbers, flags in _GLANCE_VALUES:
             expect = pressure if field == "pressure" else numbers if field in _NUMBERS else flags
-            text = _SIMULATOR.format(field=field, make=make)
+            text = _SIMULATOR.format(field=field, make=make, describe="lambda d: d")
             cases.append(Case("simulator", f"{field}={name}", {"odd.py": text},
                               [build, train, online], expect))  # fmt: skip
+    for name, describe, expect in _DESCRIPTIONS:
+        text = _SIMULATOR.format(field="z", make="lambda v: v", describe=describe)
+        cases.append(Case("simulator", f"describe={name}", {"odd.py": text}, [build, online],
+                          expect))  # fmt: skip
     return cases
 
 

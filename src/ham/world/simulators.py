@@ -23,6 +23,7 @@ Any failure of the user's code is one line naming the file and its line.
 from __future__ import annotations
 
 import inspect
+import json
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -310,4 +311,11 @@ class CheckedSimulator:
         out = {**d, "simulator": self.name}
         if self._what == "simulator file":
             out["simulator_file"] = self._where
+        try:  # as tables record it (sorted keys; values that are no JSON written as text)
+            json.dumps(out, sort_keys=True, default=str)
+        except (TypeError, ValueError) as exc:
+            raise self._error(
+                f"describe() returned a dict that is no JSON ({exc}); accepted: a dict with text "
+                "keys"
+            ) from None
         return out
