@@ -2,8 +2,9 @@
 
 The CLI sweep (tests/fuzz_cli.py) gives odd values to options; this one gives them to what a
 user's file hands back to the package, where no option parser stands guard: each field of a
-simulator file's glance (and its ``describe()``), a plugin core's ``tau``, a plugin policy's poses, a plugin learner's
-loss parts and reward, and an objects file's height function. Each case is a small file written
+simulator file's glance (and its ``describe()``), a plugin core's ``tau``, a plugin policy's
+poses, ``log_prob`` and ``entropy``, a plugin learner's loss parts and reward, and an objects
+file's height function. Each case is a small file written
 from a template with one value replaced (NaN, inf, a float64 or complex tensor, PyTorch's
 ``meta`` device, a NumPy array, ...), run through the real CLI in this process
 (:func:`tests.fuzz_cli._call`), and held against what the contract says of that value:
@@ -179,6 +180,10 @@ class Dist(TruncatedGaussian):
         return MAKE(TruncatedGaussian.sample(self, generator))
     def mode(self):
         return MAKE(self.mu.clamp(-1, 1))
+    def log_prob(self, q):
+        return LOG_PROB(TruncatedGaussian.log_prob(self, q))
+    def entropy(self):
+        return ENTROPY(TruncatedGaussian.entropy(self))
 
 @register_policy("odd")
 class Odd(LocationPolicy):
@@ -188,7 +193,7 @@ class Odd(LocationPolicy):
     def distribution(self, tau):
         return Dist(torch.tanh(tau[:, :2]), torch.nn.functional.softplus(tau[:, 2:4]) + 0.05)
 
-MAKE = {make}
+MAKE, LOG_PROB, ENTROPY = {make}, {log_prob}, {entropy}
 """
 _POSE_VALUES = [
     ("nan", "lambda q: q * float('nan')", "refuse"),
@@ -207,23 +212,34 @@ _POSE_VALUES = [
 ]
 
 
+#: what log_prob and entropy return instead: (name, MAKE, expectation for log_prob, entropy)
+_DENSITY_VALUES = [
+    ("nan", "lambda v: v * float('nan')", "either", "take"),  # entropy: trains nothing here
+    ("float64", "lambda v: v.double()", "take", "take"),
+    ("int64", "lambda v: v.long()", "refuse", "refuse"),
+    ("complex", "lambda v: v.to(torch.complex64)", "refuse", "refuse"),
+    ("meta", "lambda v: v.to('meta')", "refuse", "refuse"),
+    ("detached", "lambda v: v.detach()", "refuse", "take"),  # REINFORCE would train nothing
+    ("numpy", "lambda v: v.detach().numpy()", "refuse", "refuse"),
+    ("scalar", "lambda v: v.sum()", "refuse", "refuse"),
+]
+
+
 def _policy_cases() -> list[Case]:
+    same = "lambda v: v"
+    variants = [(name, {"make": make, "log_prob": same, "entropy": same}, expect)
+                for name, make, expect in _POSE_VALUES]  # fmt: skip
+    for name, make, log_prob, entropy in _DENSITY_VALUES:
+        variants.append((f"log_prob={name}", {"make": same, "log_prob": make, "entropy": same},
+                         log_prob))  # fmt: skip
+        variants.append((f"entropy={name}", {"make": same, "log_prob": same, "entropy": make},
+                         entropy))  # fmt: skip
     cases = []
-    for name, make, expect in _POSE_VALUES:
-        for where in ("--online", "--table"):
-            source = ["--online"] if where == "--online" else ["--table", "TABLE"]
-            train = [
-                "train",
-                *source,
-                "--plugin",
-                "p.py",
-                "--policy",
-                "odd",
-                *TRAIN,
-                "--out",
-                "run",
-            ]
-            cases.append(Case("policy", f"{name}{where}", {"p.py": _POLICY.format(make=make)},
+    for name, parts, expect in variants:
+        for source in (["--online"], ["--table", "TABLE"]):
+            train = ["train", *source, "--plugin", "p.py", "--policy", "odd", *TRAIN,
+                     "--out", "run"]  # fmt: skip
+            cases.append(Case("policy", f"{name}{source[0]}", {"p.py": _POLICY.format(**parts)},
                               [train], expect))  # fmt: skip
     return cases
 

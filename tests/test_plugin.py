@@ -225,7 +225,7 @@ BAD_PARTS = {
     ),
     "range": (
         POLICY_HEAD.replace(
-            "    pass", "    def sample(self, generator):\n        return self.mu + 3"
+            "    pass", "    def sample(self, generator):\n        return (self.mu + 3).detach()"
         )
         + "    def distribution(self, tau):\n        z = tau[:, :2]\n"
         "        return Dist(z, z + 1)\n",
@@ -250,6 +250,16 @@ BAD_PARTS = {
         "        return Dist(z, z.abs() + 1)\n",
         "policy 'wrong' of 'bad.py' sampled poses that require grad; accepted: poses (2, 2) in "
         "[-1, 1] without a gradient (detach them: the policy learns through log_prob)",
+    ),
+    "log_prob grad": (  # a trainable policy that REINFORCE could not train: silent before
+        POLICY_HEAD.replace(
+            "    pass",
+            "    def log_prob(self, q):\n        return TruncatedGaussian.log_prob(self, q).detach()",
+        )
+        + "    def distribution(self, tau):\n        z = torch.tanh(tau[:, :2])\n"
+        "        return Dist(z, z.abs() + 1)\n",
+        "policy 'wrong' of 'bad.py' gave a log_prob without a gradient; accepted: a log_prob of "
+        "the distribution's parameters",
     ),
     "log_prob": (
         POLICY_HEAD.replace("    pass", "    def log_prob(self, q):\n        return q")
@@ -314,7 +324,8 @@ LATE_SHAPES = {
     ),
     "policy": (
         POLICY_HEAD.replace(
-            "    pass", "    def sample(self, generator):\n        return self.mu.clamp(-1, 1)[:2]"
+            "    pass",
+            "    def sample(self, generator):\n        return self.mu.clamp(-1, 1)[:2].detach()",
         )
         + "    def distribution(self, tau):\n        z = torch.tanh(tau[:, :2])\n"
         "        return Dist(z, z.abs() + 1)\n",

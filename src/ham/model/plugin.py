@@ -203,9 +203,15 @@ def check_policy(name: str, policy, hidden_size: int, dims: int) -> None:
         if not ok:
             raise HamError(f"{what} gave {got}; accepted: {accepted}")
 
-    with torch.random.fork_rng(devices=[]), torch.no_grad():
+    def floats(v: torch.Tensor, what: str) -> None:  # real numbers beside tau (the loss's)
+        need(v.is_floating_point() and v.device == tau.device, f"{what} of {v.dtype} on "
+             f"{v.device}", f"floats on {tau.device}")  # fmt: skip
+
+    # with autograd on (a copy's graph, dropped after): a trainable distribution's log_prob must
+    # carry the gradient that trains the policy
+    with torch.random.fork_rng(devices=[]):
         trial = copy.deepcopy(policy)
-        tau, position = torch.zeros(2, hidden_size), torch.zeros(2, dims)
+        tau, position = torch.zeros(2, hidden_size, requires_grad=True), torch.zeros(2, dims)
         d = recorded_file.call(label, file, trial.distribution_at, tau, 1, position)
         need(isinstance(d, LocationDistribution), _shape(d),
              "a ham.model.policy.LocationDistribution")  # fmt: skip
@@ -216,6 +222,11 @@ def check_policy(name: str, policy, hidden_size: int, dims: int) -> None:
             v = recorded_file.call(label, file, getattr(d, method), *arg)
             need(isinstance(v, torch.Tensor) and tuple(v.shape) == (2,),
                  f"{method} {_shape(v)}", "(2,), one value per episode")  # fmt: skip
+            floats(v, method)
+            if method == "log_prob" and d.trainable:
+                need(v.grad_fn is not None, "a log_prob without a gradient", "a log_prob of "
+                     "the distribution's parameters (REINFORCE trains the policy through it), "
+                     "or trainable = False")  # fmt: skip
         m = recorded_file.call(label, file, d.mode)
         need(m is None or (isinstance(m, torch.Tensor) and tuple(m.shape) == (2, dims)),
              f"mode {_shape(m)}", f"None or {poses}")  # fmt: skip
@@ -223,3 +234,4 @@ def check_policy(name: str, policy, hidden_size: int, dims: int) -> None:
         v = recorded_file.call(label, file, both.log_prob, torch.stack([q, q]))
         need(isinstance(v, torch.Tensor) and tuple(v.shape) == (2, 2),
              f"log_prob {_shape(v)} of 2 stacked glances", "(2, 2)")  # fmt: skip
+        floats(v, "log_prob of 2 stacked glances")
