@@ -153,18 +153,8 @@ def _who(name: str) -> tuple[str, str]:
 
 _REPEATED_GLANCES = 8  # how many of a simulator's first glances are glanced again
 #: The tensors of a GlanceResult that a registered simulator's glance is checked for.
-_RESULT_FIELDS = (
-    "pressure",
-    "force",
-    "z",
-    "contact",
-    "blocked",
-    "x",
-    "phi",
-    "y",
-    "phi_y",
-    "height",
-)
+_RESULT_FIELDS = ("pressure", "force", "z", "contact", "blocked", "x", "phi", "y", "phi_y",
+                  "height")  # fmt: skip
 _FLAGS = ("contact", "blocked")
 
 
