@@ -123,6 +123,12 @@ def fx(tmp_path_factory) -> dict[str, Path]:
         for i in range(4):
             f[f"object_{i}"] = np.zeros((3, 4, 256), np.float32)
     t["authors_shape"] = authors_shape
+    for kind, dtype in (("complex", np.complex64), ("text", "S8")):  # both were taken silently
+        path = d / f"authors_{kind}.h5"
+        with h5py.File(path, "w") as f:
+            for i in range(4):
+                f[f"object_{i}"] = np.zeros((3, 3, 256), dtype)
+        t[f"authors_{kind}"] = path
 
     run = d / "run"
     cfg = TrainConfig(model=HamConfig(glances=2), steps=1, batch_size=4, eval_every=1,
@@ -317,6 +323,8 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("import-out-txt", ["table", "import-authors", "{authors_nan}", "--out", "o.txt"], "'o.txt'"),
     ("import-nan", ["table", "import-authors", "{authors_nan}", "--out", "o.h5"], "nan"),
     ("import-shape", ["table", "import-authors", "{authors_shape}", "--out", "o.h5"], "(3, 4, 256)"),
+    ("import-complex", ["table", "import-authors", "{authors_complex}", "--out", "o.h5"], "object_0 holds complex64 values; accepted: real pressures"),
+    ("import-text", ["table", "import-authors", "{authors_text}", "--out", "o.h5"], "object_0 holds |S8 values; accepted: real pressures"),
     # train (values are checked by TrainConfig / HamConfig / WorldConfig)
     ("train-no-out", ["train"], "--out"),
     ("train-steps-minus", ["train", "--out", "r", "--steps", "-1"], "-1"),

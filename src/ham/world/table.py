@@ -936,6 +936,10 @@ def import_authors(
                 raise HamError(
                     f"{str(src)!r}: object_{i} has shape {ds.shape}; expected (grid, grid, 256)"
                 )
+            if ds.dtype.kind not in "biuf":  # complex lost its imaginary part, text was parsed
+                raise HamError(
+                    f"{str(src)!r}: object_{i} holds {ds.dtype} values; accepted: real pressures"
+                )
             a = np.asarray(ds[...], dtype=np.float32)
             if axes == "phi,x":
                 a = a.transpose(1, 0, 2)
