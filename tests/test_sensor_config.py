@@ -22,6 +22,7 @@ from ham.cli.main import main as cli_main
 from ham.errors import HamError
 from ham.world.config import WorldConfig, make_simulator
 from ham.world.drawing import draw_table_grid
+from ham.world.glance import GlanceConfig
 from ham.world.sensor import MAX_TAXELS, SensorConfig, normalize
 from ham.world.table import GlanceTable, build_table, table_info
 
@@ -77,7 +78,14 @@ def test_fully_compressed_foam_may_press_at_most_1e15_pa():
     with pytest.raises(HamError, match=r"^foam_stiffness \* foam_thickness = 1e\+12 Pa/m \* 1001 m "
                        r"\(the pressure of fully compressed foam\); accepted: at most 1e\+15 Pa$"):  # fmt: skip
         SensorConfig(foam_stiffness=1e12, foam_thickness=1001.0)
-    world = WorldConfig(sensor=SensorConfig(foam_stiffness=1e12, foam_thickness=1000.0))
+    # nor may the stop force on one taxel (an edge pressed by a single cell) press beyond it
+    stiff = SensorConfig(foam_stiffness=1e12, foam_thickness=1000.0)
+    with pytest.raises(HamError, match=r"^force_threshold = 2\.6e\+10 N on one 5 mm taxel presses "
+                       r"1\.04e\+15 Pa; accepted: at most 1e\+15 Pa \(force_threshold <= "
+                       r"2\.5e\+10 N\)$"):  # fmt: skip
+        WorldConfig(sensor=stiff, glance=GlanceConfig(force_threshold=2.6e10))
+    WorldConfig(sensor=stiff, glance=GlanceConfig(force_threshold=2.5e10))
+    world = WorldConfig(sensor=stiff)
     r = make_simulator(world).glance(torch.arange(3), torch.zeros(3), torch.zeros(3))
     assert (
         torch.isfinite(normalize(r.pressure)).all()

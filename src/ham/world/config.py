@@ -31,7 +31,7 @@ from ham.world.glance import (
     check_pose_dims,
 )
 from ham.world.objects import HapticObject
-from ham.world.sensor import MAX_FOAM_STIFFNESS, SensorConfig
+from ham.world.sensor import MAX_FOAM_STIFFNESS, MAX_PRESSURE, SensorConfig
 from ham.world.simulators import register_simulator, simulator_names
 
 __all__ = ["WorldConfig", "make_simulator", "register_simulator", "simulator_names"]
@@ -111,6 +111,15 @@ class WorldConfig:
                 f"foam_stiffness = {s.foam_stiffness:g} Pa/m: the pad ({s.describe()}) is too "
                 f"small to carry {need:g} N on its {s.foam_thickness * 1000:g} mm foam; accepted: "
                 f"taxels * pitch > {least_size:.4g} m{stiffer}"
+            )
+        # the stop force on a single taxel (an edge or a point pressed by one cell) is the most
+        # pressure a read-out of contact forces (MuJoCo's) may give: beyond MAX_PRESSURE an
+        # image's norm overflows float32
+        if need / s.pitch**2 > MAX_PRESSURE:
+            raise HamError(
+                f"force_threshold = {need:g} N on one {s.pitch * 1000:g} mm taxel presses "
+                f"{need / s.pitch**2:.3g} Pa; accepted: at most {MAX_PRESSURE:g} Pa "
+                f"(force_threshold <= {MAX_PRESSURE * s.pitch**2:.3g} N)"
             )
 
     def resolve_objects(self) -> list[HapticObject]:
