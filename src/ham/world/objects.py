@@ -630,7 +630,7 @@ def _numbers(values: object, bools: bool = False) -> np.ndarray | None:
     ragged lists are not heights."""
     try:
         a = np.asarray(values)
-    except (TypeError, ValueError):
+    except Exception:  # noqa: BLE001 - the user's value (ragged, a tensor that requires grad)
         return None
     if a.dtype.kind not in "iuf" + ("b" if bools else ""):
         return None
