@@ -308,6 +308,26 @@ _HEIGHT_VALUES = [
 ]
 
 
+_SURFACE = """import numpy as np, torch
+from ham.world.objects import HapticObject, register
+
+register(HapticObject.from_surface("odd", {make}))
+"""
+#: a height field h(x, y): the same values, on the extended glance's 4-d table
+_SURFACE_VALUES = [
+    ("nan", "lambda x, y: np.full_like(x, np.nan)", "refuse"),
+    ("below-table", "lambda x, y: y", "refuse"),
+    ("complex", "lambda x, y: np.full_like(x, 0.02) + 0j", "refuse"),
+    ("text", "lambda x, y: np.full(x.shape, '0.02')", "refuse"),
+    ("scalar", "lambda x, y: 0.02", "refuse"),
+    ("grid", "lambda x, y: np.full((len(x), len(y)), 0.02)", "refuse"),
+    ("raises", "lambda x, y: x / 0 + {}", "refuse"),
+    ("list", "lambda x, y: [0.02] * len(x)", "take"),
+    ("tensor", "lambda x, y: torch.full((len(x),), 0.02)", "take"),
+    ("slope", "lambda x, y: 0.02 + 0.1 * (y + 0.045)", "take"),
+]
+
+
 def _objects_cases() -> list[Case]:
     cases = []
     for name, make, expect in _HEIGHT_VALUES:
@@ -316,6 +336,14 @@ def _objects_cases() -> list[Case]:
             build = ["table", "build", "--objects-file", "o.py", "--objects", "box,odd",
                      "--simulator", simulator, "--grid", "3", "--out", "t.h5", "--quiet"]  # fmt: skip
             cases.append(Case("objects", f"{name}/{simulator}", {"o.py": text}, [build], expect))
+    for name, make, expect in _SURFACE_VALUES:
+        text = _SURFACE.format(make=make)
+        for simulator in ("fast", "mujoco"):
+            build = ["table", "build", "--objects-file", "o.py", "--objects", "box,odd",
+                     "--pose-dims", "x,y,phi,phi_y", "--simulator", simulator, "--grid",
+                     "2,2,2,2", "--out", "t.h5", "--quiet"]  # fmt: skip
+            cases.append(Case("objects", f"surface-{name}/{simulator}", {"o.py": text}, [build],
+                              expect))  # fmt: skip
     return cases
 
 
