@@ -122,6 +122,18 @@ def _simulator_cases() -> list[Case]:
             text = _SIMULATOR.format(field=field, make=make, describe="lambda d: d")
             cases.append(Case("simulator", f"{field}={name}", {"odd.py": text},
                               [build, train, online], expect))  # fmt: skip
+    # the extended glance (x, y, phi, phi_y) -> (image, height): y, phi_y and height carry values
+    build4 = ["table", "build", "--simulator-file", "odd.py", "--pose-dims", "x,y,phi,phi_y",
+              "--grid", "2,2,2,2", "--out", "t.h5", "--quiet"]  # fmt: skip
+    train4 = ["train", "--table", "t.h5", *TRAIN, "--height-input", "--out", "run"]
+    for field in ("pressure", "y", "phi_y", "height"):
+        for name, make, pressure, numbers, _ in _GLANCE_VALUES:
+            if name not in ("nan", "float64", "complex", "grad", "short"):
+                continue
+            text = _SIMULATOR.format(field=field, make=make, describe="lambda d: d")
+            expect = pressure if field == "pressure" else numbers
+            cases.append(Case("simulator", f"4d-{field}={name}", {"odd.py": text},
+                              [build4, train4], expect))  # fmt: skip
     for name, describe, expect in _DESCRIPTIONS:
         text = _SIMULATOR.format(field="z", make="lambda v: v", describe=describe)
         cases.append(Case("simulator", f"describe={name}", {"odd.py": text}, [build, online],

@@ -1,6 +1,6 @@
 """The odd-value sweep of the user's own code (tests/fuzz_plugins.py): it passes, and it flags.
 
-The whole sweep (351 cases, about a minute) runs by hand; here every part runs, the simulator
+The whole sweep (371 cases, about a minute) runs by hand; here every part runs, the simulator
 part on three of its ten fields.
 """
 
