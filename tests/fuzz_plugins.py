@@ -333,7 +333,7 @@ _SURFACE_VALUES = [
     ("text", "lambda x, y: np.full(x.shape, '0.02')", "refuse"),
     ("scalar", "lambda x, y: 0.02", "refuse"),
     ("grid", "lambda x, y: np.full((len(x), len(y)), 0.02)", "refuse"),
-    ("raises", "lambda x, y: x / 0 + {}", "refuse"),
+    ("raises", "lambda x, y: 1 / 0", "refuse"),
     ("list", "lambda x, y: [0.02] * len(x)", "take"),
     ("tensor", "lambda x, y: torch.full((len(x),), 0.02)", "take"),
     ("slope", "lambda x, y: 0.02 + 0.1 * (y + 0.045)", "take"),
