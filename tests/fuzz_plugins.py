@@ -398,7 +398,7 @@ def run_case(case: Case, root: Path, fixtures: dict[str, str], limit: float) -> 
     try:
         for name, text in case.files.items():
             (cwd / name).write_text(text)
-        before = set(case.files) | {"t.h5"}
+        before = set(case.files)
         results = []
         for command in case.commands:
             argv = [fixtures.get(w, w) for w in command]
