@@ -15,7 +15,7 @@ import torch
 
 from ham.errors import HamError
 from ham.world.config import WorldConfig, make_simulator
-from ham.world.glance import FastSimulator
+from ham.world.glance import FastSimulator, GlanceConfig
 from ham.world.objects import get, resolve_set
 from ham.world.sensor import SensorConfig
 
@@ -245,11 +245,30 @@ def test_unstable_step_is_flagged_or_raised():
         strict.glance([0], [0.0], [0.0])
 
 
-def test_a_full_contact_arena_is_flagged_unstable(monkeypatch, tmp_path):
-    # A 60 KB arena holds a few hundred contacts: the box's flat top fills it and MuJoCo drops
-    # contacts (its warning goes to MUJOCO_LOG.TXT in the working folder). Such a glance's
-    # forces are wrong, so it is flagged, not read out; the default arena never fills.
+def test_mujoco_warnings_are_logged_once_not_printed_nor_written(monkeypatch, tmp_path, capfd,
+                                                                 caplog):  # fmt: skip
+    """A stop force of 1e9 N makes MuJoCo warn of a huge acceleration: logged once (from its
+    worker threads too), not printed to stdout (into a ``--json`` output) nor appended to a
+    MUJOCO_LOG.TXT in the working folder, as MuJoCo's own handler does; that handler restored."""
     monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr("ham.world.mujoco_sim._WARNED", set())
+    sim = MujocoSimulator(PAPER, sensor=SensorConfig(foam_stiffness=1e12, foam_thickness=100.0),
+                          glance=GlanceConfig(force_threshold=1e9), threads=2)  # fmt: skip
+    for _ in range(2):
+        r = sim.glance([0, 2, 1, 3], [0.0, 0.3, 0.5, -0.5], [0.0, 0.1, 0.2, 0.3])
+        assert (r.info["status"].numpy() == UNSTABLE).all()
+    warned = [m for m in caplog.messages if m.startswith("MuJoCo: ")]
+    assert len(warned) == 1 and "QACC" in warned[0] and "flagged unstable" in warned[0]
+    assert capfd.readouterr().out == "" and list(tmp_path.iterdir()) == []
+    assert mujoco.get_mju_user_warning() is None
+
+
+def test_a_full_contact_arena_is_flagged_unstable(monkeypatch, tmp_path, caplog):
+    # A 60 KB arena holds a few hundred contacts: the box's flat top fills it and MuJoCo drops
+    # contacts (its warning is logged). Such a glance's forces are wrong, so it is flagged, not
+    # read out; the default arena never fills.
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr("ham.world.mujoco_sim._WARNED", set())
     from_xml = mujoco.MjModel.from_xml_string
 
     def small_arena(xml, *args, **kwargs):
@@ -259,7 +278,8 @@ def test_a_full_contact_arena_is_flagged_unstable(monkeypatch, tmp_path):
     monkeypatch.setattr(mujoco.MjModel, "from_xml_string", small_arena)
     r = MujocoSimulator(PAPER[:1], threads=1).glance([0], [0.0], [0.0])
     assert r.info["status"].tolist() == [UNSTABLE] and torch.isnan(r.z).all()
-    assert "arena memory is full" in (tmp_path / "MUJOCO_LOG.TXT").read_text()
+    assert any("arena memory is full" in m for m in caplog.messages), caplog.messages
+    assert list(tmp_path.iterdir()) == []  # MuJoCo's own handler wrote a MUJOCO_LOG.TXT here
     monkeypatch.undo()
     r = MujocoSimulator(PAPER[:1], threads=1).glance([0], [0.0], [0.0])
     assert r.info["status"].tolist() == [SETTLED]

@@ -48,7 +48,9 @@ part, is the paper's 2 N. The glance ends when the pad has settled (speed below 
 feel less than 2 N (``blocked``, as in the fast model), or at ``max_steps`` (flagged: ``blocked`` and
 ``info["status"] == 2``). A diverging step (bad-acceleration warning, non-finite state, pad thrown 5 cm,
 a contact arena too full to hold every contact) is flagged ``unstable`` (status 3) with no contact; ``on_failure="raise"`` turns either into a
-:class:`HamError`. Nothing can hang: every glance stops after ``max_steps``.
+:class:`HamError`. Nothing can hang: every glance stops after ``max_steps``. MuJoCo's own warnings
+go to this module's logger, once per kind (stderr), not to stdout and a MUJOCO_LOG.TXT in the
+working folder, where its default handler puts them.
 
 Read-outs:
 
@@ -72,7 +74,9 @@ contact set relaxes with the same time constant whether 16 or 256 taxels touch.
 
 from __future__ import annotations
 
+import contextlib
 import copy
+import logging
 import math
 import os
 import threading
@@ -111,6 +115,36 @@ PAPER_TAXEL_RADIUS = 0.005
 _DIVERGED = 0.05
 #: The ``foam`` taxels' contact margin, in taxel radii (:func:`scene_xml`).
 FOAM_MARGIN = 0.3
+
+_log = logging.getLogger(__name__)
+#: MuJoCo warnings already logged in this process (their text up to the simulation time)
+_WARNED: set[str] = set()
+_WARNED_LOCK = threading.Lock()
+
+
+def _log_warning(message: str) -> None:
+    """A MuJoCo warning ('Nan, Inf or huge value in QACC ... The simulation is unstable'), logged
+    once per kind on stderr: MuJoCo's own handler prints it to stdout (into a ``--json`` output)
+    and appends it to a MUJOCO_LOG.TXT in the working folder, a file no command should leave.
+    The glances it concerns are flagged already (``unstable``, status 3)."""
+    kind = message.split(" Time =")[0].strip()
+    with _WARNED_LOCK:
+        if kind in _WARNED:
+            return
+        _WARNED.add(kind)
+    _log.warning("MuJoCo: %s (its glances are flagged unstable)", kind)
+
+
+@contextlib.contextmanager
+def _warnings_to_log():
+    """MuJoCo's warnings to :func:`_log_warning` while a batch runs (the handler is global to
+    the process: the one before is restored after)."""
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(_log_warning)
+    try:
+        yield
+    finally:
+        mujoco.set_mju_user_warning(previous)
 
 
 @dataclass(frozen=True)
@@ -963,6 +997,35 @@ class MujocoSimulator:
             pass
 
     # ------------------------------------------------------------------ glance
+    def _run_batch(self, ids_np, x_np, phi_np, y_np, phi_y_np, out: dict) -> None:
+        """The glances of a batch, into ``out``, over the worker threads."""
+        b = len(ids_np)
+        if not b:
+            return
+        # Rows on height fields or tilted about x start from MuJoCo's own collision test.
+        varies = np.array([o.varies_in_y for o in self.objects])[ids_np]
+        general = varies | (phi_y_np != 0)
+        z0 = np.full(b, math.nan)
+        line = ~general
+        if line.any():
+            z0[line] = (
+                self.first_touch(ids_np[line], x_np[line], phi_np[line]) + self.config.clearance
+            )
+        self._ensure_workers()
+        bounds = np.linspace(0, b, min(self._threads, b) + 1).astype(int)
+        jobs = [
+            (self._workers[w], range(bounds[w], bounds[w + 1]))
+            for w in range(len(bounds) - 1)
+            if bounds[w + 1] > bounds[w]
+        ]
+        args = (ids_np, x_np, phi_np, z0, y_np, phi_y_np, general, out)
+        if self._pool is None or len(jobs) == 1:
+            for worker, rows in jobs:
+                self._run_rows(worker, rows, *args)
+        else:
+            for fut in [self._pool.submit(self._run_rows, w, r, *args) for w, r in jobs]:
+                fut.result()
+
     def glance(
         self, object_ids, q_x, q_phi, q_y=None, q_phi_y=None, *, object_pose=None
     ) -> GlanceResult:
@@ -1011,30 +1074,8 @@ class MujocoSimulator:
             "steps": np.zeros(b, dtype=np.int64),
             "status": np.zeros(b, dtype=np.int64),
         }
-        if b:
-            # Rows on height fields or tilted about x start from MuJoCo's own collision test.
-            varies = np.array([o.varies_in_y for o in self.objects])[ids_np]
-            general = varies | (phi_y_np != 0)
-            z0 = np.full(b, math.nan)
-            line = ~general
-            if line.any():
-                z0[line] = (
-                    self.first_touch(ids_np[line], x_np[line], phi_np[line]) + self.config.clearance
-                )
-            self._ensure_workers()
-            bounds = np.linspace(0, b, min(self._threads, b) + 1).astype(int)
-            jobs = [
-                (self._workers[w], range(bounds[w], bounds[w + 1]))
-                for w in range(len(bounds) - 1)
-                if bounds[w + 1] > bounds[w]
-            ]
-            args = (ids_np, x_np, phi_np, z0, y_np, phi_y_np, general, out)
-            if self._pool is None or len(jobs) == 1:
-                for worker, rows in jobs:
-                    self._run_rows(worker, rows, *args)
-            else:
-                for fut in [self._pool.submit(self._run_rows, w, r, *args) for w, r in jobs]:
-                    fut.result()
+        with _warnings_to_log():
+            self._run_batch(ids_np, x_np, phi_np, y_np, phi_y_np, out)
         status = out["status"]
         failed = np.flatnonzero(status >= STEP_LIMIT)
         if len(failed) and self.config.on_failure == "raise":
