@@ -6,9 +6,11 @@ written."""
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from ham.errors import HamError
+from ham.envs import HapticGlanceEnv, HapticGlanceVectorEnv, ap
+from ham.errors import HamError, brief
 from ham.experiments.grid_run import run_grid
 from ham.experiments.reproduce import reproduce
 from ham.learn.evaluation import evaluate, heatmap_data
@@ -27,7 +29,9 @@ from ham.world.table import (
 
 #: the functions a user calls from Python (docs): each checks its arguments first
 PUBLIC = [build_table, GlanceTable.load, table_info, verify_table, import_authors, train, resume,
-          load_run, evaluate, heatmap_data, reproduce, run_grid, train_sb3, resume_sb3]  # fmt: skip
+          load_run, evaluate, heatmap_data, reproduce, run_grid, train_sb3, resume_sb3,
+          HapticGlanceEnv.__init__, HapticGlanceVectorEnv.__init__, ap.HapticGlanceAPEnv.__init__,
+          ap.HapticGlanceAPVectorEnv.__init__]  # fmt: skip
 
 GRID = '[base]\nsteps = 2\n[axes]\n"model.glances" = [1, 2]\n'
 
@@ -103,3 +107,18 @@ def test_the_root_and_an_empty_path_are_refused_as_folders():
     with pytest.raises(HamError, match=r"cache dir ''; accepted: a folder path"):
         cache_dir("")
     assert check_output_dir(Path("/tmp")) == Path("/tmp")
+
+
+def test_an_env_names_itself_not_its_constructor():
+    with pytest.raises(
+        HamError, match=r"^HapticGlanceEnv: got an unexpected keyword argument 'glance'$"
+    ):
+        HapticGlanceEnv(glance=2)
+
+
+def test_a_message_is_one_line_whatever_the_value_and_arrays_are_brief():
+    e = HamError(f"pose {np.zeros((3, 3))!r}; accepted: numbers")
+    assert str(e) == "pose array([[0., 0., 0.], [0., 0., 0.], [0., 0., 0.]]); accepted: numbers"
+    assert brief(np.zeros((64, 2))) == "an array of shape (64, 2) and dtype float64"
+    assert brief(np.zeros(2)) == "array([0., 0.])"
+    assert brief({"pose": np.zeros((64, 2)), "p": 1}) == "a dict with keys ['p', 'pose']"

@@ -267,7 +267,7 @@ def test_gym_env_height_observation():
     assert set(obs) == {"pressure", "pose"}  # the paper's observation without height=True
     with pytest.raises(HamError, match=r"pose of shape \(3, 3\); accepted: \(3, 2\)"):
         venv.step({"pose": np.zeros((3, 3)), "prediction": np.zeros(3, int)})
-    with pytest.raises(HamError, match="height = 1; accepted: True or False"):
+    with pytest.raises(HamError, match="^HapticGlanceEnv: height = 1; accepted: true or false$"):
         HapticGlanceEnv(height=1)
 
 

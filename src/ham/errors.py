@@ -16,7 +16,25 @@ from collections.abc import Iterable
 
 
 class HamError(ValueError):
-    """A user-facing error whose message names the bad value and what is accepted."""
+    """A user-facing error whose message names the bad value and what is accepted.
+
+    Its message is one line: a value whose repr spans lines (a NumPy array's) is joined."""
+
+    def __init__(self, message: object = "", *args: object) -> None:
+        if isinstance(message, str) and "\n" in message:
+            message = " ".join(message.split())
+        super().__init__(message, *args)
+
+
+def brief(value: object) -> str:
+    """``repr(value)`` for a message, but an array or tensor of more than 4 values by its shape
+    and dtype (a batch of 64 poses is not worth printing) and a dict by its keys."""
+    if isinstance(value, dict):
+        return f"a dict with keys {sorted(map(str, value))}"
+    shape, dtype = getattr(value, "shape", None), getattr(value, "dtype", None)
+    if isinstance(shape, tuple) and dtype is not None and math.prod(shape) > 4:
+        return f"an array of shape {tuple(shape)} and dtype {dtype}"
+    return repr(value)
 
 
 _NEW_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
@@ -251,6 +269,8 @@ def checked_arguments(fn):
                 out.append((name, kind, accepted))
         return out
 
+    what = fn.__qualname__.removesuffix(".__init__")  # a class names its constructor
+
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
         nonlocal checks
@@ -259,13 +279,11 @@ def checked_arguments(fn):
         try:
             bound = signature.bind(*args, **kwargs)
         except TypeError as exc:
-            raise HamError(f"{fn.__qualname__}: {exc}") from None
+            raise HamError(f"{what}: {exc}") from None
         for name, kind, accepted in checks:
             if name in bound.arguments and not _fits(kind, bound.arguments[name]):
                 value = bound.arguments[name]
-                raise HamError(
-                    f"{fn.__qualname__}: {name} = {value!r}; accepted: {_sized(accepted, value)}"
-                )
+                raise HamError(f"{what}: {name} = {value!r}; accepted: {_sized(accepted, value)}")
         return fn(*args, **kwargs)
 
     return wrapper

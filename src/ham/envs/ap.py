@@ -44,7 +44,7 @@ from ham.envs.haptic import (
     pose_space,
     reset_option,
 )
-from ham.errors import HamError
+from ham.errors import HamError, brief, checked_arguments
 from ham.world.config import WorldConfig
 
 try:
@@ -55,23 +55,25 @@ except ImportError as exc:  # pragma: no cover - depends on the installation
     ) from None
 
 
-def _logits(prediction: Any, shape: tuple[int, ...]) -> np.ndarray:
-    p = np.asarray(prediction, dtype=np.float64)
-    if p.shape != shape:
-        raise HamError(f"prediction of shape {p.shape}; accepted: logits of shape {shape}")
-    if np.isnan(p).any():
-        raise HamError("prediction contains NaN; accepted: finite logits")
-    return p
-
-
-def _ap_action(action: Any) -> Any:
-    """ap_gym's action: a dict with exactly ``action`` (the pose) and ``prediction`` (logits)."""
+def _ap_action(action: Any, shape: tuple[int, ...]) -> dict[str, Any]:
+    """ap_gym's action: a dict with exactly ``action`` (the pose) and ``prediction`` (finite
+    logits of ``shape``), checked before ap_gym scores the prediction (its loss took booleans to
+    a TypeError and infinite logits to a NaN or infinite reward)."""
     if not isinstance(action, dict) or set(action) != {"action", "prediction"}:
         raise HamError(
-            f"action {action!r}; accepted: a dict with 'action' (the pose q_x, q_phi) and "
+            f"action {brief(action)}; accepted: a dict with 'action' (the pose q_x, q_phi) and "
             "'prediction' (logits)"
         )
-    return action
+    p = np.asarray(action["prediction"])
+    if p.dtype.kind not in "iuf":  # not text, booleans, complex, objects
+        raise HamError(
+            f"prediction {brief(action['prediction'])}; accepted: finite logits of shape {shape}"
+        )
+    if p.shape != shape:
+        raise HamError(f"prediction of shape {p.shape}; accepted: finite logits of shape {shape}")
+    if not np.isfinite(p).all():
+        raise HamError(f"prediction {brief(action['prediction'])}; accepted: finite logits")
+    return {"action": action["action"], "prediction": p.astype(np.float64)}
 
 
 class HapticGlanceAPEnv(ap_gym.ActiveClassificationEnv):
@@ -82,6 +84,7 @@ class HapticGlanceAPEnv(ap_gym.ActiveClassificationEnv):
 
     metadata = {"render_modes": list(RENDER_MODES), "render_fps": 2}
 
+    @checked_arguments
     def __init__(
         self,
         glances: int = 3,
@@ -119,12 +122,11 @@ class HapticGlanceAPEnv(ap_gym.ActiveClassificationEnv):
         return self._obs(), info
 
     def step(self, action: dict[str, Any]):
-        return super().step(_ap_action(action))
+        return super().step(_ap_action(action, (self.backend.n_objects,)))
 
     def _step(
         self, action: np.ndarray, prediction: np.ndarray
     ) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any], np.ndarray]:
-        _logits(prediction, (self.backend.n_objects,))
         terminated = self.episodes.advance(action)
         return self._obs(), 0.0, terminated, False, {}, self._target()
 
@@ -142,6 +144,7 @@ class HapticGlanceAPVectorEnv(ap_gym.ActiveClassificationVectorEnv):
 
     metadata = VECTOR_METADATA
 
+    @checked_arguments
     def __init__(
         self,
         num_envs: int = 1,
@@ -181,7 +184,7 @@ class HapticGlanceAPVectorEnv(ap_gym.ActiveClassificationVectorEnv):
         }
 
     def step(self, actions: dict[str, Any]):
-        return super().step(_ap_action(actions))
+        return super().step(_ap_action(actions, (self.num_envs, self.backend.n_objects)))
 
     def _step(
         self, action: np.ndarray, prediction: np.ndarray
@@ -189,7 +192,6 @@ class HapticGlanceAPVectorEnv(ap_gym.ActiveClassificationVectorEnv):
         dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray, dict[str, Any], np.ndarray
     ]:
         n = self.num_envs
-        _logits(prediction, (n, self.backend.n_objects))
         truncated = np.zeros(n, dtype=np.bool_)
         if self._autoreset:
             self.episodes.start(self.np_random)

@@ -41,7 +41,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from ham.errors import HamError, check_integer, check_known_fields
+from ham.errors import HamError, brief, check_integer, check_known_fields, checked_arguments
 from ham.world.config import WorldConfig
 from ham.world.devices import check_device
 
@@ -61,7 +61,7 @@ def reset_option(options: Any, key: str) -> Any:
     if options is None:
         return None
     if not isinstance(options, dict) or set(options) - {key}:
-        raise HamError(f"reset options {options!r}; accepted: None or {{{key!r}: ...}}")
+        raise HamError(f"reset options {brief(options)}; accepted: None or {{{key!r}: ...}}")
     return options.get(key)
 
 
@@ -105,8 +105,6 @@ class GlanceBackend:
             )
         if isinstance(world, dict):
             world = WorldConfig.from_dict(world)
-        if world is not None and not isinstance(world, WorldConfig):
-            raise HamError(f"world = {world!r}; accepted: a WorldConfig, its dict, or None")
         if table is not None and not Path(table).exists():
             raise HamError(f"glance table {str(table)!r} does not exist")
         self.device = check_device(device)
@@ -173,7 +171,7 @@ def check_poses(pose: Any, n: int, k: int = 2) -> np.ndarray:
             raise TypeError(q.dtype)
         q = q.astype(np.float64)
     except (TypeError, ValueError):
-        raise HamError(f"pose {pose!r}; accepted: {n} x {k} numbers in [-1, 1]") from None
+        raise HamError(f"pose {brief(pose)}; accepted: {n} x {k} numbers in [-1, 1]") from None
     if q.size != k * n:
         raise HamError(f"pose of shape {q.shape}; accepted: ({n}, {k}) numbers in [-1, 1]")
     q = q.reshape(n, k)
@@ -188,7 +186,9 @@ def check_object_ids(objects: Any, n: int, n_objects: int) -> np.ndarray:
     """Object ids ``(n,)`` int64 in ``0 .. n_objects-1``, or a :class:`HamError`."""
     a = np.asarray(objects)
     if a.dtype.kind not in "iu" or a.size not in (1, n):
-        raise HamError(f"objects {objects!r}; accepted: {n} integer id(s) in 0..{n_objects - 1}")
+        raise HamError(
+            f"objects {brief(objects)}; accepted: {n} integer id(s) in 0..{n_objects - 1}"
+        )
     a = np.broadcast_to(a.reshape(-1).astype(np.int64), (n,)).copy()
     bad = (a < 0) | (a >= n_objects)
     if bad.any():
@@ -299,9 +299,8 @@ def attach_world(
     height: bool = False,
     object_pose=None,
 ) -> None:
-    """Give ``env`` its glance backend and ``n`` episodes: the setup every env here shares."""
-    if not isinstance(height, bool):
-        raise HamError(f"height = {height!r}; accepted: True or False")
+    """Give ``env`` its glance backend and ``n`` episodes: the setup every env here shares (the
+    constructors have checked their arguments' types, :func:`ham.errors.checked_arguments`)."""
     env.render_mode = _check_render_mode(render_mode)
     env.backend = GlanceBackend(table, world, normalization, device, object_pose)
     env.episodes = GlanceEpisodes(env.backend, n, glances, height)
@@ -327,6 +326,7 @@ class HapticGlanceEnv(gym.Env):
 
     metadata = {"render_modes": list(RENDER_MODES), "render_fps": 2}
 
+    @checked_arguments
     def __init__(
         self,
         glances: int = 3,
@@ -372,7 +372,7 @@ class HapticGlanceEnv(gym.Env):
     ) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         if not isinstance(action, dict) or set(action) != {"pose", "prediction"}:
             raise HamError(
-                f"action {action!r}; accepted: a dict with 'pose' ({self.episodes.k} numbers) and "
+                f"action {brief(action)}; accepted: a dict with 'pose' ({self.episodes.k} numbers) and "
                 "'prediction' (an id)"
             )
         prediction = _prediction(action["prediction"], 1, self.backend.n_objects)[0]
@@ -410,6 +410,7 @@ class HapticGlanceVectorEnv(gym.vector.VectorEnv):
 
     metadata = VECTOR_METADATA
 
+    @checked_arguments
     def __init__(
         self,
         num_envs: int = 1,
@@ -455,7 +456,7 @@ class HapticGlanceVectorEnv(gym.vector.VectorEnv):
         n = self.num_envs
         if not isinstance(actions, dict) or set(actions) != {"pose", "prediction"}:
             raise HamError(
-                f"actions {actions!r}; accepted: a dict with 'pose' ({n}, {self.episodes.k}) and "
+                f"actions {brief(actions)}; accepted: a dict with 'pose' ({n}, {self.episodes.k}) and "
                 f"'prediction' ({n},)"
             )
         truncated = np.zeros(n, dtype=np.bool_)

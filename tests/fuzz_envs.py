@@ -1,0 +1,140 @@
+"""A sweep of odd values over the Gymnasium and ap_gym environments: ``python -m tests.fuzz_envs``.
+
+The environments' counterpart of tests/fuzz_api.py (whose odd values, ``ODD``, it gives), and
+like it runnable by hand; tests/test_fuzz_envs.py runs it whole (a few seconds). For each of
+``ham/HapticGlance-v0``, its vector env, ``ham/HapticGlanceAP-v0`` and its vector env, on a 3 x 3
+glance table:
+
+* each constructor argument gets each odd value (:func:`tests.fuzz_api.sweep`);
+* ``reset(options=...)`` gets each odd value, as the options and as the options' one key;
+* each key of a step's action (the pose, the prediction) gets each odd value, and arrays of the
+  right shape filled with NaN, +-inf, 1e300 and 3e38 or cast to float16, int64, bool, complex and
+  text, one fresh episode each.
+
+A call is flagged when it raises anything but a :class:`ham.errors.HamError`, its HamError spans
+lines, or it takes a value no action means: a non-finite number, bytes, a bare ``object()``, or
+an array of booleans, complex numbers or text. A finite pose outside ``[-1, 1]`` is taken
+(clipped, as documented); so are finite logits, however large. ``reset(seed=...)`` is left to
+Gymnasium, whose ``Env.reset`` refuses a bad seed in one line of its own. The exit code is the
+number of flagged calls::
+
+    python -m tests.fuzz_envs
+    python -m tests.fuzz_envs ap ap-vector
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import traceback
+from collections.abc import Callable
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+
+from tests.fuzz_api import ODD, _never_meant
+from tests.fuzz_api import sweep as sweep_arguments
+
+#: array values of an action's right shape
+FILLS = [np.nan, np.inf, -np.inf, 1e300, 3e38]
+CASTS = [np.float16, np.int64, np.bool_, np.complex128, np.str_]
+
+
+def _envs(table: Path) -> dict[str, tuple[Callable, dict, str]]:
+    """name -> (class, valid keyword arguments, the key of ``reset``'s options)."""
+    from ham.envs import HapticGlanceEnv, HapticGlanceVectorEnv, ap
+
+    one, many = (
+        {"glances": 2, "table": str(table)},
+        {"num_envs": 2, "glances": 2, "table": str(table)},
+    )
+    return {
+        "haptic": (HapticGlanceEnv, one, "object"),
+        "haptic-vector": (HapticGlanceVectorEnv, many, "objects"),
+        "ap": (ap.HapticGlanceAPEnv, one, "object"),
+        "ap-vector": (ap.HapticGlanceAPVectorEnv, many, "objects"),
+    }
+
+
+def _never_an_action(value) -> bool:
+    if _never_meant(value):
+        return True
+    a = np.asarray(value) if isinstance(value, np.ndarray) else None
+    return a is not None and (
+        a.dtype.kind in "bcUSO" or (a.dtype.kind == "f" and not np.isfinite(a).all())
+    )
+
+
+def _try(label: str, call: Callable, value, flags: list[str]) -> None:
+    from ham.errors import HamError
+
+    try:
+        call()
+    except HamError as exc:
+        if "\n" in str(exc):
+            flags.append(f"FLAG {label}: a message of several lines: {exc}")
+        return
+    except Exception as exc:  # noqa: BLE001 - what the sweep is looking for
+        where = traceback.extract_tb(exc.__traceback__)[-1]
+        flags.append(f"FLAG {label}: {type(exc).__name__}: {' '.join(str(exc).split())[:200]} "
+                     f"({Path(where.filename).name}:{where.lineno})")  # fmt: skip
+        return
+    if _never_an_action(value):
+        flags.append(f"FLAG {label}: accepted")
+
+
+def sweep(name: str, cls: Callable, base: dict, key: str, tmp: Path) -> tuple[int, list[str]]:
+    """The constructor's arguments, ``reset``'s options and each key of a step's action."""
+    calls, flags = sweep_arguments(name, cls, base, tmp)
+    env = cls(**base)
+    for value in ODD:
+        for options in (value, {key: value}):
+            calls += 1
+            _try(f"{name}.reset(options={options!r})", partial(env.reset, options=options),
+                 value, flags)  # fmt: skip
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    action = env.action_space.sample()
+    for part, valid in action.items():
+        valid = np.asarray(valid)
+        arrays = [np.full(valid.shape, x) for x in FILLS] + [valid.astype(t) for t in CASTS]
+        for value in ODD + arrays:
+            env.reset(seed=0)
+            calls += 1
+            label = f"{name}.step({part}={value!r})".replace("\n", "")
+            _try(label, partial(env.step, {**action, part: value}), value, flags)
+    env.close()
+    return calls, flags
+
+
+def main(argv: list[str] | None = None) -> int:
+    from ham.world.config import WorldConfig
+    from ham.world.table import build_table
+
+    parser = argparse.ArgumentParser(prog="python -m tests.fuzz_envs", description=__doc__)
+    parser.add_argument("envs", nargs="*", help="environments to sweep (default: all)")
+    args = parser.parse_args(argv)
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        table = tmp / "t3.h5"
+        build_table(WorldConfig(), 3, table, progress=False)
+        envs = _envs(table)
+        unknown = [e for e in args.envs if e not in envs]
+        if unknown:
+            parser.error(f"unknown env(s) {unknown}; accepted: {', '.join(envs)}")
+        total, flagged = 0, []
+        for name in args.envs or list(envs):
+            calls, flags = sweep(name, *envs[name], tmp)
+            total += calls
+            flagged += flags
+            for line in flags:
+                print(line)
+            print(f"{name}: {calls} calls, {len(flags)} flagged", flush=True)
+    print(f"{total} calls: {len(flagged)} flagged")
+    return len(flagged)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
