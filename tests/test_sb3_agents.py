@@ -4,6 +4,7 @@ real ap_gym environments)."""
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -337,6 +338,12 @@ def test_cli_resume_trains_a_finished_run_further_as_if_never_stopped(
         (["--algo", "ppo", "--algo-kwargs", "[1]"], "accepted: a JSON object"),
         (["--algo", "ppo", "--algo-kwargs", "{x"], "not JSON"),
         (["--algo", "ppo", "--algo-kwargs", '{"nope": 1}'], "unexpected keyword argument 'nope'"),
+        # Python's JSON reader takes NaN and Infinity; no hyperparameter means them
+        (["--algo", "ppo", "--algo-kwargs", '{"gamma": NaN}'],
+         "algo_kwargs: gamma = nan; accepted: JSON values (text keys; text, booleans, null, "
+         "integers, finite numbers, lists)"),
+        (["--algo", "sac", "--algo-kwargs", '{"policy_kwargs": {"net_arch": [64, -Infinity]}}'],
+         "algo_kwargs: policy_kwargs.net_arch[1] = -inf; accepted: JSON values"),
         # hyperparameters that break the algorithm only when it trains (tracebacks before)
         (["--algo", "ppo", "--no-progress", "--algo-kwargs",
           '{"learning_rate": 1e300, "n_steps": 16, "batch_size": 16}'],
@@ -394,3 +401,20 @@ def test_cli_names_a_missing_gpu_before_writing(tmp_path, ham_cli):
     r = ham_cli("sb3", "--algo", "sac", "--device", "cuda", "--out", str(tmp_path / "run"))
     assert r.returncode == 2 and "CUDA is not available on this machine" in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"algo_kwargs": {"n_steps": np.int64(32)}}, "algo_kwargs: n_steps = np.int64(32); accepted"),
+        ({"algo_kwargs": {"x": b"x"}}, "algo_kwargs: x = b'x'; accepted: JSON values"),
+        ({"algo_kwargs": {"x": object()}}, "algo_kwargs: x = <object object at"),
+        ({"env_kwargs": {1: 2}}, "env_kwargs: key 1; accepted: JSON values (text keys;"),
+        ({"env_kwargs": {"glances": float("inf")}}, "env_kwargs: glances = inf; accepted"),
+    ],
+)  # fmt: skip
+def test_kwargs_are_json_a_run_can_save_and_resume_from(tmp_path, kwargs, message):
+    # before: a TypeError writing config.json, after the model was made; NaN and inf taken
+    with pytest.raises(HamError, match="^" + re.escape(message)):
+        train_sb3(Sb3Config(algo="ppo", env_steps=16, **kwargs), tmp_path / "run")
+    assert not (tmp_path / "run").exists()

@@ -235,6 +235,34 @@ def check_known_fields(cls, d: dict, what: str) -> None:
         raise HamError(f"{what} has unknown fields {unknown}; accepted: {', '.join(known)}")
 
 
+def _not_json(v: object, where: str) -> str | None:
+    """``where = VALUE`` of the first part of ``v`` that is no JSON value, else None."""
+    if v is None or isinstance(v, (str, bool, int)) or (isinstance(v, float) and math.isfinite(v)):
+        return None
+    if isinstance(v, (list, tuple)):
+        parts = ((f"{where}[{i}]", x) for i, x in enumerate(v))
+    elif isinstance(v, dict):
+        if not all(isinstance(k, str) for k in v):
+            return f"{where} key {next(k for k in v if not isinstance(k, str))!r}"
+        parts = ((f"{where}.{k}" if where else k, x) for k, x in v.items())
+    else:
+        return f"{where} = {brief(v)}"
+    return next((bad for w, x in parts if (bad := _not_json(x, w))), None)
+
+
+def check_json(name: str, value: dict) -> None:
+    """``value`` holds only what a run's ``config.json`` keeps as it is: text keys, text,
+    booleans, null, integers, finite floats, lists. NaN or inf (which strict JSON lacks and
+    which no hyperparameter means), bytes, NumPy scalars and objects are refused, not saved as a
+    config that cannot be read back or resumed."""
+    bad = _not_json(value, "")
+    if bad is not None:
+        raise HamError(
+            f"{name}: {bad.strip()}; accepted: JSON values (text keys; text, booleans, null, "
+            "integers, finite numbers, lists)"
+        )
+
+
 #: The largest run seed: a run's generators are seeded by ``seed * 1000 + stream`` (and the
 #: evaluation batches' by multiples of that), and NumPy's and Stable-Baselines3's by ``seed``:
 #: 32 bits keep every one of them inside the 64-bit seeds torch and NumPy take.

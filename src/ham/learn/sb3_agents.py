@@ -42,6 +42,7 @@ from torch import nn
 from ham.errors import (
     HamError,
     check_choices,
+    check_json,
     check_known_fields,
     check_seed,
     check_types,
@@ -221,6 +222,8 @@ class Sb3Config:
             if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
                 raise HamError(f"{name} = {v!r}; accepted: an integer >= 1")
         check_seed(self.seed)
+        check_json("env_kwargs", self.env_kwargs)
+        check_json("algo_kwargs", self.algo_kwargs)
         from ham.world.devices import check_device
 
         check_device(self.device, available=False)  # the spelling; train_sb3 checks presence
