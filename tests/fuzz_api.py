@@ -52,6 +52,7 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
     """name -> (function, its valid keyword arguments); builds the table and run they read."""
     from ham.experiments.grid_run import run_grid
     from ham.experiments.reproduce import reproduce
+    from ham.learn.ap_adapter import ApGymGlanceEnv
     from ham.learn.evaluation import evaluate, heatmap_data
     from ham.learn.train import TrainConfig, load_run, resume, train
     from ham.world.config import WorldConfig
@@ -92,6 +93,10 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
                 "progress": False,
                 "workers": 1,
             },
+        ),  # fmt: skip
+        "ApGymGlanceEnv": (
+            ApGymGlanceEnv,
+            {"env_id": "CircleSquare-s15-nograd-v0", "batch_size": 2},
         ),  # fmt: skip
         "run_grid": (
             run_grid,

@@ -13,6 +13,7 @@ from ham.envs import HapticGlanceEnv, HapticGlanceVectorEnv, ap
 from ham.errors import HamError, brief
 from ham.experiments.grid_run import run_grid
 from ham.experiments.reproduce import reproduce
+from ham.learn.ap_adapter import ApGymGlanceEnv
 from ham.learn.evaluation import evaluate, heatmap_data
 from ham.learn.sb3_agents import Sb3Config, resume_sb3, train_sb3
 from ham.learn.train import TrainConfig, load_run, resume, train
@@ -31,7 +32,7 @@ from ham.world.table import (
 PUBLIC = [build_table, GlanceTable.load, table_info, verify_table, import_authors, train, resume,
           load_run, evaluate, heatmap_data, reproduce, run_grid, train_sb3, resume_sb3,
           HapticGlanceEnv.__init__, HapticGlanceVectorEnv.__init__, ap.HapticGlanceAPEnv.__init__,
-          ap.HapticGlanceAPVectorEnv.__init__]  # fmt: skip
+          ap.HapticGlanceAPVectorEnv.__init__, ApGymGlanceEnv.__init__]  # fmt: skip
 
 GRID = '[base]\nsteps = 2\n[axes]\n"model.glances" = [1, 2]\n'
 

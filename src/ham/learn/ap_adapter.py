@@ -55,7 +55,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ham.errors import HamError, check_known_fields, check_types
+from ham.errors import HamError, check_integer, check_known_fields, check_types, checked_arguments
 from ham.model.agent import HamConfig
 from ham.model.policy import raster_counts
 from ham.world.devices import check_device
@@ -218,6 +218,7 @@ class ApGymGlanceEnv:
         env_kwargs: more keyword arguments for ``ap_gym.make_vec``.
     """
 
+    @checked_arguments
     def __init__(
         self,
         env_id: str,
@@ -262,8 +263,8 @@ class ApGymGlanceEnv:
         self.actions = actions
         self.normalization = normalization
         self.glimpse = glimpse
-        self.seed = int(seed)
-        self.eval_seed = int(eval_seed)
+        self.seed = check_integer("seed", seed)
+        self.eval_seed = check_integer("eval_seed", eval_seed)
         self.device = check_device(device)
         self.max_step_length = max_step_length
         self.env_kwargs = dict(env_kwargs or {})
