@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import inspect
 import math
 import shutil
@@ -48,14 +49,23 @@ def _never_meant(value) -> bool:
     return isinstance(value, bytes) or type(value) is object
 
 
+def _flat(x):
+    return np.full_like(x, 0.02, dtype=np.float64)
+
+
+def _flat_surface(x, y):
+    return np.full_like(x, 0.02, dtype=np.float64)
+
+
 def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
     """name -> (function, its valid keyword arguments); builds the table and run they read."""
     from ham.experiments.grid_run import run_grid
     from ham.experiments.reproduce import reproduce
-    from ham.learn.ap_adapter import ApGymGlanceEnv
+    from ham.learn.ap_adapter import ApGymConfig, ApGymGlanceEnv
     from ham.learn.evaluation import evaluate, heatmap_data
-    from ham.learn.train import TrainConfig, load_run, resume, train
+    from ham.learn.train import TrainConfig, fit_to_ap_gym, load_run, resume, train
     from ham.world.config import WorldConfig
+    from ham.world.objects import HapticObject
     from ham.world.table import GlanceTable, build_table, import_authors, table_info, verify_table
 
     table = tmp / "t3.h5"
@@ -98,6 +108,23 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
             ApGymGlanceEnv,
             {"env_id": "CircleSquare-s15-nograd-v0", "batch_size": 2},
         ),  # fmt: skip
+        "fit_to_ap_gym": (
+            fit_to_ap_gym,
+            {"config": config, "env": ApGymConfig("ap_gym:CircleSquare-s15-nograd-v0")},
+        ),  # fmt: skip
+        "HapticObject": (HapticObject, {"name": "fz", "profile": _flat}),
+        "HapticObject.from_polyline": (
+            HapticObject.from_polyline,
+            {"name": "fz", "points": [[-0.04, 0.02], [0.04, 0.02]]},
+        ),  # fmt: skip
+        "HapticObject.from_surface": (
+            HapticObject.from_surface,
+            {"name": "fz", "surface": _flat_surface},
+        ),  # fmt: skip
+        "HapticObject.from_height_field": (
+            HapticObject.from_height_field,
+            {"name": "fz", "heights": np.full((4, 4), 0.02)},
+        ),  # fmt: skip
         "run_grid": (
             run_grid,
             {"grid": tmp / "g.toml", "out": "gr", "progress": False, "workers": 1},
@@ -130,9 +157,12 @@ def sweep(name: str, fn: Callable, base: dict, tmp: Path) -> tuple[int, list[str
     """Every parameter of ``fn`` given every odd value; returns (calls, flag lines)."""
     from ham.errors import HamError
 
-    # keyword parameters (not a **kwargs), and one unknown keyword
+    # keyword parameters (not a **kwargs), and one unknown keyword, except for a dataclass,
+    # whose constructor answers it with Python's own one line ("unexpected keyword argument")
     params = [name for name, p in inspect.signature(fn).parameters.items()
-              if name not in ("agent", "env") and p.kind != p.VAR_KEYWORD] + ["fuzz_unknown"]  # fmt: skip
+              if name not in ("agent", "env") and p.kind != p.VAR_KEYWORD]  # fmt: skip
+    if not dataclasses.is_dataclass(fn):
+        params.append("fuzz_unknown")
     calls, flags = 0, []
     for param in params:
         for value in ODD:

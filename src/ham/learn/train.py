@@ -764,6 +764,7 @@ def make_env(config: TrainConfig, device: torch.device | str = "cpu") -> HapticE
     )
 
 
+@checked_arguments
 def fit_to_ap_gym(config: TrainConfig, env: ApGymConfig, phi_scale: float = 1.0) -> TrainConfig:
     """``config`` training on the ap_gym environment ``env`` instead of the haptic world, the
     model sized for it (:func:`ham.learn.ap_adapter.sized_model`: glimpse size, classes,

@@ -51,7 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ham.errors import HamError
+from ham.errors import HamError, brief, checked_arguments
 from ham.world import recorded_file
 
 #: Edge length of every block (m): "Building blocks ... 9 x 9 cm each".
@@ -152,6 +152,22 @@ class HapticObject:
             raise HamError(
                 f"object {self.name!r}: description {self.description!r}; accepted: one line of text"
             )
+        if self.surface_fn is not None and not callable(self.surface_fn):
+            raise HamError(
+                f"object {self.name!r}: surface_fn {brief(self.surface_fn)} is not a function"
+            )
+        v = None if self.vertices is None else _numbers(self.vertices)
+        if self.vertices is not None and not (
+            v is not None
+            and v.ndim == 2
+            and v.shape[1] == 2
+            and len(v) >= 2
+            and np.isfinite(v).all()
+        ):  # the MuJoCo scene and outline() read them as the top's exact polyline
+            raise HamError(
+                f"object {self.name!r}: vertices {brief(self.vertices)}; accepted: None or N >= 2 "
+                "finite points (x, z) (HapticObject.from_polyline makes them from a polyline)"
+            )
 
     @property
     def varies_in_y(self) -> bool:
@@ -203,6 +219,7 @@ class HapticObject:
         return np.stack([xs, self.profile(xs)], axis=1)
 
     @classmethod
+    @checked_arguments
     def from_function(
         cls,
         name: str,
@@ -244,6 +261,7 @@ class HapticObject:
         return cls(name, profile, width, depth, float(hs.max()), None, description)
 
     @classmethod
+    @checked_arguments
     def from_polyline(
         cls,
         name: str,
@@ -281,6 +299,7 @@ class HapticObject:
         )
 
     @classmethod
+    @checked_arguments
     def from_surface(
         cls,
         name: str,
@@ -325,6 +344,7 @@ class HapticObject:
         return cls(name, section, width, depth, float(hs.max()), None, description, surface)
 
     @classmethod
+    @checked_arguments
     def from_height_field(
         cls,
         name: str,
@@ -366,6 +386,7 @@ class HapticObject:
         return cls.from_surface(name, surface, width=width, depth=depth, description=description)
 
     @classmethod
+    @checked_arguments
     def from_image(
         cls,
         name: str,
@@ -410,6 +431,7 @@ class HapticObject:
         )
 
     @classmethod
+    @checked_arguments
     def from_mesh(
         cls,
         name: str,
@@ -455,6 +477,7 @@ class HapticObject:
         return cls.from_height_field(name, top, width=width, depth=depth, description=description)
 
     @classmethod
+    @checked_arguments
     def from_heightmap(
         cls,
         name: str,
