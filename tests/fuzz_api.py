@@ -49,6 +49,10 @@ def _never_meant(value) -> bool:
     return isinstance(value, bytes) or type(value) is object
 
 
+#: a flat top 2 cm high
+FLAT = [[-0.04, 0.02], [0.04, 0.02]]
+
+
 def _flat(x):
     return np.full_like(x, 0.02, dtype=np.float64)
 
@@ -63,9 +67,13 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
     from ham.experiments.reproduce import reproduce
     from ham.learn.ap_adapter import ApGymConfig, ApGymGlanceEnv
     from ham.learn.evaluation import evaluate, heatmap_data
+    from ham.learn.learners import register_learner
     from ham.learn.train import TrainConfig, fit_to_ap_gym, load_run, resume, train
+    from ham.model.core import register_core
+    from ham.model.policy import register_policy
     from ham.world.config import WorldConfig
-    from ham.world.objects import HapticObject
+    from ham.world.objects import HapticObject, register
+    from ham.world.simulators import register_simulator
     from ham.world.table import GlanceTable, build_table, import_authors, table_info, verify_table
 
     table = tmp / "t3.h5"
@@ -125,6 +133,15 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
             HapticObject.from_height_field,
             {"name": "fz", "heights": np.full((4, 4), 0.02)},
         ),  # fmt: skip
+        # registries (a valid call registers a name of the sweep's own, fz_...)
+        "register": (
+            register,
+            {"obj": HapticObject.from_polyline("fz_reg", FLAT), "replace": True},
+        ),
+        "register_policy": (register_policy, {"name": "fz_policy"}),
+        "register_core": (register_core, {"name": "fz_core"}),
+        "register_learner": (register_learner, {"name": "fz_learner"}),
+        "register_simulator": (register_simulator, {"name": "fz_sim", "factory": _flat}),
         "run_grid": (
             run_grid,
             {"grid": tmp / "g.toml", "out": "gr", "progress": False, "workers": 1},

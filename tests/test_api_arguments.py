@@ -4,6 +4,7 @@ function and the argument (``ham.errors.checked_arguments``), as the configs do 
 glances must not end as an AttributeError deep inside, nor be taken silently, and nothing is
 written."""
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -15,11 +16,16 @@ from ham.experiments.grid_run import run_grid
 from ham.experiments.reproduce import reproduce
 from ham.learn.ap_adapter import ApGymGlanceEnv
 from ham.learn.evaluation import evaluate, heatmap_data
+from ham.learn.learners import register_learner
 from ham.learn.sb3_agents import Sb3Config, resume_sb3, train_sb3
-from ham.learn.train import TrainConfig, load_run, resume, train
+from ham.learn.train import TrainConfig, fit_to_ap_gym, load_run, resume, train
+from ham.model.core import register_core
+from ham.model.policy import register_policy
 from ham.world.cache import cache_dir
 from ham.world.config import WorldConfig
 from ham.world.files import check_output_dir
+from ham.world.objects import HapticObject, register
+from ham.world.simulators import register_simulator
 from ham.world.table import (
     GlanceTable,
     build_table,
@@ -32,7 +38,11 @@ from ham.world.table import (
 PUBLIC = [build_table, GlanceTable.load, table_info, verify_table, import_authors, train, resume,
           load_run, evaluate, heatmap_data, reproduce, run_grid, train_sb3, resume_sb3,
           HapticGlanceEnv.__init__, HapticGlanceVectorEnv.__init__, ap.HapticGlanceAPEnv.__init__,
-          ap.HapticGlanceAPVectorEnv.__init__, ApGymGlanceEnv.__init__]  # fmt: skip
+          ap.HapticGlanceAPVectorEnv.__init__, ApGymGlanceEnv.__init__, fit_to_ap_gym,
+          HapticObject.from_function, HapticObject.from_polyline, HapticObject.from_surface,
+          HapticObject.from_height_field, HapticObject.from_image, HapticObject.from_mesh,
+          HapticObject.from_heightmap, register, register_policy, register_core,
+          register_learner, register_simulator]  # fmt: skip
 
 GRID = '[base]\nsteps = 2\n[axes]\n"model.glances" = [1, 2]\n'
 
@@ -123,3 +133,24 @@ def test_a_message_is_one_line_whatever_the_value_and_arrays_are_brief():
     assert brief(np.zeros((64, 2))) == "an array of shape (64, 2) and dtype float64"
     assert brief(np.zeros(2)) == "array([0., 0.])"
     assert brief({"pose": np.zeros((64, 2)), "p": 1}) == "a dict with keys ['p', 'pose']"
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        # a bad name is refused when the decorator is made, not registered as it was before
+        (lambda: register_policy("my policy"), "location policy name 'my policy'; accepted: letters"),
+        (lambda: register_core(float("nan")), "register_core: name = nan; accepted: a str"),
+        (lambda: register(HapticObject.from_polyline("fz_api", [[-0.04, 0.02], [0.04, 0.02]]),
+                          replace=float("nan")),
+         "register: replace = nan; accepted: true or false"),  # NaN was taken as True
+        (lambda: HapticObject("fz_api", lambda x: x, vertices=float("nan")),
+         "object 'fz_api': vertices nan; accepted: None or N >= 2 finite points (x, z)"),
+        (lambda: HapticObject("fz_api", lambda x: x, surface_fn="dome"),
+         "object 'fz_api': surface_fn 'dome' is not a function"),
+        (lambda: fit_to_ap_gym(float("nan"), None), "fit_to_ap_gym: config = nan; accepted: a TrainConfig"),
+    ],
+)  # fmt: skip
+def test_registries_and_objects_refuse_at_once(call, message):
+    with pytest.raises(HamError, match="^" + re.escape(message)):
+        call()

@@ -21,7 +21,7 @@ from dataclasses import replace
 
 import torch
 
-from ham.errors import HamError, check_new_name
+from ham.errors import HamError, check_new_name, checked_arguments
 from ham.learn.hybrid_loss import HybridLoss
 from ham.model import plugin as _plugin
 from ham.world import recorded_file
@@ -54,6 +54,7 @@ LEARNER_OPTIONS: dict[str, tuple[str, ...]] = {
 _plugin.add_registry("learner", LEARNERS, "ham.learn.learners.register_learner")
 
 
+@checked_arguments
 def register_learner(name: str, *, reads: tuple[str, ...] = ()) -> Callable:
     """Decorator: make ``loss(episode, config) -> HybridLoss`` the learner ``name``.
 

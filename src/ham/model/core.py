@@ -27,7 +27,7 @@ from collections.abc import Callable
 import torch
 from torch import nn
 
-from ham.errors import HamError
+from ham.errors import HamError, check_new_name, checked_arguments
 
 ACTIVATIONS: tuple[str, ...] = ("tanh", "relu")
 
@@ -168,16 +168,18 @@ class TransformerCore(nn.Module):
 CORES: dict[str, Callable[..., nn.Module]] = {}
 
 
+@checked_arguments
 def register_core(name: str):
     """Decorator: make a core factory available as ``HamConfig(core=name)`` (``--core name``).
 
     The factory is called as ``factory(input_size, hidden_size, activation=...,
     truncate_bptt=..., forget_bias=..., bias=..., layers=..., heads=...)`` and may ignore the options it has no use for.
+    Names are letters, digits and ``_ . -``; a name registered already is refused.
     """
+    check_new_name("core", name, CORES)
 
     def add(factory: Callable[..., nn.Module]) -> Callable[..., nn.Module]:
-        if name in CORES:
-            raise HamError(f"core {name!r} is registered already")
+        check_new_name("core", name, CORES)  # again: registered since
         CORES[name] = factory
         return factory
 

@@ -45,7 +45,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from ham.errors import HamError
+from ham.errors import HamError, check_new_name, checked_arguments
 from ham.model.location_net import (
     LocationNetwork,
     gaussian_log_prob,
@@ -218,12 +218,14 @@ class LocationPolicy(nn.Module):
 POLICIES: dict[str, type[LocationPolicy]] = {}
 
 
+@checked_arguments
 def register_policy(name: str):
-    """Class decorator: make a :class:`LocationPolicy` available as ``HamConfig(policy=name)``."""
+    """Class decorator: make a :class:`LocationPolicy` available as ``HamConfig(policy=name)``.
+    Names are letters, digits and ``_ . -``; a name registered already is refused."""
+    check_new_name("location policy", name, POLICIES)
 
     def add(cls: type[LocationPolicy]) -> type[LocationPolicy]:
-        if name in POLICIES:
-            raise HamError(f"location policy {name!r} is registered already")
+        check_new_name("location policy", name, POLICIES)  # again: registered since
         cls.name = name
         POLICIES[name] = cls
         return cls

@@ -971,6 +971,7 @@ OBJECT_SETS: dict[str, tuple[str, ...]] = {
 SET_SPLITS: dict[str, dict[str, tuple[str, ...]]] = {}
 
 
+@checked_arguments
 def register(obj: HapticObject, *, replace: bool = False) -> int:
     """Add ``obj`` to the registry and return its id (ids are stable: registration order).
 

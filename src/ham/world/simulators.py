@@ -30,7 +30,7 @@ from pathlib import Path
 
 import torch
 
-from ham.errors import HamError, check_new_name
+from ham.errors import HamError, check_new_name, checked_arguments
 from ham.world import recorded_file, registering
 from ham.world.sensor import MAX_PRESSURE
 
@@ -48,6 +48,7 @@ _LOADED: dict[str, tuple[str, ...]] = {}
 _LOADING: list[str] = []
 
 
+@checked_arguments
 def register_simulator(name: str, factory: SimulatorFactory) -> None:
     """Make ``factory(objects, sensor, pose, glance, device=..., **kwargs)`` the simulator ``name``.
 
