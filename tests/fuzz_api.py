@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import functools
 import inspect
 import math
 import shutil
@@ -170,10 +171,29 @@ def _sentinels():
             setattr(m, n, f)
 
 
-def sweep(name: str, fn: Callable, base: dict, tmp: Path) -> tuple[int, list[str]]:
-    """Every parameter of ``fn`` given every odd value; returns (calls, flag lines)."""
+def outcome(label: str, call: Callable, flags: list[str]) -> bool:
+    """Run ``call``: True when it is accepted (it returns, or reaches a sentinel), False when
+    refused. Appends a flag line for a refusal that is not one line of a HamError."""
     from ham.errors import HamError
 
+    try:
+        call()
+    except Accepted:
+        pass
+    except HamError as exc:
+        if "\n" in str(exc):
+            flags.append(f"FLAG {label}: a message of several lines: {exc}")
+        return False
+    except Exception as exc:  # noqa: BLE001 - what the sweep is looking for
+        where = traceback.extract_tb(exc.__traceback__)[-1]
+        flags.append(f"FLAG {label}: {type(exc).__name__}: {' '.join(str(exc).split())} "
+                     f"({Path(where.filename).name}:{where.lineno})")  # fmt: skip
+        return False
+    return True
+
+
+def sweep(name: str, fn: Callable, base: dict, tmp: Path) -> tuple[int, list[str]]:
+    """Every parameter of ``fn`` given every odd value; returns (calls, flag lines)."""
     # keyword parameters (not a **kwargs), and one unknown keyword, except for a dataclass,
     # whose constructor answers it with Python's own one line ("unexpected keyword argument")
     params = [name for name, p in inspect.signature(fn).parameters.items()
@@ -183,29 +203,15 @@ def sweep(name: str, fn: Callable, base: dict, tmp: Path) -> tuple[int, list[str
     calls, flags = 0, []
     for param in params:
         for value in ODD:
-            kwargs = {**base, param: value}
             work = Path(tempfile.mkdtemp(dir=tmp))
             label = f"{name}({param}={value!r})"
             calls += 1
-            try:
-                with contextlib.chdir(work), _sentinels():
-                    fn(**kwargs)
-                accepted = True
-            except Accepted:
-                accepted = True
-            except HamError as exc:
-                accepted = False
-                if "\n" in str(exc):
-                    flags.append(f"FLAG {label}: a message of several lines: {exc}")
-                if any(work.iterdir()):
-                    flags.append(f"FLAG {label}: refused, and left {sorted(work.iterdir())[:3]}")
-            except Exception as exc:  # noqa: BLE001 - what the sweep is looking for
-                accepted = False
-                where = traceback.extract_tb(exc.__traceback__)[-1]
-                flags.append(f"FLAG {label}: {type(exc).__name__}: {exc} "
-                             f"({Path(where.filename).name}:{where.lineno})")  # fmt: skip
+            with contextlib.chdir(work), _sentinels():
+                accepted = outcome(label, functools.partial(fn, **{**base, param: value}), flags)
             if accepted and _never_meant(value):
                 flags.append(f"FLAG {label}: accepted")
+            if not accepted and any(work.iterdir()):
+                flags.append(f"FLAG {label}: refused, and left {sorted(work.iterdir())[:3]}")
             shutil.rmtree(work, ignore_errors=True)
     return calls, flags
 

@@ -184,6 +184,17 @@ def _call(argv: list[str], cwd: Path, limit: float) -> tuple[str, int | None, st
         torch.set_num_threads(threads)
 
 
+def answer_flag(rc: int | None, stderr: str) -> str:
+    """'' when a command answered as the CLI must: exit 0, or exit 2 with one ``ham: error:``
+    line and no traceback; else why not."""
+    if rc not in (0, 2):
+        return f"exit {rc}"
+    lines = [ln for ln in stderr.splitlines() if ln.startswith("ham: error:")]
+    if rc == 2 and (len(lines) != 1 or "Traceback" in stderr):
+        return f"{len(lines)} error lines"
+    return ""
+
+
 def _verdict(
     option: str | int, value: str, outcome: str, rc: int | None, stderr: str, left: list[str]
 ) -> str:
@@ -192,11 +203,8 @@ def _verdict(
         return "traceback"
     if outcome == "slow":
         return ""
-    if rc not in (0, 2):
-        return f"exit {rc}"
-    lines = [ln for ln in stderr.splitlines() if ln.startswith("ham: error:")]
-    if rc == 2 and (len(lines) != 1 or "Traceback" in stderr):
-        return f"{len(lines)} error lines"
+    if why := answer_flag(rc, stderr):
+        return why
     kept = " keeps the run as saved at step " in stderr  # a diverged run: kept, and said so
     if rc == 2 and left and not kept:
         return f"left {left}"

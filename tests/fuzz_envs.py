@@ -27,14 +27,13 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
-import traceback
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 
 import numpy as np
 
-from tests.fuzz_api import ODD, _never_meant
+from tests.fuzz_api import ODD, _never_meant, outcome
 from tests.fuzz_api import sweep as sweep_arguments
 
 #: array values of an action's right shape
@@ -68,20 +67,7 @@ def _never_an_action(value) -> bool:
 
 
 def _try(label: str, call: Callable, value, flags: list[str]) -> None:
-    from ham.errors import HamError
-
-    try:
-        call()
-    except HamError as exc:
-        if "\n" in str(exc):
-            flags.append(f"FLAG {label}: a message of several lines: {exc}")
-        return
-    except Exception as exc:  # noqa: BLE001 - what the sweep is looking for
-        where = traceback.extract_tb(exc.__traceback__)[-1]
-        flags.append(f"FLAG {label}: {type(exc).__name__}: {' '.join(str(exc).split())[:200]} "
-                     f"({Path(where.filename).name}:{where.lineno})")  # fmt: skip
-        return
-    if _never_an_action(value):
+    if outcome(label, call, flags) and _never_an_action(value):
         flags.append(f"FLAG {label}: accepted")
 
 

@@ -32,7 +32,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from tests.fuzz_cli import _call
+from tests.fuzz_cli import _call, answer_flag
 
 #: a short training run: 2 steps, 2 glances, one evaluation batch
 TRAIN = ["--glances", "2", "--steps", "2", "--batch-size", "8", "--eval-every", "2",
@@ -376,11 +376,8 @@ def verdict(case: Case, results: list[tuple[str, int | None, str, list[str]]]) -
             return "traceback: " + stderr.strip().splitlines()[-1]
         if outcome == "slow":
             return "slow"
-        if rc not in (0, 2):
-            return f"exit {rc}"
-        lines = [ln for ln in stderr.splitlines() if ln.startswith("ham: error:")]
-        if rc == 2 and (len(lines) != 1 or "Traceback" in stderr):
-            return f"{len(lines)} error lines"
+        if why := answer_flag(rc, stderr):
+            return why
     outcome, rc, stderr, left = results[-1]
     refused_first = rc == 2 and len(results) == 1
     if rc == 2 and left:
