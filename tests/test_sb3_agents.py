@@ -270,6 +270,7 @@ def test_cli_trains_ppo_on_a_table_and_refuses_to_overwrite(tmp_path, ham_cli, h
     assert len(saved["accuracy_per_glance"]) == 2
     config = json.loads((out / "config.json").read_text())
     assert config["env_kwargs"] == {"glances": 2, "table": str(table)} and config["seed"] == 3
+    assert (out / "training_curve.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     r = ham_main(*args, "--out", str(out))
     assert r.returncode == 2 and r.stderr.strip().endswith(
         "accepted: a path that does not exist yet"
@@ -418,3 +419,21 @@ def test_kwargs_are_json_a_run_can_save_and_resume_from(tmp_path, kwargs, messag
     with pytest.raises(HamError, match="^" + re.escape(message)):
         train_sb3(Sb3Config(algo="ppo", env_steps=16, **kwargs), tmp_path / "run")
     assert not (tmp_path / "run").exists()
+
+
+def test_the_curve_of_a_baseline_is_its_evaluations_and_the_final_one(tmp_path):
+    import matplotlib.image
+
+    from ham.experiments.figures import plot_training_curve
+
+    row = {"accuracy_per_glance": [0.5, 0.75], "final_accuracy": 0.75, "average_accuracy": 0.625}
+    final = {"algo": "ppo", "env": "ham/HapticGlanceAP-v0", "env_steps": 100, **row}
+    # no evaluation before the end (env_steps < eval_every): the final one alone
+    png = plot_training_curve({**final, "history": []}, tmp_path / "one.png")
+    assert matplotlib.image.imread(png).shape[2] == 4
+    two = plot_training_curve(
+        {**final, "history": [{**row, "env_steps": 50}]}, tmp_path / "two.png"
+    )
+    assert two.read_bytes() != png.read_bytes()
+    with pytest.raises(HamError, match="no evaluation history"):  # a HAM run's metrics need one
+        plot_training_curve({"history": []}, tmp_path / "ham.png")

@@ -210,6 +210,11 @@ def cmd_sb3(args: argparse.Namespace) -> int:
 
 
 def _print_sb3(args: argparse.Namespace, metrics: dict, out: str) -> int:
+    """The run's summary (``--json``: its metrics without the history), and its curve beside it
+    (``training_curve.png``, as ``ham train`` writes one)."""
+    from ham.experiments.figures import plot_training_curve
+
+    curve = plot_training_curve(metrics, Path(out) / "training_curve.png")
     if args.json:
         json.dump({k: v for k, v in metrics.items() if k != "history"}, sys.stdout)
         sys.stdout.write("\n")
@@ -218,6 +223,6 @@ def _print_sb3(args: argparse.Namespace, metrics: dict, out: str) -> int:
     print(
         f"{metrics['algo']} on {metrics['env']}: {metrics['env_steps']} env steps, final "
         f"accuracy {metrics['final_accuracy']:.3f}, averaged {metrics['average_accuracy']:.3f} "
-        f"(per glance: {per}); wrote {out}"
+        f"(per glance: {per}); wrote {out} and {curve}"
     )
     return 0

@@ -39,13 +39,16 @@ def _save(fig, out_png: str | os.PathLike, **savefig) -> Path:
 
 
 def plot_training_curve(metrics: dict, out_png: str | os.PathLike) -> Path:
-    """Accuracy over training steps from a run's metrics (``metrics.json``)."""
+    """Accuracy over training from a run's metrics (``metrics.json``): a HAM's over training
+    steps, a ``ham sb3`` baseline's over environment steps (its evaluations and the final one)."""
     history = metrics.get("history") or []
+    baseline = "algo" in metrics  # a ham sb3 run
+    if baseline and (not history or history[-1]["env_steps"] != metrics["env_steps"]):
+        history = [*history, metrics]  # the final evaluation, at the run's last step
     if not history:
         raise HamError("the metrics hold no evaluation history to plot")
-    steps = np.array([h["step"] for h in history])
+    steps = np.array([h["env_steps" if baseline else "step"] for h in history])
     per_glance = np.array([h["accuracy_per_glance"] for h in history])
-    accumulated = np.array([h["accumulated_accuracy_per_glance"] for h in history])
     glances = per_glance.shape[1]
     fig, ax = plt.subplots(figsize=(7, 4.2))
     cmap = plt.get_cmap("viridis")
@@ -53,17 +56,25 @@ def plot_training_curve(metrics: dict, out_png: str | os.PathLike) -> Path:
         ax.plot(steps, per_glance[:, s], color=cmap(s / max(glances - 1, 1)), lw=0.8, alpha=0.6,
                 label=f"after glance {s + 1}" if glances <= 6 or s in (0, glances - 2) else None)  # fmt: skip
     ax.plot(steps, per_glance[:, -1], color="k", lw=2, label=f"after the last glance ({glances})")
-    ax.plot(steps, accumulated[:, -1], color="tab:red", lw=1.2, ls="--",
-            label="accumulated (averaged output)")  # fmt: skip
+    if baseline:
+        ax.plot(steps, [h["average_accuracy"] for h in history], color="tab:red", lw=1.2,
+                ls="--", label="averaged over the glances")  # fmt: skip
+        ax.set_title(f"{metrics['algo'].upper()} on {metrics['env']}, {glances} glances")
+        ax.set_xlabel("environment steps (glances)")
+    else:
+        accumulated = np.array([h["accumulated_accuracy_per_glance"] for h in history])
+        ax.plot(steps, accumulated[:, -1], color="tab:red", lw=1.2, ls="--",
+                label="accumulated (averaged output)")  # fmt: skip
+        cfg = metrics.get("config", {}).get("model", {})
+        ax.set_title(
+            f"HAM, {glances} glances, {cfg.get('core', 'lstm')} core, "
+            f"{cfg.get('policy', 'learned')} policy"
+        )
+        ax.set_xlabel("training step")
     best = metrics.get("best_accuracy")
     if best is not None:
         ax.axhline(best, color="gray", lw=0.6, ls=":")
         ax.text(steps[-1], best, f"best {best:.3f}", ha="right", va="bottom", fontsize=8)
-    cfg = metrics.get("config", {}).get("model", {})
-    ax.set_title(
-        f"HAM, {glances} glances, {cfg.get('core', 'lstm')} core, {cfg.get('policy', 'learned')} policy"
-    )
-    ax.set_xlabel("training step")
     ax.set_ylabel("accuracy (balanced evaluation)")
     ax.set_ylim(0, 1.02)
     ax.grid(alpha=0.3)
