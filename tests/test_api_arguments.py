@@ -132,6 +132,11 @@ def test_a_message_is_one_line_whatever_the_value_and_arrays_are_brief():
     assert str(e) == "pose array([[0., 0., 0.], [0., 0., 0.], [0., 0., 0.]]); accepted: numbers"
     assert brief(np.zeros((64, 2))) == "an array of shape (64, 2) and dtype float64"
     assert brief(np.zeros(2)) == "array([0., 0.])"
+    assert brief({"p": 1}) == "{'p': 1}" and brief("x" * 100) == repr("x" * 100)
+    with pytest.raises(
+        HamError, match=r"^evaluate: batches = an array of shape \(500,\) and dtype"
+    ):
+        evaluate(None, None, batches=np.zeros(500))  # 500 numbers were quoted before
     assert brief({"pose": np.zeros((64, 2)), "p": 1}) == "a dict with keys ['p', 'pose']"
 
 

@@ -28,13 +28,15 @@ class HamError(ValueError):
 
 def brief(value: object) -> str:
     """``repr(value)`` for a message, but an array or tensor of more than 4 values by its shape
-    and dtype (a batch of 64 poses is not worth printing) and a dict by its keys."""
-    if isinstance(value, dict):
-        return f"a dict with keys {sorted(map(str, value))}"
+    and dtype (a batch of 64 poses is not worth printing) and a dict whose repr is over 80
+    characters by its keys. Numbers and text stay whole: the message names the value."""
     shape, dtype = getattr(value, "shape", None), getattr(value, "dtype", None)
     if isinstance(shape, tuple) and dtype is not None and math.prod(shape) > 4:
         return f"an array of shape {tuple(shape)} and dtype {dtype}"
-    return repr(value)
+    text = repr(value)
+    if isinstance(value, dict) and len(text) > 80:
+        return f"a dict with keys {sorted(map(str, value))}"
+    return text
 
 
 _NEW_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
@@ -120,7 +122,7 @@ def check_integer(name: str, value: object, low: int = 0) -> int:
         and not isinstance(value, bool)
         and low <= value < _INT64
     ):
-        raise HamError(f"{name} = {value!r}; accepted: an integer {low} .. 2**63-1")
+        raise HamError(f"{name} = {brief(value)}; accepted: an integer {low} .. 2**63-1")
     return int(value)
 
 
@@ -171,7 +173,7 @@ def check_types(config) -> None:
         accepted = _accepted(hints[f.name])
         value = getattr(config, f.name)
         if accepted is not None and not _fits(hints[f.name], value):
-            raise HamError(f"{f.name} = {value!r}; accepted: {_sized(accepted, value)}")
+            raise HamError(f"{f.name} = {brief(value)}; accepted: {_sized(accepted, value)}")
 
 
 #: What torch and NumPy say of a size they cannot hold: ``--hidden-units 4611686018427387904``
@@ -311,7 +313,9 @@ def checked_arguments(fn):
         for name, kind, accepted in checks:
             if name in bound.arguments and not _fits(kind, bound.arguments[name]):
                 value = bound.arguments[name]
-                raise HamError(f"{what}: {name} = {value!r}; accepted: {_sized(accepted, value)}")
+                raise HamError(
+                    f"{what}: {name} = {brief(value)}; accepted: {_sized(accepted, value)}"
+                )
         return fn(*args, **kwargs)
 
     return wrapper
