@@ -216,6 +216,21 @@ def sweep(name: str, fn: Callable, base: dict, tmp: Path) -> tuple[int, list[str
     return calls, flags
 
 
+def report(names: list[str], sweep_one: Callable[[str], tuple[int, list[str]]]) -> int:
+    """Sweep each of ``names``, printing its flag lines and counts, then the total; returns the
+    number of flagged calls (the exit code)."""
+    total, flagged = 0, []
+    for name in names:
+        calls, flags = sweep_one(name)
+        total += calls
+        flagged += flags
+        for line in flags:
+            print(line)
+        print(f"{name}: {calls} calls, {len(flags)} flagged", flush=True)
+    print(f"{total} calls: {len(flagged)} flagged")
+    return len(flagged)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tests.fuzz_api", description=__doc__)
     parser.add_argument("functions", nargs="*", help="functions to sweep (default: all)")
@@ -231,17 +246,7 @@ def main(argv: list[str] | None = None) -> int:
         unknown = [f for f in args.functions if f not in cases]
         if unknown:
             parser.error(f"unknown function(s) {unknown}; accepted: {', '.join(cases)}")
-        total, flagged = 0, []
-        for name in args.functions or list(cases):
-            fn, base = cases[name]
-            calls, flags = sweep(name, fn, base, tmp)
-            total += calls
-            flagged += flags
-            for line in flags:
-                print(line)
-            print(f"{name}: {calls} calls, {len(flags)} flagged", flush=True)
-    print(f"{total} calls: {len(flagged)} flagged")
-    return len(flagged)
+        return report(args.functions or list(cases), lambda n: sweep(n, *cases[n], tmp))
 
 
 if __name__ == "__main__":

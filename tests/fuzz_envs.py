@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tests.fuzz_api import ODD, _never_meant, outcome
+from tests.fuzz_api import ODD, _never_meant, outcome, report
 from tests.fuzz_api import sweep as sweep_arguments
 
 #: array values of an action's right shape
@@ -110,16 +110,7 @@ def main(argv: list[str] | None = None) -> int:
         unknown = [e for e in args.envs if e not in envs]
         if unknown:
             parser.error(f"unknown env(s) {unknown}; accepted: {', '.join(envs)}")
-        total, flagged = 0, []
-        for name in args.envs or list(envs):
-            calls, flags = sweep(name, *envs[name], tmp)
-            total += calls
-            flagged += flags
-            for line in flags:
-                print(line)
-            print(f"{name}: {calls} calls, {len(flags)} flagged", flush=True)
-    print(f"{total} calls: {len(flagged)} flagged")
-    return len(flagged)
+        return report(args.envs or list(envs), lambda n: sweep(n, *envs[n], tmp))
 
 
 if __name__ == "__main__":
