@@ -978,8 +978,6 @@ def register(obj: HapticObject, *, replace: bool = False) -> int:
     An objects file may only add new names (``replace`` is refused there): a table or run that
     records the file must mean the same objects wherever it is loaded.
     """
-    if not isinstance(obj, HapticObject):
-        raise HamError(f"register() takes a HapticObject, got {type(obj).__name__}")
     known = obj.name in _REGISTRY or obj.name in _LAZY
     if known and (not replace or _LOADING is not None):
         raise HamError(
