@@ -75,7 +75,7 @@ _GLANCE_VALUES = [
     ("nan", "lambda v: torch.full_like(v.float(), float('nan'))", "refuse", "refuse", "refuse"),
     ("inf", "lambda v: torch.full_like(v.float(), float('inf'))", "refuse", "refuse", "refuse"),
     ("-inf", "lambda v: torch.full_like(v.float(), -float('inf'))", "refuse", "refuse", "refuse"),
-    # 3e38 m heights make the height input overflow: training diverges, in one line
+    # 3e38 m of force, x or phi make the inputs overflow: training diverges, in one line
     ("3e38", "lambda v: torch.full_like(v.float(), 3e38)", "refuse", "either", "refuse"),
     ("1e30x", "lambda v: v.float() * 1e30 + 1e30", "refuse", "take", "refuse"),
     ("1e-45x", "lambda v: v.float() * 1e-45 + 1e-45", "take", "take", "refuse"),
@@ -94,6 +94,10 @@ _GLANCE_VALUES = [
     ("transposed", "lambda v: v.transpose(-1, -2) if v.dim() == 3 else v.flip(0).flip(0)",
      "take", "take", "take"),
 ]  # fmt: skip
+
+#: heights (z, height) beyond the pad's reach of the objects' tops (ham.world.glance.height_bound;
+#: "bool" makes every height above the table 1 m)
+_HEIGHTS, _OUT_OF_REACH = ("z", "height"), ("3e38", "1e30x", "-1-v", "bool")
 
 
 #: what describe() returns instead of the fast simulator's dict d: (name, DESCRIBE, expectation)
@@ -119,6 +123,8 @@ def _simulator_cases() -> list[Case]:
     for field in _FIELDS:
         for name, make, pressure, numbers, flags in _GLANCE_VALUES:
             expect = pressure if field == "pressure" else numbers if field in _NUMBERS else flags
+            if field in _HEIGHTS and name in _OUT_OF_REACH:
+                expect = "refuse"
             text = _SIMULATOR.format(field=field, make=make, describe="lambda d: d")
             cases.append(Case("simulator", f"{field}={name}", {"odd.py": text},
                               [build, train, online], expect))  # fmt: skip

@@ -271,6 +271,20 @@ def test_gym_env_height_observation():
         HapticGlanceEnv(height=1)
 
 
+def test_the_height_observation_space_holds_a_big_tilted_pad():
+    # a 3.2 m pad (16 x 20 cm) tilted to the limit ends 1.6 m up: outside the Box(-1, 1) the
+    # space was before; its bound is now the tallest top plus the pad's size
+    from ham.envs.haptic import HapticGlanceEnv
+    from ham.world.sensor import SensorConfig
+
+    world = WorldConfig(objects="curvature2d", pose_dims=("x", "y", "phi", "phi_y"),
+                        sensor=SensorConfig(pitch=0.2))  # fmt: skip
+    env = HapticGlanceEnv(glances=2, height=True, world=world)
+    env.reset(seed=0)
+    obs, *_ = env.step({"pose": np.ones(4), "prediction": 0})
+    assert obs["height"][0] > 1.5 and env.observation_space.contains(obs)
+
+
 def test_baselines_can_tell_objects_apart_by_height(tmp_path):
     from ham.learn.planners import Partitions, Planner
 

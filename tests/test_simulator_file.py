@@ -138,7 +138,11 @@ BAD = {
     ),  # fmt: skip
     "z.py": (
         _glance_returning("dataclasses.replace(r, z=r.z * float('inf'))"),
-        "returned z inf; accepted: finite numbers",
+        "returned z inf m; accepted: finite heights within 0.183 m of the table",
+    ),  # fmt: skip
+    "z_high.py": (  # 5 m above the table: beyond any pad's reach of the objects' tops
+        _glance_returning("dataclasses.replace(r, z=r.z + 5)"),
+        "returned z 5.0",
     ),  # fmt: skip
     "pose.py": (
         _glance_returning("dataclasses.replace(r, phi=r.phi / 0.0)"),

@@ -221,3 +221,30 @@ def test_inlined_image_equals_the_sensor_component():
     plain._direct_image = False
     a, b = fast.glance(ids, qx, qp), plain.glance(ids, qx, qp)
     assert torch.equal(a.pressure, b.pressure) and torch.equal(a.z, b.z)
+
+
+def test_the_fast_glances_end_within_the_height_bound():
+    # the bound a simulator file's heights are checked against (and the envs' height space):
+    # the built-in glances, with extreme pads, stay inside it
+    import itertools
+
+    from ham.world.glance import height_bound
+
+    g = torch.Generator().manual_seed(0)
+    ran = 0
+    for dims, pitch, housing, foam in itertools.product(
+        [("x", "phi"), ("x", "y", "phi", "phi_y")], [0.001, 0.005, 0.2], [0.0, 0.3], [0.001, 0.1]
+    ):
+        sensor = SensorConfig(pitch=pitch, housing_thickness=housing, foam_thickness=foam)
+        objs = "paper" if len(dims) == 2 else "curvature2d"
+        try:
+            sim = make_simulator(WorldConfig(objects=objs, pose_dims=dims, sensor=sensor))
+        except HamError:  # a pad wider than the paper's objects are deep
+            continue
+        q = [torch.rand(500, generator=g) * 2 - 1 for _ in range(4)]
+        ids = torch.randint(0, len(sim.objects), (500,), generator=g)
+        kw = {"q_y": q[2], "q_phi_y": q[3]} if len(dims) == 4 else {}
+        z = sim.glance(ids, q[0], q[1], **kw).z
+        assert float(z.abs().max()) <= height_bound(sensor), (dims, pitch, housing, foam)
+        ran += 1
+    assert ran >= 16

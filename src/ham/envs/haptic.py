@@ -44,6 +44,7 @@ import torch
 from ham.errors import HamError, brief, check_integer, check_known_fields, checked_arguments
 from ham.world.config import WorldConfig
 from ham.world.devices import check_device
+from ham.world.glance import height_bound
 
 ENV_NORMALIZATIONS: tuple[str, ...] = ("l2", "l1", "none")
 RENDER_MODES: tuple[str, ...] = ("rgb_array",)
@@ -278,8 +279,9 @@ def pose_space(backend: GlanceBackend) -> gym.spaces.Box:
 
 def observation_space(backend: GlanceBackend, height: bool = False) -> gym.spaces.Dict:
     spaces = {"pressure": backend.pressure_space, "pose": pose_space(backend)}
-    if height:  # the contact height (m): the table at 0, the objects' tops below MAX_HEIGHT
-        spaces["height"] = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+    if height:  # the contact height (m): the table at 0, within the pad's reach of the tops
+        bound = height_bound(backend.world.sensor)
+        spaces["height"] = gym.spaces.Box(-bound, bound, (1,), np.float32)
     return gym.spaces.Dict(spaces)
 
 

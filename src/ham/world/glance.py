@@ -35,7 +35,7 @@ import numpy as np
 import torch
 
 from ham.errors import HamError, check_types
-from ham.world.objects import HapticObject
+from ham.world.objects import MAX_HEIGHT, HapticObject
 from ham.world.sensor import Myrmex, SensorConfig
 
 #: Authors' exploration-zone widths (m) for the paper objects, from their Gazebo code.
@@ -273,6 +273,14 @@ def as_object_ids(ids, n_objects: int, device: torch.device | str = "cpu") -> to
     if bool(bad.any()):
         raise HamError(f"object id {int(t[bad][0])} out of range; accepted: 0..{n_objects - 1}")
     return t
+
+
+def height_bound(sensor: SensorConfig) -> float:
+    """The farthest from the table (m) a glance's face centre can end: the tallest object's top
+    (``MAX_HEIGHT``) plus the pad's edge and depth (foam and housing), the most by which any
+    point of a tilted pad can stand above or below its face centre. The envs' height
+    observation spans ``[-bound, bound]``; a simulator file that reports more is refused."""
+    return MAX_HEIGHT + sensor.size + sensor.foam_thickness + sensor.housing_thickness
 
 
 def check_pad(sensor: SensorConfig, glance: GlanceConfig, objects: list[HapticObject]) -> None:

@@ -32,6 +32,7 @@ import torch
 
 from ham.errors import HamError, check_new_name, checked_arguments
 from ham.world import recorded_file, registering
+from ham.world.glance import height_bound
 from ham.world.sensor import MAX_PRESSURE
 
 #: The simulators of the package itself; no file or program may register these names.
@@ -157,6 +158,8 @@ _REPEATED_GLANCES = 8  # how many of a simulator's first glances are glanced aga
 _RESULT_FIELDS = ("pressure", "force", "z", "contact", "blocked", "x", "phi", "y", "phi_y",
                   "height")  # fmt: skip
 _FLAGS = ("contact", "blocked")
+#: fields that are heights above the table (m), bounded by :func:`ham.world.glance.height_bound`
+_HEIGHTS = ("z", "height")
 
 
 def _close(a: torch.Tensor, b: torch.Tensor, scale: float | None = None) -> bool:
@@ -260,6 +263,14 @@ class CheckedSimulator:
                     raise self._error(
                         f"returned a pressure of {bad!r} Pa; accepted: finite values in "
                         f"[0, {MAX_PRESSURE:g}] Pa"
+                    )
+            elif field in _HEIGHTS:
+                bound = height_bound(self.sensor)  # NaN fails the comparison too
+                if v.numel() and not (v.abs().amax() <= bound):
+                    bad = v[~(v.abs() <= bound)][0].item()
+                    raise self._error(
+                        f"returned {field} {bad!r} m; accepted: finite heights within "
+                        f"{bound:.4g} m of the table (the tallest object's top plus the pad's size)"
                     )
             elif not bool(torch.isfinite(v).all()):
                 bad = v[~torch.isfinite(v)][0].item()
