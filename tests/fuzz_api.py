@@ -69,6 +69,7 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
     from ham.learn.ap_adapter import ApGymConfig, ApGymGlanceEnv
     from ham.learn.evaluation import evaluate, heatmap_data
     from ham.learn.learners import register_learner
+    from ham.learn.sb3_agents import Sb3Config, resume_sb3, train_sb3
     from ham.learn.train import TrainConfig, fit_to_ap_gym, load_run, resume, train
     from ham.model.core import register_core
     from ham.model.policy import register_policy
@@ -89,6 +90,12 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
         train(config, run_out, progress=False)
         run = load_run(run_out)
     agent_env = {} if run is None else {"agent": run.agent, "env": run.env}
+    sb3 = Sb3Config(algo="ppo", env="ham/HapticGlanceAP-v0", env_steps=16, eval_every=16,
+                    eval_episodes=2, env_kwargs={"glances": 2, "table": str(table)},
+                    algo_kwargs={"n_steps": 16, "batch_size": 16, "n_epochs": 1})  # fmt: skip
+    sb3_out = tmp / "sb3"
+    if not only or "resume_sb3" in only:
+        train_sb3(sb3, sb3_out)
     return {
         "evaluate": (evaluate, {**agent_env, "batches": 1}),
         "heatmap_data": (heatmap_data, {**agent_env, "batches": 1, "bins": 3}),
@@ -113,6 +120,8 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
                 "workers": 1,
             },
         ),  # fmt: skip
+        "train_sb3": (train_sb3, {"config": sb3, "out": "s", "progress": False}),
+        "resume_sb3": (resume_sb3, {"out": sb3_out, "env_steps": 32, "progress": False}),
         "ApGymGlanceEnv": (
             ApGymGlanceEnv,
             {"env_id": "CircleSquare-s15-nograd-v0", "batch_size": 2},
@@ -152,16 +161,19 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
 
 @contextlib.contextmanager
 def _sentinels():
-    """The training loop and the executors raise :class:`Accepted` instead of running."""
+    """The training loops (ours, SB3's) and the executors raise :class:`Accepted` instead of
+    running."""
     import ham.experiments.grid_run as grid_run
     import ham.experiments.reproduce as reproduce
+    import ham.learn.sb3_agents as sb3_agents
     import ham.learn.train as train
 
     def stop(*args, **kwargs):
         raise Accepted
 
     saved = [(m, n, getattr(m, n)) for m, n in
-             ((train, "train_loop"), (reproduce, "execute"), (grid_run, "execute"))]  # fmt: skip
+             ((train, "train_loop"), (reproduce, "execute"), (grid_run, "execute"),
+              (sb3_agents, "_learn"))]  # fmt: skip
     for m, n, _ in saved:
         setattr(m, n, stop)
     try:
