@@ -60,9 +60,8 @@ def _envs(table: Path) -> dict[str, tuple[Callable, dict, str]]:
 def _never_an_action(value) -> bool:
     if _never_meant(value):
         return True
-    a = np.asarray(value) if isinstance(value, np.ndarray) else None
-    return a is not None and (
-        a.dtype.kind in "bcUSO" or (a.dtype.kind == "f" and not np.isfinite(a).all())
+    return isinstance(value, np.ndarray) and (
+        value.dtype.kind in "bcUSO" or (value.dtype.kind == "f" and not np.isfinite(value).all())
     )
 
 
