@@ -7,13 +7,15 @@ glance table:
 
 * each constructor argument gets each odd value (:func:`tests.fuzz_api.sweep`);
 * ``reset(options=...)`` gets each odd value, as the options and as the options' one key;
-* each key of a step's action (the pose, the prediction) gets each odd value, and arrays of the
+* each key of a step's action (the pose, the prediction) gets each odd value, arrays of the
   right shape filled with NaN, +-inf, 1e300 and 3e38 or cast to float16, int64, bool, complex and
-  text, one fresh episode each.
+  text, torch tensors (plain, requiring grad, on the ``meta`` device, which holds no data) and a
+  ragged list, one fresh episode each.
 
 A call is flagged when it raises anything but a :class:`ham.errors.HamError`, its HamError spans
 lines, or it takes a value no action means: a non-finite number, bytes, a bare ``object()``, or
-an array of booleans, complex numbers or text. A finite pose outside ``[-1, 1]`` is taken
+an array of booleans, complex numbers or text, a tensor without data, a ragged list. A tensor
+of valid values is taken, as an agent in PyTorch hands it (its gradient is not the env's). A finite pose outside ``[-1, 1]`` is taken
 (clipped, as documented); so are finite logits, however large. ``reset(seed=...)`` is left to
 Gymnasium, whose ``Env.reset`` refuses a bad seed in one line of its own. The exit code is the
 number of flagged calls::
@@ -32,6 +34,7 @@ from functools import partial
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from tests.fuzz_api import ODD, _never_meant, outcome, report
 from tests.fuzz_api import sweep as sweep_arguments
@@ -39,6 +42,8 @@ from tests.fuzz_api import sweep as sweep_arguments
 #: array values of an action's right shape
 FILLS = [np.nan, np.inf, -np.inf, 1e300, 3e38]
 CASTS = [np.float16, np.int64, np.bool_, np.complex128, np.str_]
+#: a list NumPy cannot make an array of
+RAGGED = [[0.5], [0.5, 0.5]]
 
 
 def _envs(table: Path) -> dict[str, tuple[Callable, dict, str]]:
@@ -58,7 +63,7 @@ def _envs(table: Path) -> dict[str, tuple[Callable, dict, str]]:
 
 
 def _never_an_action(value) -> bool:
-    if _never_meant(value):
+    if _never_meant(value) or value is RAGGED or getattr(value, "is_meta", False):
         return True
     return isinstance(value, np.ndarray) and (
         value.dtype.kind in "bcUSO" or (value.dtype.kind == "f" and not np.isfinite(value).all())
@@ -85,7 +90,9 @@ def sweep(name: str, cls: Callable, base: dict, key: str, tmp: Path) -> tuple[in
     for part, valid in action.items():
         valid = np.asarray(valid)
         arrays = [np.full(valid.shape, x) for x in FILLS] + [valid.astype(t) for t in CASTS]
-        for value in ODD + arrays:
+        tensor = torch.as_tensor(valid, dtype=torch.float32)
+        tensors = [tensor, tensor.clone().requires_grad_(), tensor.to("meta")]
+        for value in ODD + arrays + tensors + [RAGGED]:
             env.reset(seed=0)
             calls += 1
             label = f"{name}.step({part}={value!r})".replace("\n", "")

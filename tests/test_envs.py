@@ -415,3 +415,20 @@ def test_ham_train_env_flag_resumes_and_evaluates(ap_gym, ham_cli, tmp_path, cap
     assert code == 2 and "--actions apply only with --env" in err
     code, _, err = ham_inprocess(capsys, "envs", "train", CS15, "--out", "y")
     assert code == 2 and "invalid choice: 'train'" in err  # ham train --env does it
+
+
+def test_a_pytorch_agent_may_hand_tensors(tmp_path):
+    # an agent in PyTorch hands its actions as tensors, often still in its graph: read detached
+    # (before: "Can't call numpy() on Tensor that requires grad", a traceback); a tensor
+    # without data is refused in one line
+    env = HapticGlanceEnv(glances=3)
+    pose = np.array([0.25, -0.5], dtype=np.float32)
+    env.reset(seed=1)
+    want, *_ = env.step({"pose": pose, "prediction": 0})
+    env.reset(seed=1)
+    got, *_ = env.step(
+        {"pose": torch.tensor(pose, requires_grad=True) * 1, "prediction": torch.tensor(0)}
+    )
+    assert np.array_equal(got["pressure"], want["pressure"]) and np.array_equal(got["pose"], pose)
+    with pytest.raises(HamError, match=r"^pose tensor\(\.\.\., device='meta'"):
+        env.step({"pose": torch.zeros(2, device="meta"), "prediction": 0})

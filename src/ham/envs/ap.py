@@ -38,6 +38,7 @@ import numpy as np
 from ham.envs.haptic import (
     RENDER_MODES,
     VECTOR_METADATA,
+    as_array,
     attach_world,
     check_num_envs,
     observation_space,
@@ -64,11 +65,7 @@ def _ap_action(action: Any, shape: tuple[int, ...]) -> dict[str, Any]:
             f"action {brief(action)}; accepted: a dict with 'action' (the pose q_x, q_phi) and "
             "'prediction' (logits)"
         )
-    p = np.asarray(action["prediction"])
-    if p.dtype.kind not in "iuf":  # not text, booleans, complex, objects
-        raise HamError(
-            f"prediction {brief(action['prediction'])}; accepted: finite logits of shape {shape}"
-        )
+    p = as_array(action["prediction"], "prediction", f"finite logits of shape {shape}", "iuf")
     if p.shape != shape:
         raise HamError(f"prediction of shape {p.shape}; accepted: finite logits of shape {shape}")
     if not np.isfinite(p).all():

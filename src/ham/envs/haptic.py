@@ -164,15 +164,27 @@ class GlanceBackend:
         return image, height.to(torch.float32).cpu().numpy()
 
 
+def as_array(value: Any, what: str, accepted: str, kinds: str) -> np.ndarray:
+    """``value`` as a NumPy array of one of the dtype ``kinds`` ("iuf": integers or floats), or a
+    :class:`HamError` naming it. A torch tensor is read detached from the CPU or GPU, as an agent
+    in PyTorch hands it; a tensor without data (``meta``), a ragged list, text (which NumPy would
+    parse), booleans and objects are refused."""
+    try:
+        if isinstance(value, torch.Tensor):
+            if value.is_meta:
+                raise TypeError("no data")
+            value = value.detach().cpu()
+        a = np.asarray(value)
+        if a.dtype.kind not in kinds:
+            raise TypeError(a.dtype)
+    except (TypeError, ValueError, RuntimeError):
+        raise HamError(f"{what} {brief(value)}; accepted: {accepted}") from None
+    return a
+
+
 def check_poses(pose: Any, n: int, k: int = 2) -> np.ndarray:
     """Action poses as ``(n, k)`` float32 clipped to ``[-1, 1]``; NaN or a bad shape: HamError."""
-    try:
-        q = np.asarray(pose)
-        if q.dtype.kind not in "iuf":  # not strings ("0.5" would convert), booleans, objects
-            raise TypeError(q.dtype)
-        q = q.astype(np.float64)
-    except (TypeError, ValueError):
-        raise HamError(f"pose {brief(pose)}; accepted: {n} x {k} numbers in [-1, 1]") from None
+    q = as_array(pose, "pose", f"{n} x {k} numbers in [-1, 1]", "iuf").astype(np.float64)
     if q.size != k * n:
         raise HamError(f"pose of shape {q.shape}; accepted: ({n}, {k}) numbers in [-1, 1]")
     q = q.reshape(n, k)
@@ -185,11 +197,10 @@ def check_poses(pose: Any, n: int, k: int = 2) -> np.ndarray:
 
 def check_object_ids(objects: Any, n: int, n_objects: int) -> np.ndarray:
     """Object ids ``(n,)`` int64 in ``0 .. n_objects-1``, or a :class:`HamError`."""
-    a = np.asarray(objects)
-    if a.dtype.kind not in "iu" or a.size not in (1, n):
-        raise HamError(
-            f"objects {brief(objects)}; accepted: {n} integer id(s) in 0..{n_objects - 1}"
-        )
+    accepted = f"{n} integer id(s) in 0..{n_objects - 1}"
+    a = as_array(objects, "objects", accepted, "iu")
+    if a.size not in (1, n):
+        raise HamError(f"objects {brief(objects)}; accepted: {accepted}")
     a = np.broadcast_to(a.reshape(-1).astype(np.int64), (n,)).copy()
     bad = (a < 0) | (a >= n_objects)
     if bad.any():
