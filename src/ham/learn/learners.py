@@ -111,7 +111,7 @@ def learner_loss(name: str, episode, config) -> HybridLoss:
     for field in ("total", "classification", "reinforce", "baseline", "reward"):
         v, shape = getattr(loss, field), (batch,) if field == "reward" else ()
         if not (isinstance(v, torch.Tensor) and tuple(v.shape) == shape):
-            got = tuple(v.shape) if isinstance(v, torch.Tensor) else type(v).__name__
+            got = _plugin.shape_text(v)
             accepted = f"a tensor ({batch},), one per episode" if shape else "a scalar tensor"
             raise bad(f"returned {field} {got}; accepted: {accepted}")
         if v.is_complex() or v.device != device:

@@ -108,7 +108,7 @@ def build_part(label: str, name: str, registry: dict, make, *args, **kwargs):
     )
 
 
-def _shape(x) -> str:
+def shape_text(x) -> str:
     """A tensor's shape, else what ``x`` is ("an int", "a tuple")."""
     if isinstance(x, torch.Tensor):
         return str(tuple(x.shape))
@@ -127,7 +127,7 @@ def check_core(name: str, core, input_size: int, hidden_size: int) -> None:
     what = f"{label} {file!r}"
     if not (isinstance(core, nn.Module) and callable(getattr(core, "initial_state", None))):
         raise HamError(
-            f"{what} built {_shape(core)}; accepted: a torch.nn.Module with initial_state(batch, "
+            f"{what} built {shape_text(core)}; accepted: a torch.nn.Module with initial_state(batch, "
             "like) and forward(g, state) -> (tau, state)"
         )
     with torch.random.fork_rng(devices=[]), torch.no_grad():
@@ -137,7 +137,7 @@ def check_core(name: str, core, input_size: int, hidden_size: int) -> None:
         for _ in range(2):
             out = recorded_file.call(label, file, trial, g, state)
             if not (isinstance(out, tuple) and len(out) == 2):
-                raise HamError(f"{what} returned {_shape(out)}; accepted: a pair (tau, state)")
+                raise HamError(f"{what} returned {shape_text(out)}; accepted: a pair (tau, state)")
             tau, state = out
             check_tau(name, tau, 2, hidden_size, g)
 
@@ -154,7 +154,7 @@ def check_tau(name: str, tau, batch: int, hidden_size: int, like: torch.Tensor) 
         and tau.device == like.device
     ):
         return
-    got = _shape(tau)
+    got = shape_text(tau)
     if isinstance(tau, torch.Tensor):
         got += f" of {tau.dtype} on {tau.device}"
     raise HamError(
@@ -171,7 +171,7 @@ def check_poses(name: str, q, batch: int, dims: int, like: torch.Tensor) -> None
     every glance of a policy that is not built in."""
     accepted = f"poses ({batch}, {dims}) in [-1, 1]"
     if not (isinstance(q, torch.Tensor) and tuple(q.shape) == (batch, dims)):
-        got = f"{_shape(q)} for {batch} episodes"
+        got = f"{shape_text(q)} for {batch} episodes"
     elif q.dtype != like.dtype or q.device != like.device:
         got = f"poses of {q.dtype} on {q.device}"
         accepted += f" of {like.dtype} on {like.device} (the model's)"
@@ -213,7 +213,7 @@ def check_policy(name: str, policy, hidden_size: int, dims: int) -> None:
         trial = copy.deepcopy(policy)
         tau, position = torch.zeros(2, hidden_size, requires_grad=True), torch.zeros(2, dims)
         d = recorded_file.call(label, file, trial.distribution_at, tau, 1, position)
-        need(isinstance(d, LocationDistribution), _shape(d),
+        need(isinstance(d, LocationDistribution), shape_text(d),
              "a ham.model.policy.LocationDistribution")  # fmt: skip
         q = recorded_file.call(label, file, d.sample, torch.Generator().manual_seed(0))
         check_poses(name, q, 2, dims, tau)
@@ -221,7 +221,7 @@ def check_policy(name: str, policy, hidden_size: int, dims: int) -> None:
         for method, arg in (("log_prob", (q,)), ("entropy", ())):
             v = recorded_file.call(label, file, getattr(d, method), *arg)
             need(isinstance(v, torch.Tensor) and tuple(v.shape) == (2,),
-                 f"{method} {_shape(v)}", "(2,), one value per episode")  # fmt: skip
+                 f"{method} {shape_text(v)}", "(2,), one value per episode")  # fmt: skip
             floats(v, method)
             if method == "log_prob" and d.trainable:
                 need(v.grad_fn is not None, "a log_prob without a gradient", "a log_prob of "
@@ -229,9 +229,9 @@ def check_policy(name: str, policy, hidden_size: int, dims: int) -> None:
                      "or trainable = False")  # fmt: skip
         m = recorded_file.call(label, file, d.mode)
         need(m is None or (isinstance(m, torch.Tensor) and tuple(m.shape) == (2, dims)),
-             f"mode {_shape(m)}", f"None or {poses}")  # fmt: skip
+             f"mode {shape_text(m)}", f"None or {poses}")  # fmt: skip
         both = recorded_file.call(label, file, type(d).stack, [d, d])
         v = recorded_file.call(label, file, both.log_prob, torch.stack([q, q]))
         need(isinstance(v, torch.Tensor) and tuple(v.shape) == (2, 2),
-             f"log_prob {_shape(v)} of 2 stacked glances", "(2, 2)")  # fmt: skip
+             f"log_prob {shape_text(v)} of 2 stacked glances", "(2, 2)")  # fmt: skip
         floats(v, "log_prob of 2 stacked glances")
