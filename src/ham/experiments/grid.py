@@ -48,7 +48,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from ham.errors import HamError, check_integer
+from ham.errors import HamError
 from ham.experiments.runs import MAX_SEEDS
 
 #: Top-level keys of a grid file.
@@ -209,7 +209,7 @@ class Grid:
 
     # ------------------------------------------------------------------ validation
     def __post_init__(self) -> None:
-        from ham.learn.evaluation import EVAL_POLICIES
+        from ham.learn.evaluation import check_evaluation
         from ham.world.table import MAX_GRID as MAX_TABLE_GRID
 
         w = f"grid {self.name!r}"
@@ -267,15 +267,10 @@ class Grid:
                     f"{where}: unknown key {sorted(bad)[0]!r}; accepted: policy, batches, seed"
                 )
             s = {"policy": "mean", "batches": 100, "seed": EVAL_SEED, **spec}
-            if s["policy"] not in EVAL_POLICIES:
-                raise HamError(
-                    f"{where}: policy {s['policy']!r}; accepted: {', '.join(EVAL_POLICIES)}"
-                )
-            for k, low in (("batches", 1), ("seed", 0)):  # as `ham evaluate` takes them
-                try:
-                    check_integer(k, s[k], low)
-                except HamError as exc:
-                    raise HamError(f"{where}: {exc}") from None
+            try:  # as `ham evaluate` takes them
+                check_evaluation(s["batches"], s["policy"], s["seed"])
+            except HamError as exc:
+                raise HamError(f"{where}: {exc}") from None
             if s in evals:
                 raise HamError(f"{where}: {s} is listed twice")
             evals.append(s)

@@ -78,11 +78,13 @@ def path_lengths(locations: torch.Tensor) -> torch.Tensor:
     return (locations[1:] - locations[:-1]).norm(dim=-1).sum(0)
 
 
-def _check(batches: int, policy: str, seed: int = 0) -> None:
+def check_evaluation(batches: int, policy: str, seed: int = 0) -> None:
+    """An evaluation's ``batches`` (>= 1), ``policy`` (:data:`EVAL_POLICIES`) and ``seed``
+    (>= 0), as every evaluation here and a grid's ``evaluate`` list take them."""
+    if policy not in EVAL_POLICIES:
+        raise HamError(f"policy {policy!r}; accepted: {', '.join(EVAL_POLICIES)}")
     check_integer("batches", batches, 1)
     check_integer("seed", seed)
-    if policy not in EVAL_POLICIES:
-        raise HamError(f"evaluation policy {policy!r}; accepted: {', '.join(EVAL_POLICIES)}")
 
 
 @contextmanager
@@ -124,7 +126,7 @@ def evaluate(
 ) -> EvalResult:
     """Accuracies of ``agent`` on ``batches`` balanced batches of ``env`` (poses seeded by ``seed``;
     ``progress``: a progress bar)."""
-    _check(batches, policy, seed)
+    check_evaluation(batches, policy, seed)
     glances, k = agent.config.glances, env.n_objects
     correct = torch.zeros(glances, device=env.device)
     accumulated = torch.zeros(glances, device=env.device)
@@ -223,7 +225,7 @@ def heatmap_data(
     (the k-D distribution's 2-D projections; one dim: its bins against a single one). ``mu_*``
     and ``sigma_mean`` have one column per pose dim.
     """
-    _check(batches, policy, seed)
+    check_evaluation(batches, policy, seed)
     if not (isinstance(bins, int) and 1 <= bins <= MAX_BINS):
         raise HamError(f"bins = {bins!r}; accepted: an integer 1..{MAX_BINS}")
     k = env.n_objects
@@ -353,7 +355,7 @@ def last_pose_swap(
     (object, pose) glances among the object's episodes.
     Returns accuracies keyed by :data:`SWAPS`, with ``batches`` and ``episodes``.
     """
-    _check(batches, policy, seed)
+    check_evaluation(batches, policy, seed)
     check_swappable(env)
     k = env.n_objects
     correct = dict.fromkeys(SWAPS, 0)
