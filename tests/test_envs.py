@@ -430,5 +430,8 @@ def test_a_pytorch_agent_may_hand_tensors(tmp_path):
         {"pose": torch.tensor(pose, requires_grad=True) * 1, "prediction": torch.tensor(0)}
     )
     assert np.array_equal(got["pressure"], want["pressure"]) and np.array_equal(got["pose"], pose)
+    env.reset(seed=1)
+    got, *_ = env.step({"pose": torch.tensor(pose, dtype=torch.bfloat16), "prediction": 0})
+    assert np.array_equal(got["pose"], torch.tensor(pose, dtype=torch.bfloat16).float().numpy())
     with pytest.raises(HamError, match=r"^pose tensor\(\.\.\., device='meta'"):
         env.step({"pose": torch.zeros(2, device="meta"), "prediction": 0})

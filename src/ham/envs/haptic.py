@@ -174,6 +174,8 @@ def as_array(value: Any, what: str, accepted: str, kinds: str) -> np.ndarray:
             if value.is_meta:
                 raise TypeError("no data")
             value = value.detach().cpu()
+            if value.dtype == torch.bfloat16:  # NumPy has no bfloat16 (autocast agents use it)
+                value = value.float()
         a = np.asarray(value)
         if a.dtype.kind not in kinds:
             raise TypeError(a.dtype)
