@@ -15,7 +15,8 @@ contacts out otherwise (docs/plugins/binary_pad.py: taxels that only say touched
 Every glance of a registered simulator is checked (:class:`CheckedSimulator`): the result must be
 a :class:`ham.world.glance.GlanceResult` with one ``N x N`` image per glance (``N`` the pad's
 taxels) of pressures in ``[0, MAX_PRESSURE]`` Pa, one finite number per glance in ``force``,
-``z``, ``height`` and the pose fields, and 0/1 ``contact`` and ``blocked``; real tensors on the
+``z``, ``height`` and the pose fields (``z`` and ``height`` within the pad's reach of the
+objects' tops, :func:`ham.world.glance.height_bound`), and 0/1 ``contact`` and ``blocked``; real tensors on the
 CPU or a GPU of any dtype, taken as the built-in simulators give them (float32, bool, detached).
 Any failure of the user's code is one line naming the file and its line.
 """
@@ -32,7 +33,7 @@ import torch
 
 from ham.errors import HamError, check_new_name, checked_arguments
 from ham.world import recorded_file, registering
-from ham.world.glance import height_bound
+from ham.world.glance import GlanceResult, height_bound
 from ham.world.sensor import MAX_PRESSURE
 
 #: The simulators of the package itself; no file or program may register these names.
@@ -216,8 +217,6 @@ class CheckedSimulator:
         return HamError(f"{self._what} {self._where!r}: simulator {self.name!r} {text}")
 
     def glance(self, object_ids, q_x, q_phi, **kwargs):
-        from ham.world.glance import GlanceResult
-
         n = len(object_ids)
         r = recorded_file.call(
             self._what, self._where, self.inner.glance, object_ids, q_x, q_phi, **kwargs
@@ -232,7 +231,8 @@ class CheckedSimulator:
 
     def _checked(self, r, n: int):
         """``r`` with every field checked (a tensor of the right shape, real and finite, on a
-        real device; ``contact`` and ``blocked`` 0/1) and in the built-in simulators' types:
+        real device; heights within :func:`ham.world.glance.height_bound`; ``contact`` and
+        ``blocked`` 0/1) and in the built-in simulators' types:
         float32 numbers and bool flags, detached from any autograd graph."""
         side = self.sensor.taxels
         out = {}
@@ -282,8 +282,6 @@ class CheckedSimulator:
         """Glance the first few of the first batch again: the same object and pose must give
         the same glance, or a table built twice differs and a resumed online run glances
         otherwise than an uninterrupted one (noise must be a function of object and pose)."""
-        from ham.world.glance import GlanceResult
-
         n = len(object_ids)
         k = min(n, _REPEATED_GLANCES)
         again = recorded_file.call(
