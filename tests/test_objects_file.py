@@ -167,7 +167,7 @@ BAD_FILES = [
     ("text.py", "register(HapticObject.from_surface('t', lambda x, y: np.full(x.shape, '0.02')))",
      "object 't': surface h(x, y) returned text values"),  # and failed later in MuJoCo
     ("ragged.py", "register(HapticObject.from_function('r', lambda x: [[0.02]] + [[0.0, 0.0]]))",
-     "object 'r': profile h(x) returned list that is no array"),
+     "object 'r': profile h(x) returned a ragged list (rows of different lengths)"),
     ("text.json", '{"objects": [{"name": "t", "heightmap": ["0.01", "0.02"]}]}',
      "objects file 'text.json': object 't': heightmap must be a 1-D list of >= 2 heights"),
     ("inf.py", "register(HapticObject.from_heightmap('i', [0.01, np.inf]))",

@@ -156,9 +156,9 @@ class HapticObject:
             raise HamError(
                 f"object {self.name!r}: surface_fn {brief(self.surface_fn)} is not a function"
             )
-        v = None if self.vertices is None else _numbers(self.vertices)
+        v = None if self.vertices is None else _as_reals(self.vertices)
         if self.vertices is not None and not (
-            v is not None
+            not isinstance(v, str)
             and v.ndim == 2
             and v.shape[1] == 2
             and len(v) >= 2
@@ -276,9 +276,9 @@ class HapticObject:
         Two consecutive points with the same x make a vertical step.
         """
         check_name(name)
-        pts = _numbers(points)
-        if pts is None or pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
-            got = "not numbers" if pts is None else f"shape {pts.shape}"
+        pts = _as_reals(points)
+        if isinstance(pts, str) or pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
+            got = pts if isinstance(pts, str) else f"shape {pts.shape}"
             raise HamError(f"object {name!r}: polyline must be N >= 2 points (x, z), got {got}")
         if not np.all(np.isfinite(pts[:, 0])):
             bad = pts[~np.isfinite(pts[:, 0]), 0][0]
@@ -357,9 +357,9 @@ class HapticObject:
         """An object from heights (m) on an even ``(ny, nx)`` grid spanning the base (row ``j``
         at ``y = -depth/2 + j * depth / (ny - 1)``), bilinear between samples."""
         check_name(name)
-        hs = _numbers(heights)
-        if hs is None or hs.ndim != 2 or min(hs.shape) < 2:
-            got = "not numbers" if hs is None else f"shape {hs.shape}"
+        hs = _as_reals(heights)
+        if isinstance(hs, str) or hs.ndim != 2 or min(hs.shape) < 2:
+            got = hs if isinstance(hs, str) else f"shape {hs.shape}"
             raise HamError(
                 f"object {name!r}: height field must be a 2-D array (ny, nx) of heights (m) "
                 f"with ny, nx >= 2, got {got}"
@@ -411,10 +411,10 @@ class HapticObject:
             what = f"image {str(image)!r}"
             grey = _read_png(name, Path(image))
         else:
-            grey = _numbers(image, bools=True)  # a bool mask is an image of 0 and 1
-            if grey is None:
+            grey = _as_reals(image, bools=True)  # a bool mask is an image of 0 and 1
+            if isinstance(grey, str):
                 raise HamError(
-                    f"object {name!r}: image of type {type(image).__name__}; accepted: a PNG file "
+                    f"object {name!r}: image of {grey}; accepted: a PNG file "
                     "or an array (rows, cols) of grey levels in [0, 1]"
                 )
         grey = _grey_levels(name, what, grey)
@@ -489,9 +489,12 @@ class HapticObject:
     ) -> HapticObject:
         """An object from heights (m) sampled evenly across the block, joined by straight lines."""
         check_name(name)
-        hs = _numbers(heights)
-        if hs is None or hs.ndim != 1 or len(hs) < 2:
-            raise HamError(f"object {name!r}: heightmap must be a 1-D list of >= 2 heights (m)")
+        hs = _as_reals(heights)
+        if isinstance(hs, str) or hs.ndim != 1 or len(hs) < 2:
+            got = hs if isinstance(hs, str) else f"shape {hs.shape}"
+            raise HamError(
+                f"object {name!r}: heightmap must be a 1-D list of >= 2 heights (m), got {got}"
+            )
         width = _check_size(name, "width", width)
         xs = np.linspace(-0.5 * width, 0.5 * width, len(hs))
         return cls.from_polyline(name, np.stack([xs, hs], 1), depth=depth, description=description)
@@ -647,36 +650,29 @@ def mesh_top(triangles: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarra
     return top.reshape(ny, nx)
 
 
-def _numbers(values: object, bools: bool = False) -> np.ndarray | None:
-    """``values`` (nested lists, an array) as float64 when they are real numbers, else None:
-    text (``"0.01"``, which NumPy would parse), complex numbers, bools (unless ``bools``) and
-    ragged lists are not heights."""
+def _as_reals(values: object, bools: bool = False) -> np.ndarray | str:
+    """``values`` (nested lists, an array, a tensor) as float64 when they are real numbers, else
+    what they are instead, for the error: text (NumPy would parse ``"0.01"``), complex numbers
+    (they would lose their imaginary part with only a warning), bools (unless ``bools``: a mask is
+    an image of 0 and 1), or no array at all (ragged lists, a tensor that requires grad)."""
     try:
         a = np.asarray(values)
-    except Exception:  # noqa: BLE001 - the user's value (ragged, a tensor that requires grad)
-        return None
+    except Exception as exc:  # noqa: BLE001 - the user's value: any failure is bad input
+        if "inhomogeneous" in str(exc):
+            return f"a ragged {type(values).__name__} (rows of different lengths)"
+        return f"{type(values).__name__} that is no array: {recorded_file.one_line(exc)}"
     if a.dtype.kind not in "iuf" + ("b" if bools else ""):
-        return None
+        kinds = {"c": "complex values", "U": "text values", "S": "text values", "b": "bool values"}
+        return kinds.get(a.dtype.kind, f"a {type(values).__name__}")
     return a.astype(np.float64)
 
 
 def _real_heights(name: str, what: str, out: object) -> np.ndarray:
-    """The heights a user's function returned, as float64: real numbers (an array, a list, a
-    tensor), or a HamError (complex heights lost their imaginary part with only a warning, and
-    strings were parsed here and failed later in MuJoCo's outline)."""
-    try:
-        a = np.asarray(out)
-    except Exception as exc:  # noqa: BLE001 - the user's value: any failure is bad input
-        raise HamError(
-            f"object {name!r}: {what} returned {type(out).__name__} that is no array: "
-            f"{recorded_file.one_line(exc)}; accepted: real heights (m)"
-        ) from None
-    if a.dtype.kind not in "iuf":
-        kind = {"c": "complex", "U": "text", "S": "text", "b": "bool"}.get(a.dtype.kind, a.dtype)
-        raise HamError(
-            f"object {name!r}: {what} returned {kind} values; accepted: real heights (m)"
-        )
-    return a.astype(np.float64)
+    """The heights a user's function returned, as float64, or a HamError naming what came back."""
+    hs = _as_reals(out)
+    if isinstance(hs, str):
+        raise HamError(f"object {name!r}: {what} returned {hs}; accepted: real heights (m)")
+    return hs
 
 
 def _check_heights(name: str, xs: np.ndarray, hs: np.ndarray, ys: np.ndarray | None = None) -> None:
