@@ -244,21 +244,10 @@ def simulator_from_args(args: argparse.Namespace) -> tuple[dict | None, str | No
 
     path = getattr(args, "simulator_file", None)
     name = getattr(args, "simulator", None)
-    record, names = None, []
+    record = None
     if path is not None:
         record = simulators.read_simulator_file(path)
-        names = simulators.load_simulator_file(record)
-        if name is None and len(names) > 1:
-            raise HamError(
-                f"--simulator-file {path!r} registers {', '.join(names)}; accepted: --simulator "
-                "naming one of them"
-            )
-        name = name or names[0]
-        if name not in names:
-            raise HamError(
-                f"--simulator {name!r} is not one --simulator-file {path!r} registers; accepted: "
-                f"{' or '.join(names)} (or no --simulator-file)"
-            )
+        name = simulators.file_simulator(record, name, "--simulator", "--simulator-file")
     elif name is not None and name not in simulators.simulator_names():
         raise simulators.unknown_simulator(name)
     return record, name

@@ -86,13 +86,9 @@ class WorldConfig:
         if self.objects_file is not None:
             _objects.check_record(self.objects_file)
         if self.simulator_file is not None:
-            names = self.register_simulators()
-            if self.simulator not in names:  # a file nothing uses: refused, not ignored
-                raise HamError(
-                    f"world simulator = {self.simulator!r}, but simulator file "
-                    f"{self.simulator_file['name']!r} registers {', '.join(names)}; accepted: "
-                    f"simulator = {' or '.join(repr(n) for n in names)}, or no simulator file"
-                )
+            _simulators.file_simulator(
+                self.simulator_file, self.simulator, "world simulator", "simulator file"
+            )
         object.__setattr__(self, "pose_dims", check_pose_dims(self.pose_dims, "world pose_dims"))
         # The foam must carry the glance's stop force on the whole face before it is compressed
         # through: softer, and even the flat box blocks the pad with no 2 N reading.

@@ -124,6 +124,25 @@ def load_simulator_file(record: dict) -> list[str]:
     return list(added)
 
 
+def file_simulator(record: dict, name: str | None, setting: str, file_setting: str) -> str:
+    """The simulator a world with the simulator file ``record`` glances with: ``name`` when the
+    file registers it; no ``name``, the file's one simulator. A HamError otherwise, in the words
+    of the caller's settings (``setting``: ``--simulator``; ``file_setting``: ``--simulator-file``)
+    — a file nothing uses is refused, not ignored."""
+    names = load_simulator_file(record)
+    where = f"{file_setting} {record['name']!r}"
+    if name is None and len(names) > 1:
+        raise HamError(
+            f"{where} registers {', '.join(names)}; accepted: {setting} naming one of them"
+        )
+    if name is not None and name not in names:
+        raise HamError(
+            f"{setting} {name!r} is not one {where} registers; accepted: "
+            f"{' or '.join(repr(n) for n in names)} (or no {file_setting})"
+        )
+    return name or names[0]
+
+
 def make_registered(
     name: str, objects: list, sensor, pose, glance, world=None, **kwargs
 ) -> CheckedSimulator:
