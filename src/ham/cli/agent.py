@@ -439,7 +439,7 @@ def cmd_heatmap(args: argparse.Namespace) -> int:
     from ham.experiments.figures import plot_heatmap
     from ham.learn.evaluation import heatmap_data
     from ham.learn.train import load_run
-    from ham.world.files import atomic_write, check_output
+    from ham.world.files import check_output, write_text
 
     check_output(args.out, (".png",))
     if args.json:
@@ -453,7 +453,7 @@ def cmd_heatmap(args: argparse.Namespace) -> int:
     out = plot_heatmap(data, args.out)
     if args.json:
         text = json.dumps(data) + "\n"
-        atomic_write(args.json, lambda tmp: tmp.write_text(text), what="heat map data")
+        write_text(args.json, text, what="heat map data")
     print(f"wrote {out} (accuracy {data['accuracy']:.4f} over {args.batches} batches)")
     return 0
 

@@ -167,13 +167,10 @@ def render_glance(
     im = a1.imshow(res.pressure[0].numpy(), cmap="viridis", origin="lower")
     a1.set_title(f"{readout} read-out (Pa); rows y, columns u", fontsize=9)
     fig.colorbar(im, ax=a1, fraction=0.046)
-    from ham.world.files import atomic_write
+    from ham.world.drawing import save_figure
 
     fig.tight_layout()
-    try:
-        return atomic_write(out, lambda tmp: fig.savefig(tmp, dpi=100), what="picture")
-    finally:
-        plt.close(fig)
+    return save_figure(fig, out, dpi=100, tight=False)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -24,6 +24,8 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+from ham.world.drawing import save_figure  # noqa: E402
+from ham.world.files import write_text  # noqa: E402
 from ham.world.glance import FastSimulator  # noqa: E402
 from ham.world.mujoco_sim import (  # noqa: E402
     BLOCKED,
@@ -90,8 +92,7 @@ def draw_grid(
             ax.text(0.5, -1.0, f"max {vmax:.0f} Pa", fontsize=6, color="w", va="top")
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path, dpi=90, tight=False)
 
 
 def rim_share(img) -> float:
@@ -638,7 +639,7 @@ def main(argv: list[str] | None = None) -> None:
     md.append(HEIGHT_FIELD_SECTION)
     md.append("## Configuration used\n")
     md.append("```\n" + "\n".join(f"{k} = {v}" for k, v in asdict(cfg).items()) + "\n```\n")
-    out.write_text("\n".join(md))
+    write_text(out, "\n".join(md), what="report")
     print(f"wrote {out} and {len(figures) + 3} pictures in {img_dir}")
     for row in main_rows:
         print("  ", " | ".join(row))

@@ -30,7 +30,7 @@ import torch  # noqa: E402
 from ham.errors import HamError  # noqa: E402
 from ham.experiments.crosscheck import draw_grid, fmt_table  # noqa: E402
 from ham.world.extended_glance import ExtendedSimulator  # noqa: E402
-from ham.world.files import atomic_write  # noqa: E402
+from ham.world.files import write_text  # noqa: E402
 from ham.world.glance import POSE_DIMS, GlanceConfig, check_pose_dims  # noqa: E402
 from ham.world.mujoco_sim import (  # noqa: E402
     SETTLED,
@@ -793,7 +793,7 @@ def report(
     md.append("## Configuration used\n")
     md.append("```\n" + "\n".join(f"{k} = {v}" for k, v in asdict(cfg).items()) + "\n```\n")
     text = "\n".join(md)
-    atomic_write(out, lambda tmp: tmp.write_text(text), what="report")
+    write_text(out, text, what="report")
     within = [float(np.mean(np.abs(d) <= HEIGHT_GOAL_MM)) for d in np.split(all_dh, len(objs))]
     return {
         "poses_per_object": len(q),

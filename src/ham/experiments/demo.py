@@ -6,12 +6,12 @@ then (when the agent is available) trains a HAM briefly, evaluates it and writes
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from ham.world import objects
 from ham.world.config import WorldConfig, make_simulator
 from ham.world.drawing import draw_glance, draw_objects, draw_table_grid
+from ham.world.files import write_json
 from ham.world.table import GlanceTable, build_table, grid_values
 
 #: One telling pose per paper object (q_x, q_phi): where its shape shows.
@@ -54,6 +54,6 @@ def run_demo(out: Path, *, quick: bool = False) -> dict:
         run_agent_demo = None
     if run_agent_demo is not None:
         summary.update(run_agent_demo(out, table_path, quick=quick))
-    (out / "demo.json").write_text(json.dumps(summary, indent=2))
+    write_json(out / "demo.json", summary)
     print(f"demo written to {out}")
     return summary

@@ -3,7 +3,6 @@ and write its training curve, pose heat map and a short report (see :mod:`ham.ex
 
 from __future__ import annotations
 
-import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -11,6 +10,7 @@ from ham.experiments.figures import plot_heatmap, plot_training_curve
 from ham.learn.evaluation import evaluate, heatmap_data
 from ham.learn.train import TrainConfig, load_run, resume, train
 from ham.model.agent import HamConfig
+from ham.world.files import write_json, write_text
 
 #: The demo's run: the paper's network and training rule at 3 glances, shortened.
 DEMO_TRAIN = TrainConfig(model=HamConfig(glances=3), steps=1500, eval_every=100, eval_batches=20)
@@ -39,7 +39,8 @@ def run_agent_demo(out: Path, table: Path, *, quick: bool = False) -> dict:
         "heatmap": str(heatmap),
     }
     per = ", ".join(f"{a:.3f}" for a in result.accuracy_per_glance)
-    (out / "report.md").write_text(
+    write_text(
+        out / "report.md",
         "# ham demo\n\n"
         f"Glance table `{table.name}`, then a HAM "
         f"with {config.model.glances} glances trained for {metrics['steps']} steps "
@@ -50,8 +51,9 @@ def run_agent_demo(out: Path, table: Path, *, quick: bool = False) -> dict:
         "![training curve](training_curve.png)\n\n![heat map](heatmap.png)\n\n"
         "Glances on each object: "
         + " ".join(f"![{p.stem}]({p.name})" for p in sorted(out.glob("glance_*.png")))
-        + "\n"
+        + "\n",
+        what="report",
     )
-    (out / "evaluation.json").write_text(json.dumps(summary, indent=1))
+    write_json(out / "evaluation.json", summary)
     print(f"HAM: accuracy {result.accuracy:.3f} after {config.model.glances} glances")
     return {"agent": summary}

@@ -133,7 +133,7 @@ def draw(t: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ham.world.files import atomic_write
+    from ham.world.drawing import save_figure
 
     gs, factors = t["glances"], list(t["factors"])
     width = 0.8 / len(factors)
@@ -154,13 +154,12 @@ def draw(t: dict, path: Path) -> None:
     ax.set_title("Table 1 rows 1-4, full model: paper-gazebo preset and one factor changed")
     ax.legend(fontsize=7, ncol=3, loc="upper left")
     fig.tight_layout()
-    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110), what="figure")
-    plt.close(fig)
+    save_figure(fig, path, tight=False, what="figure")
 
 
 def write(run_dir: str | Path, out: str | Path) -> dict:
     """Read ``run_dir/results.json`` and write ``out.md``, ``out.json`` and ``out.png``."""
-    from ham.world.files import atomic_write
+    from ham.world.files import write_json, write_text
 
     path = Path(run_dir) / "results.json"
     try:
@@ -169,11 +168,10 @@ def write(run_dir: str | Path, out: str | Path) -> dict:
         raise HamError(f"cannot read {str(path)!r}: {exc}") from None
     t = factor_table(results)
     out = Path(out)
-    text = json.dumps(t, indent=1, default=str)
-    atomic_write(out.with_suffix(".json"), lambda tmp: tmp.write_text(text))
+    write_json(out.with_suffix(".json"), t, default=str)
     md = (table_markdown(t) + "\n\nFinal checkpoint re-evaluated (20 batches):\n\n"
           + evaluations_markdown(t) + "\n")  # fmt: skip
-    atomic_write(out.with_suffix(".md"), lambda tmp: tmp.write_text(md))
+    write_text(out.with_suffix(".md"), md)
     draw(t, out.with_suffix(".png"))
     return t
 

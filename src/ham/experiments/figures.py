@@ -24,18 +24,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ham.errors import HamError  # noqa: E402
-from ham.world.files import atomic_write, check_output  # noqa: E402
+from ham.world.drawing import save_figure  # noqa: E402
 
-
-def _save(fig, out_png: str | os.PathLike, **savefig) -> Path:
-    """Write ``fig`` to the PNG ``out_png`` atomically (checked path; no partial file)."""
-    try:
-        out = check_output(out_png, (".png",), what="picture")
-        return atomic_write(
-            out, lambda tmp: fig.savefig(tmp, dpi=120, format="png", **savefig), what="picture"
-        )
-    finally:
-        plt.close(fig)
+DPI = 120  # the run's figures: a little finer than the world's drawings (110)
 
 
 def plot_training_curve(metrics: dict, out_png: str | os.PathLike) -> Path:
@@ -83,7 +74,7 @@ def plot_training_curve(metrics: dict, out_png: str | os.PathLike) -> Path:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="lower right")
     fig.tight_layout()
-    return _save(fig, out_png)
+    return save_figure(fig, out_png, dpi=DPI, tight=False)
 
 
 def plot_heatmap(heatmap_data: dict, out_png: str | os.PathLike) -> Path:
@@ -130,7 +121,7 @@ def plot_heatmap(heatmap_data: dict, out_png: str | os.PathLike) -> Path:
         fontsize=10,
     )
     fig.tight_layout()
-    return _save(fig, out_png)
+    return save_figure(fig, out_png, dpi=DPI, tight=False)
 
 
 def plot_projections(heatmap_data: dict, out_png: str | os.PathLike) -> Path:
@@ -175,7 +166,7 @@ def plot_projections(heatmap_data: dict, out_png: str | os.PathLike) -> Path:
         fontsize=9,
     )
     fig.tight_layout(rect=(0, 0, 1, 1 - 0.35 / fig.get_figheight()))
-    return _save(fig, out_png)
+    return save_figure(fig, out_png, dpi=DPI, tight=False)
 
 
 def plot_confusion(
@@ -216,4 +207,4 @@ def plot_confusion(
     accuracy = np.trace(counts) / total if total else float("nan")
     ax.set_title(title or f"confusion matrix, accuracy {accuracy:.3f}", fontsize=10)
     fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03, label="share of the row")
-    return _save(fig, out_png, bbox_inches="tight")  # the object names are long
+    return save_figure(fig, out_png, dpi=DPI)  # cropped: the object names are long

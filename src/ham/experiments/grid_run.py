@@ -32,7 +32,7 @@ from ham.experiments.executors import (
     unbatchable_note,
 )
 from ham.experiments.grid import Grid, GridJob, load_grid, settings_text
-from ham.experiments.reproduce import _environment, _fmt, _write_json, mean_sem
+from ham.experiments.reproduce import _environment, _fmt, mean_sem
 from ham.experiments.runs import (
     check_seed_count,
     evaluation_path,
@@ -42,7 +42,8 @@ from ham.experiments.runs import (
     read_metrics,
     run_dir,
 )
-from ham.world.files import check_output_dir
+from ham.world.drawing import save_figure
+from ham.world.files import check_output_dir, write_json, write_text
 
 #: Keys of a run's config that may differ between invocations without making it another run.
 _PLACE_KEYS = ("device", "table")
@@ -120,8 +121,8 @@ def run_grid(
                     else:
                         build_table(world, grid.table_grid, table, progress=progress,
                                     command="ham reproduce grid")  # fmt: skip
-            _write_json(root / "grid.json", grid.to_dict())
-            _write_json(root / "plan.json", [j.to_dict() for j in jobs])
+            write_json(root / "grid.json", grid.to_dict(), default=str)
+            write_json(root / "plan.json", [j.to_dict() for j in jobs], default=str)
 
             todo = [j for j in jobs if not _complete(root, j)]
             results, failures = execute(
@@ -328,11 +329,7 @@ def draw_curves(root: Path, grid: Grid, jobs: list[GridJob], path: Path) -> Path
     ax.set(xlabel="training step", ylabel="accuracy",
            title=f"Grid {grid.name}: accuracy during training (mean over seeds)")  # fmt: skip
     ax.legend(fontsize=7, loc="lower right")
-    tmp = path.with_name(path.name + ".tmp")
-    fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png")
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
+    return save_figure(fig, path)
 
 
 def write_report(
@@ -349,7 +346,7 @@ def write_report(
     line on how the executor ran them (:func:`ham.experiments.executors.unbatchable_note`)."""
     cells = aggregate(root, grid, jobs)
     summary = {"grid": grid.to_dict(), "cells": cells, "failures": failures}
-    _write_json(root / "results.json", summary)
+    write_json(root / "results.json", summary, default=str)
     curves = draw_curves(root, grid, jobs, root / "curves.png")
     env = _environment()
     where = f"glance table {grid.table_grid} x {grid.table_grid}" if grid.table_grid else "online"
@@ -384,7 +381,6 @@ def write_report(
         lines += ["## Failed runs", ""]
         lines += [f"- `{f['key']}`: {f.get('error', '?')}" for f in failures]
         lines.append("")
-    tmp = root / "report.md.tmp"
-    tmp.write_text("\n".join(lines).rstrip("\n") + "\n")
-    os.replace(tmp, root / "report.md")
+    text = "\n".join(lines).rstrip("\n") + "\n"
+    write_text(root / "report.md", text, what="report")
     return summary

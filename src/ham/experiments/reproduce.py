@@ -47,6 +47,7 @@ from ham.experiments.runs import (
     run_dir,
     stopped_at,
 )
+from ham.world.files import write_json, write_text
 
 if TYPE_CHECKING:
     from ham.world.config import WorldConfig
@@ -445,7 +446,7 @@ def reproduce(
                             command=command or "ham reproduce")  # fmt: skip
             jobs = plan(target, profile, profile.seeds, str(table), device, world.to_dict(),
                         eval_policy)  # fmt: skip
-            (root / "plan.json").write_text(json.dumps([j.to_dict() for j in jobs], indent=1))
+            write_json(root / "plan.json", [j.to_dict() for j in jobs])
 
             todo = [j for j in jobs if not is_finished(run_dir(root, j.key), profile.steps)]
             results, failures = execute(
@@ -494,15 +495,15 @@ def write_outputs(
     if target in ("table1", "all"):
         t1 = table1(root, jobs, profile)
         md = table1_markdown(t1)
-        (root / "table1.md").write_text(md + "\n")
-        _write_json(root / "table1.json", {str(k): v for k, v in t1.items()})
+        write_text(root / "table1.md", md + "\n")
+        write_json(root / "table1.json", {str(k): v for k, v in t1.items()}, default=str)
         summary["table1"] = t1
         sections.append(("Table 1: best accuracy per number of glances", md))
     if target in ("table2", "all"):
         t2 = table2(root, jobs)
         md = table2_markdown(t2)
-        (root / "table2.md").write_text(md + "\n")
-        _write_json(root / "table2.json", t2)
+        write_text(root / "table2.md", md + "\n")
+        write_json(root / "table2.json", t2, default=str)
         summary["table2"] = t2
         sections.append(("Table 2: what & where combiners, 3 glances", md))
     per_object = per_object_markdown(root, jobs)
@@ -513,12 +514,12 @@ def write_outputs(
         figures = draw_figures(root, jobs, profile)
     summary["figures"] = [str(Path(f).relative_to(root)) for f in figures]
     summary["stopped_at_perfect"] = stopped_at_perfect(root, jobs)
-    _write_json(root / "summary.json", summary)
+    write_json(root / "summary.json", summary, default=str)
     report = render_report(
         target, profile, sections, summary["figures"], failures, command, executor,
         stopped=summary["stopped_at_perfect"], steps=profile.steps,
     )  # fmt: skip
-    (root / "report.md").write_text(report)
+    write_text(root / "report.md", report, what="report")
     return summary
 
 
@@ -560,12 +561,6 @@ def per_object_markdown(root: Path, jobs: list[Job]) -> str | None:
             + " |"
         )
     return "\n".join(lines)
-
-
-def _write_json(path: Path, obj) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1, default=str))
-    os.replace(tmp, path)
 
 
 def _environment() -> dict:

@@ -19,6 +19,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from ham.world.drawing import save_figure  # noqa: E402
+from ham.world.files import write_json  # noqa: E402
+
 
 def _histories(root: Path, jobs, variant: str, glances: int) -> list[list[dict]]:
     from ham.experiments.runs import run_dir
@@ -39,12 +42,6 @@ def _mean_curve(histories: list[list[dict]], key: str = "accuracy"):
     return steps, vals.mean(0)
 
 
-def _save(fig, path: Path) -> Path:
-    fig.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return path
-
-
 def _save_drawn(fig, ax, path: Path, curves: int, **legend) -> list[Path]:
     """``[path]`` with the figure saved when ``curves`` were drawn on ``ax``; else ``[]``
     (closed, not written: ``--variants mlp`` runs neither the full model nor random locations)."""
@@ -53,7 +50,7 @@ def _save_drawn(fig, ax, path: Path, curves: int, **legend) -> list[Path]:
         return []
     if any(not line.get_label().startswith("_") for line in ax.get_lines()):
         ax.legend(**legend)  # only labelled curves: random locations alone have none
-    return [_save(fig, path)]
+    return [save_figure(fig, path)]
 
 
 def draw_figures(root: Path, jobs, profile) -> list[Path]:
@@ -130,7 +127,7 @@ def _heatmaps(root: Path, jobs, profile, figs: Path) -> list[Path]:
             continue
         run = load_run(run_dir(root, key))
         data = heatmap_data(run.agent, run.env, batches=profile.heatmap_batches)
-        (figs / f"heatmap_g{g}.json").write_text(json.dumps(data))
+        write_json(figs / f"heatmap_g{g}.json", data)
         out.append(plot_heatmap(data, figs / f"heatmap_g{g}.png"))
     return out
 
@@ -150,4 +147,4 @@ def _mu_evolution(root: Path, jobs, glances: int, figs: Path) -> Path | None:
     axes[1].set(xlabel="training step", ylabel="mu_phi (last glance)")
     axes[0].legend(fontsize=8)
     fig.suptitle(f"Learned means during training ({glances} glances, seed 0)")
-    return _save(fig, figs / "mu_evolution.png")
+    return save_figure(fig, figs / "mu_evolution.png")

@@ -73,18 +73,14 @@ def has_evaluation(out: Path, spec: dict, steps: int) -> bool:
 
 def evaluate_final(out: Path, spec: dict) -> dict:
     """Re-evaluate a finished run's last checkpoint (as ``ham evaluate``) and keep the result."""
-    import os
-
     from ham.learn.evaluation import evaluate
     from ham.learn.train import load_run
+    from ham.world.files import write_json
 
     run = load_run(out)
     result = evaluate(run.agent, run.env, spec["batches"], seed=spec["seed"], policy=spec["policy"])
     d = {"steps": run.step, "eval_policy": spec["policy"], "seed": spec["seed"], **result.to_dict()}
-    path = evaluation_path(out, spec)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(d, indent=1) + "\n")
-    os.replace(tmp, path)
+    write_json(evaluation_path(out, spec), d, what="evaluation")
     return d
 
 

@@ -61,8 +61,6 @@ from ham.learn.train import (
     _check_weights,
     _evaluate,
     _log_eval,
-    _write_atomic,
-    _write_json,
     load_checkpoint,
     overflowed,
     read_run_config,
@@ -71,7 +69,7 @@ from ham.learn.train import (
 from ham.model.agent import Episode
 from ham.model.location_net import truncated_normal, uniform_locations
 from ham.model.policy import TruncatedGaussian, Uniform
-from ham.world.files import folder_lock
+from ham.world.files import atomic_write, folder_lock, write_json
 from ham.world.source import check_model_fits, make_source
 
 STOPPED_KEY = "stopped_at_perfect"
@@ -866,7 +864,7 @@ class BatchedRuns:
 
         for r, out in zip(self.runs, self.outs, strict=True):
             out.mkdir(parents=True, exist_ok=True)
-            _write_json(out / CONFIG_FILE, r.config.to_dict())
+            write_json(out / CONFIG_FILE, r.config.to_dict())
         self._writers = writers = {}
         fresh = self._evaluate([(i, None, None) for i in self.active
                                 if self.runs[i].step == 0 and not self.runs[i].history])  # fmt: skip
@@ -946,10 +944,10 @@ class BatchedRuns:
         # here (finished, its metrics.json lost) gets it back
         for i in range(len(self.runs)):
             if not isinstance(self.results.get(i), str):
-                _write_json(self.outs[i] / METRICS_FILE, self.metrics(i))
+                write_json(self.outs[i] / METRICS_FILE, self.metrics(i))
         for i in self._writers:
             if self._n_train:
-                _write_json(
+                write_json(
                     self.outs[i] / TIMING_FILE,
                     {"steps_timed": self._n_train,
                      "ms_per_step": 1000 * self._t_train / self._n_train,
@@ -994,8 +992,8 @@ class BatchedRuns:
             k: {n: v.clone() if n == "momentum_buffer" else v for n, v in st.items()}
             for k, st in state["optimizer"]["state"].items()
         }
-        _write_atomic(self.outs[i] / CHECKPOINT_FILE, lambda p: torch.save(state, p))
-        _write_json(self.outs[i] / METRICS_FILE, self.metrics(i))
+        atomic_write(self.outs[i] / CHECKPOINT_FILE, lambda p: torch.save(state, p))
+        write_json(self.outs[i] / METRICS_FILE, self.metrics(i))
 
 
 def train_groups(groups: list[BatchedRuns], progress: bool = False) -> list[list[dict | str]]:

@@ -22,7 +22,6 @@ as the APPLE study counts them. :func:`train_sb3` trains, evaluates and writes
 from __future__ import annotations
 
 import contextlib
-import json
 import math
 import os
 import pickle
@@ -49,13 +48,9 @@ from ham.errors import (
     checked_arguments,
     too_large,
 )
-from ham.world.files import atomic_write, check_output_dir, folder_lock
+from ham.world.files import atomic_write, check_output_dir, folder_lock, write_json
 
 ALGOS: tuple[str, ...] = ("ppo", "sac", "crossq")
-
-
-def _write_json(path: Path, obj: Any) -> None:
-    atomic_write(path, lambda tmp: tmp.write_text(json.dumps(obj, indent=1) + "\n"), what="metrics")
 
 
 class PredictionHead(nn.Module):
@@ -427,7 +422,7 @@ def train_sb3(config: Sb3Config, out: str | os.PathLike, progress: bool = False)
     out.mkdir(parents=True, exist_ok=True)
     with folder_lock(out):  # another process starting the same --out: refused
         _check_empty(out)  # again: another process may have started first and written since
-        _write_json(out / "config.json", asdict(config))
+        write_json(out / "config.json", asdict(config))
         try:
             return _learn(config, out, model, eval_env, [], 0.0, progress)
         except HamError:
@@ -491,7 +486,7 @@ def _resume_sb3(out: Path, config: Sb3Config, env_steps: int | None, progress: b
             raise HamError(f"--env-steps {env_steps}; accepted: more than the checkpoint's "
                            f"{model.num_timesteps} steps")  # fmt: skip
         config = replace(config, env_steps=env_steps)
-        _write_json(out / "config.json", asdict(config))
+        write_json(out / "config.json", asdict(config))
     _expand_buffer(model)
     _set_rng_states(state["rng"])
     return _learn(config, out, model, state["eval_env"], state["history"], state["seconds"],
@@ -556,7 +551,7 @@ def _learn(config: Sb3Config, out: Path, model, eval_env, history: list, seconds
                                 avg=f"{row['average_accuracy']:.3f}")  # fmt: skip
                 # A long run that is stopped early still leaves its curve so far (metrics.json
                 # is written only at the end, so it is never a partial result).
-                _write_json(out / "history.json", {
+                write_json(out / "history.json", {
                     "algo": config.algo, "env": config.env, "seed": config.seed,
                     "env_steps": row["env_steps"], "history": history,
                 })  # fmt: skip
@@ -604,5 +599,5 @@ def _learn(config: Sb3Config, out: Path, model, eval_env, history: list, seconds
     head = eval_env.head
     model.save(out / "model.zip")
     atomic_write(out / "head.pt", lambda tmp: torch.save(head.state_dict(), tmp), what="checkpoint")
-    _write_json(out / "metrics.json", metrics)
+    write_json(out / "metrics.json", metrics)
     return metrics

@@ -66,7 +66,7 @@ from ham.learn.stopping import STOP_LEARNERS, stop_loss
 from ham.model.agent import Episode, HamConfig, HapticAttentionModel, count_parameters
 from ham.world.config import WorldConfig
 from ham.world.devices import check_device
-from ham.world.files import check_output_dir, folder_lock
+from ham.world.files import atomic_write, check_output_dir, folder_lock, write_json
 from ham.world.sensor import NORMALIZATIONS
 from ham.world.source import ObjectPoseConfig, check_model_fits, make_source, world_pose_dims
 
@@ -805,17 +805,6 @@ def _check_env(model: HamConfig, env) -> None:
 
 
 # --------------------------------------------------------------------------- files
-def _write_atomic(path: Path, write) -> None:
-    """Write through ``path.tmp`` and ``os.replace``: a killed run never leaves half a file."""
-    tmp = path.with_name(path.name + ".tmp")
-    write(tmp)
-    os.replace(tmp, path)
-
-
-def _write_json(path: Path, obj) -> None:
-    _write_atomic(path, lambda p: p.write_text(json.dumps(obj, indent=1) + "\n"))
-
-
 def read_json(path: Path) -> dict:
     try:
         return json.loads(Path(path).read_text())
@@ -950,7 +939,7 @@ def train(config: TrainConfig, out: str | os.PathLike, *, progress: bool = True)
         with folder_lock(out):  # another process training into out: refused, nothing written
             _check_no_run(out)  # again: another process may have started first and saved since
             try:
-                _write_json(out / CONFIG_FILE, config.to_dict())
+                write_json(out / CONFIG_FILE, config.to_dict())
                 return train_loop(run, out, progress)
             except Exception as exc:
                 if run.step == 0:  # failed before its first step (out of memory, a plugin's
@@ -1017,7 +1006,7 @@ def _resume(out: Path, recorded, steps, env_steps, progress: bool, table) -> dic
                 f"accepted: >= {run.step}"
             )
         if config != recorded:  # a budget or a moved table, only once accepted: a refused
-            _write_json(out / CONFIG_FILE, config.to_dict())  # budget leaves the run as it was
+            write_json(out / CONFIG_FILE, config.to_dict())  # budget leaves the run as it was
         try:
             return train_loop(run, out, progress)
         except DivergedError as exc:
@@ -1301,8 +1290,8 @@ def _evaluate(
 
 
 def _save(run: Run, out: Path) -> None:
-    _write_atomic(out / CHECKPOINT_FILE, lambda p: torch.save(run.state_dict(), p))
-    _write_json(out / METRICS_FILE, run.metrics())
+    atomic_write(out / CHECKPOINT_FILE, lambda p: torch.save(run.state_dict(), p))
+    write_json(out / METRICS_FILE, run.metrics())
 
 
 def train_loop(run: Run, out: Path, progress: bool) -> dict:
@@ -1355,13 +1344,13 @@ def train_loop(run: Run, out: Path, progress: bool) -> dict:
         bar.close()
         writer.close()
     if n_train:
-        _write_json(
+        write_json(
             out / TIMING_FILE,
             {"steps_timed": n_train, "ms_per_step": 1000 * t_train / n_train,
              "torch_threads": torch.get_num_threads(), "device": c.device},
         )  # fmt: skip
     else:  # a finished run resumed (a grid's, whose metrics.json was lost): write it again
-        _write_json(out / METRICS_FILE, run.metrics())
+        write_json(out / METRICS_FILE, run.metrics())
     return run.metrics()
 
 

@@ -19,14 +19,17 @@ from ham.world.files import atomic_write, check_output  # noqa: E402
 from ham.world.objects import HapticObject  # noqa: E402
 
 
-def _save(fig, out: str | os.PathLike, tight: bool = True) -> Path:
-    """``fig`` as a PNG, atomically; ``tight``: cropped to its content (one more draw of the
-    figure: seconds for many 3-D panels, whose layout is fixed instead)."""
+def save_figure(
+    fig, out: str | os.PathLike, *, dpi: int = 110, tight: bool = True, what: str = "picture"
+) -> Path:
+    """``fig`` as the PNG ``out`` (path checked, written atomically: no partial file), then
+    closed; ``tight``: cropped to its content (one more draw of the figure: seconds for many 3-D
+    panels, whose layout is fixed instead)."""
     bbox = "tight" if tight else None
     try:
-        out = check_output(out, (".png",), what="picture")
+        out = check_output(out, (".png",), what=what)
         return atomic_write(
-            out, lambda tmp: fig.savefig(tmp, dpi=110, bbox_inches=bbox), what="picture"
+            out, lambda tmp: fig.savefig(tmp, dpi=dpi, bbox_inches=bbox, format="png"), what=what
         )
     finally:
         plt.close(fig)
@@ -60,7 +63,7 @@ def draw_objects(objs: list[HapticObject], out: str | os.PathLike) -> Path:
         ax.axis("off")
     axes[0, 0].set_ylabel("z (cm)")
     fig.suptitle("Object side profiles (extruded along y)", fontsize=11)
-    return _save(fig, out)
+    return save_figure(fig, out)
 
 
 def draw_glance(
@@ -101,7 +104,7 @@ def draw_glance(
     a1.set_xlabel("column (u, -x ... +x)")
     a1.set_ylabel("row (y)")
     fig.colorbar(im, ax=a1, fraction=0.046)
-    return _save(fig, out)
+    return save_figure(fig, out)
 
 
 def draw_table_grid(
@@ -122,7 +125,7 @@ def draw_table_grid(
             if i == 0:
                 ax.set_ylabel(f"q_phi={q[1][j]:+.2f}", fontsize=7)
     fig.suptitle(title, fontsize=10)
-    return _save(fig, out)
+    return save_figure(fig, out)
 
 
 def draw_objects_3d(
@@ -175,4 +178,4 @@ def draw_objects_3d(
     fig.suptitle(title or "Objects: top h(x, y) (cm)", fontsize=11, y=1 - 0.12 * inch)
     fig.subplots_adjust(left=0.02, right=0.98, bottom=0.15 * inch, top=1 - 0.75 * inch,
                         wspace=0.05, hspace=0.15)  # fmt: skip
-    return _save(fig, out, tight=False)
+    return save_figure(fig, out, tight=False)

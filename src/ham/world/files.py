@@ -3,6 +3,7 @@
 Every command that writes a file checks its path first with :func:`check_output` (the extension
 names the format written, so ``--out x.jpg`` for a PNG is refused, as are directories, other
 kinds of existing files and unwritable places) and then writes it with :func:`atomic_write`
+(or :func:`write_json`, :func:`write_text`)
 (a hidden temporary file beside the target, renamed over it only when complete; removed on any
 failure, so no ``.tmp`` file is ever left behind). :func:`check_output_dir` does the same for
 folders a command fills (run directories, reports).
@@ -11,6 +12,7 @@ folders a command fills (run directories, reports).
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -146,3 +148,14 @@ def atomic_write(
         except OSError:  # pragma: no cover - the folder itself vanished
             pass
     return path
+
+
+def write_json(path: str | os.PathLike, obj: object, *, what: str = "file", default=None) -> Path:
+    """``obj`` as JSON (one-space indent, a final newline) at ``path``, by :func:`atomic_write`;
+    ``default``: as :func:`json.dumps`'s, for values JSON has no type for."""
+    return write_text(path, json.dumps(obj, indent=1, default=default) + "\n", what=what)
+
+
+def write_text(path: str | os.PathLike, text: str, *, what: str = "file") -> Path:
+    """``text`` at ``path``, by :func:`atomic_write` (a report, a Markdown table)."""
+    return atomic_write(path, lambda tmp: tmp.write_text(text), what=what)
