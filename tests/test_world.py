@@ -9,7 +9,7 @@ import torch
 from ham.errors import HamError
 from ham.world import objects
 from ham.world.config import WorldConfig, make_simulator
-from ham.world.glance import FastSimulator, PoseConfig, _solve_stop_height
+from ham.world.glance import FastSimulator, PoseConfig, solve_stop_height
 from ham.world.sensor import SensorConfig, normalize
 
 PAPER = objects.resolve_set("paper")
@@ -85,7 +85,7 @@ def test_stop_height_is_exact_against_bisection():
     g = torch.Generator().manual_seed(1)
     e = torch.rand(64, 32, generator=g, dtype=torch.float64) * 0.01
     target = 0.004
-    z = _solve_stop_height(e, target)
+    z = solve_stop_height(e, target)
     lo, hi = e.min(1).values - target, e.max(1).values
     for _ in range(200):
         mid = 0.5 * (lo + hi)

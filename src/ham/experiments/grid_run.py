@@ -32,7 +32,7 @@ from ham.experiments.executors import (
     unbatchable_note,
 )
 from ham.experiments.grid import Grid, GridJob, load_grid, settings_text
-from ham.experiments.reproduce import _environment, _fmt, mean_sem
+from ham.experiments.reproduce import environment_record, format_mean_sem, mean_sem
 from ham.experiments.runs import (
     check_seed_count,
     evaluation_path,
@@ -253,7 +253,7 @@ def aggregate(root: Path, grid: Grid, jobs: list[GridJob]) -> list[dict]:
 
 # --------------------------------------------------------------------------- report
 def _entry(stat: dict) -> str:
-    return _fmt(stat["mean"], stat["sem"], stat["n"])
+    return format_mean_sem(stat["mean"], stat["sem"], stat["n"])
 
 
 def results_markdown(grid: Grid, cells: list[dict]) -> str:
@@ -348,7 +348,7 @@ def write_report(
     summary = {"grid": grid.to_dict(), "cells": cells, "failures": failures}
     write_json(root / "results.json", summary, default=str)
     curves = draw_curves(root, grid, jobs, root / "curves.png")
-    env = _environment()
+    env = environment_record()
     where = f"glance table {grid.table_grid} x {grid.table_grid}" if grid.table_grid else "online"
     lines = [
         f"# ham reproduce grid — `{grid.name}`",

@@ -275,7 +275,8 @@ def mean_sem(values: Iterable[float]) -> tuple[float, float, int]:
     return float(v.mean()), sem, int(v.size)
 
 
-def _fmt(mean: float, sem: float, n: int) -> str:
+def format_mean_sem(mean: float, sem: float, n: int) -> str:
+    """A table cell: ``0.946 ± 0.025``, ``(n=1)`` for one run, ``—`` for none."""
     if n == 0 or math.isnan(mean):
         return "—"
     if n == 1 or math.isnan(sem):
@@ -336,7 +337,7 @@ def table1_markdown(rows: dict) -> str:
         for v in PAPER_TABLE1:
             r = row[v]
             paper = "—" if r["paper"] is None else f"{r['paper'][0]:.3f} ± {r['paper'][1]:.3f}"
-            cells += [_fmt(r["mean"], r["sem"], r["n"]), paper]
+            cells += [format_mean_sem(r["mean"], r["sem"], r["n"]), paper]
         lines.append(f"| {g} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -345,7 +346,9 @@ def table2_markdown(rows: dict) -> str:
     lines = ["| combiner | ours | paper |", "|---|---|---|"]
     for c, r in rows.items():
         paper = f"{r['paper'][0]:.3f} ± {r['paper'][1]:.3f}"
-        lines.append(f"| {COMBINER_NAMES[c]} | {_fmt(r['mean'], r['sem'], r['n'])} | {paper} |")
+        lines.append(
+            f"| {COMBINER_NAMES[c]} | {format_mean_sem(r['mean'], r['sem'], r['n'])} | {paper} |"
+        )
     return "\n".join(lines)
 
 
@@ -563,7 +566,8 @@ def per_object_markdown(root: Path, jobs: list[Job]) -> str | None:
     return "\n".join(lines)
 
 
-def _environment() -> dict:
+def environment_record() -> dict:
+    """What the results were computed with (versions, CPU, GPU), kept beside them."""
     import torch
 
     import ham
@@ -605,7 +609,7 @@ def render_report(
     stopped: dict[str, int] | None = None,
     steps: int | None = None,
 ) -> str:
-    env = _environment()
+    env = environment_record()
     lines = [
         f"# ham reproduce {target} — profile `{profile.name}`",
         "",

@@ -57,11 +57,11 @@ from ham.learn.train import (
     TIMING_FILE,
     Run,
     TrainConfig,
-    _check_loss,
-    _check_weights,
-    _evaluate,
-    _log_eval,
+    check_loss,
+    check_weights,
+    evaluate_run,
     load_checkpoint,
+    log_evaluation,
     overflowed,
     read_run_config,
     stream_seed,
@@ -629,9 +629,9 @@ class BatchedRuns:
                 if i in self._overflowed:
                     raise HamError(self._overflowed.pop(i))
                 if not loss_ok[k]:
-                    _check_loss(r, self.numbers[0, k])
+                    check_loss(r, self.numbers[0, k])
                 if not weights_ok[k]:
-                    _check_weights(r)  # the message, with the first weight named
+                    check_weights(r)  # the message, with the first weight named
             except HamError as exc:
                 self.results[i] = str(exc)
                 failed.append(i)
@@ -719,7 +719,7 @@ class BatchedRuns:
                     for p in params.values():
                         p.grad = None
         with torch.no_grad():
-            # the weights of all runs in one reduction, as _check_weights does
+            # the weights of all runs in one reduction, as check_weights does
             sums = torch.stack([v.reshape(len(runs), -1).sum(1) for v in self.stacked.values()])
             self.numbers = torch.stack([totals, rewards.mean(-1), *parts]).detach()
             self.sums += self.numbers[:2]
@@ -838,11 +838,11 @@ class BatchedRuns:
 
     def _evaluate(self, due: list[tuple[int, float | None, float | None]]) -> dict[int, dict]:
         """Evaluate and record the runs ``due`` (run index, mean train loss and reward since
-        the last evaluation), as :func:`ham.learn.train._evaluate`; their records by index."""
+        the last evaluation), as :func:`ham.learn.train.evaluate_run`; their records by index."""
         if not due:
             return {}
         results = self.evaluate([i for i, _, _ in due])
-        return {i: _evaluate(self.runs[i], loss, reward, result)
+        return {i: evaluate_run(self.runs[i], loss, reward, result)
                 for (i, loss, reward), result in zip(due, results, strict=True)}  # fmt: skip
 
     # ------------------------------------------------------------------ the loop
@@ -870,7 +870,7 @@ class BatchedRuns:
                                 if self.runs[i].step == 0 and not self.runs[i].history])  # fmt: skip
         for i, record in fresh.items():
             writers[i] = SummaryWriter(str(self.outs[i] / "tb"))
-            _log_eval(writers[i], record, self.runs[i].config.model.glances)
+            log_evaluation(writers[i], record, self.runs[i].config.model.glances)
             self._save(i)
             self._maybe_stop(i)
         for i in list(self.active):
@@ -924,7 +924,7 @@ class BatchedRuns:
             self.sums[:, [columns[i] for i, _, _ in due]] = 0
             counts.update(dict.fromkeys([i for i, _, _ in due], 0))
         for i, record in self._evaluate(due).items():  # the due runs at once
-            _log_eval(writers[i], record, self.runs[i].config.model.glances)
+            log_evaluation(writers[i], record, self.runs[i].config.model.glances)
             self._save(i)
             if self._maybe_stop(i):
                 finished.append(i)

@@ -1037,7 +1037,7 @@ def overflowed(run: Run, exc: BaseException) -> DivergedError | None:
     return None
 
 
-def _check_loss(run: Run, loss: torch.Tensor) -> None:
+def check_loss(run: Run, loss: torch.Tensor) -> None:
     """Stop a diverged run with the step named: NaN or inf in the loss."""
     if not bool(torch.isfinite(loss)):
         raise DivergedError(f"training diverged at step {run.step + 1}: the loss is {loss.item()}")
@@ -1045,13 +1045,13 @@ def _check_loss(run: Run, loss: torch.Tensor) -> None:
 
 def _descend(run: Run, loss: torch.Tensor) -> None:
     """One optimizer step on ``loss``, after checking it is finite."""
-    _check_loss(run, loss)
+    check_loss(run, loss)
     run.optimizer.zero_grad(set_to_none=True)
     loss.backward()
     run.optimizer.step()
 
 
-def _check_weights(run: Run) -> None:
+def check_weights(run: Run) -> None:
     """Stop a diverged run with the step named: NaN or inf in any weight after the update."""
     # One reduction instead of one check per tensor: NaN and inf propagate into the sum (which
     # overflows only when the weights have diverged anyway).
@@ -1106,7 +1106,7 @@ def train_step(run: Run) -> HybridLoss | InfoLoss | SacLoss:
         loss = learner_loss(c.learner, episode, c)
     _descend(run, loss.total)
     run.step += 1
-    _check_weights(run)
+    check_weights(run)
     return loss
 
 
@@ -1210,7 +1210,7 @@ def train_step_epochs(run: Run) -> InfoLoss:
             loss.total = loss.classification + loss.critic
         _descend(run, loss.total)
     run.step += 1
-    _check_weights(run)
+    check_weights(run)
     return loss
 
 
@@ -1238,12 +1238,12 @@ def train_step_sac(run: Run) -> SacLoss:
             c.critic_trains_core,
         )  # fmt: skip
     run.step += 1
-    _check_weights(run)
+    check_weights(run)
     loss.gain = information_gain(played.logits, objects)
     return loss
 
 
-def _evaluate(
+def evaluate_run(
     run: Run,
     train_loss: float | None,
     train_reward: float | None,
@@ -1306,7 +1306,7 @@ def train_loop(run: Run, out: Path, progress: bool) -> dict:
     t_train, n_train = 0.0, 0
     try:
         if run.step == 0 and not run.history:  # the untrained model: the curves start at step 0
-            _log_eval(writer, _evaluate(run, None, None), run.config.model.glances)
+            log_evaluation(writer, evaluate_run(run, None, None), run.config.model.glances)
             _save(run, out)
         while run.step < c.steps:
             t0 = time.perf_counter()
@@ -1333,11 +1333,11 @@ def train_loop(run: Run, out: Path, progress: bool) -> dict:
                 writer.add_scalar("train/reward", loss.reward.mean().item(), run.step)
                 writer.add_scalar("train/lr", lr, run.step)
             if run.step % c.eval_every == 0 or run.step == c.steps:
-                record = _evaluate(run, loss_sum.item() / n_sum, reward_sum.item() / n_sum)
+                record = evaluate_run(run, loss_sum.item() / n_sum, reward_sum.item() / n_sum)
                 loss_sum.zero_()
                 reward_sum.zero_()
                 n_sum = 0
-                _log_eval(writer, record, c.model.glances)
+                log_evaluation(writer, record, c.model.glances)
                 bar.set_postfix(acc=f"{record['accuracy']:.3f}", best=f"{run.best_accuracy:.3f}")
                 _save(run, out)
     finally:
@@ -1354,7 +1354,8 @@ def train_loop(run: Run, out: Path, progress: bool) -> dict:
     return run.metrics()
 
 
-def _log_eval(writer, record: dict, glances: int) -> None:
+def log_evaluation(writer, record: dict, glances: int) -> None:
+    """An evaluation's record (:func:`evaluate_run`) on TensorBoard, under ``eval/``."""
     step = record["step"]
     writer.add_scalar("eval/accuracy", record["accuracy"], step)
     for s in range(glances):

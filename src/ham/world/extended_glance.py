@@ -15,7 +15,7 @@ paper's glance (zone half width, the authors' pivot shift ``-p sin(phi) cos(phi_
     d = (u cos(phi) - v sin(phi_y) sin(phi),  v cos(phi_y),  -u sin(phi) - v sin(phi_y) cos(phi))
 
 and touches the surface when the centre is at ``e = h(x + d_x, y + d_y) - d_z``. The stop height
-solves ``c0 * sum_k max(0, e_k - z) = 2 N`` exactly (:func:`ham.world.glance._solve_stop_height`).
+solves ``c0 * sum_k max(0, e_k - z) = 2 N`` exactly (:func:`ham.world.glance.solve_stop_height`).
 
 Model (:class:`ExtendedSimulator`):
 
@@ -78,11 +78,11 @@ from ham.world.glance import (
     GlanceConfig,
     GlanceResult,
     PoseConfig,
-    _solve_stop_height,
     _Workspace,
     as_action,
     as_object_ids,
     check_foam,
+    solve_stop_height,
 )
 from ham.world.objects import HapticObject
 from ham.world.sensor import Myrmex, SensorConfig
@@ -565,8 +565,8 @@ class ExtendedSimulator:
             for k in range(2, su):
                 sub = torch.maximum(sub, per[:, :, k], out=sub)
             sub = sub.view(b, rows * nt)
-            z0 = _solve_stop_height(sub, target, work)
-        z_force = _solve_stop_height(e, target, work, z0)
+            z0 = solve_stop_height(sub, target, work)
+        z_force = solve_stop_height(e, target, work, z0)
         # Rigid parts: the pad behind the foam (foam fully compressed), the housing's sides and
         # the back's points where a block's edge meets it (:meth:`_edge_points`), in one lookup.
         nh = len(self._hu)

@@ -520,7 +520,7 @@ class FastSimulator:
             self._add_features(e, ids, x, cos, sin)
         top = e.amax(1)
         e.sub_(top[:, None])  # relative to the first touch: small numbers, float32-exact enough
-        z_force = _solve_stop_height(e, g.force_threshold / self._c0, work)
+        z_force = solve_stop_height(e, g.force_threshold / self._c0, work)
         # Rigid parts: the pad behind the foam (foam fully compressed) and the housing's sides.
         hu, hv = self._hu, self._hv
         shape = (len(ids), hu.shape[1])
@@ -661,7 +661,7 @@ def _contiguous_strides(shape: tuple) -> tuple:
     return tuple(reversed(strides))
 
 
-def _solve_stop_height(
+def solve_stop_height(
     e: torch.Tensor, target: float, work: _Workspace | None = None, z0: torch.Tensor | None = None
 ) -> torch.Tensor:
     """The height z with ``sum_k max(0, e_k - z) = target`` for each row of ``e`` (B, K).
