@@ -43,6 +43,12 @@ def test_all_writes_tables_figures_and_report(smoke_all):
     report = (out / "report.md").read_text()
     assert "0.910 ± 0.001" in report and "Reductions from the paper's protocol: steps 12" in report
     assert "torch" in report and "cores" in report
+    # which code made the numbers: the commit of the source that ran (a git checkout here)
+    env = json.loads((out / "summary.json").read_text())["environment"]
+    assert f"commit {env['commit']}," in report
+    head = _git("rev-parse", "--short=12", "HEAD")
+    if head is not None:
+        assert env["commit"].split("+")[0] == head
     for name in ("curves", "learned_vs_random", "per_glance", "heatmap_g3"):
         assert (out / "figures" / f"{name}.png").read_bytes()[:4] == b"\x89PNG"
     # per-object accuracy from each run's last confusion matrix, one row per run group
@@ -50,6 +56,28 @@ def test_all_writes_tables_figures_and_report(smoke_all):
     section = report.split("## Accuracy per object")[1].split("##")[0]
     assert "| run | glances | box | ramp_up | convex | ramp_down |" in section
     assert "| full-concat2 (1 seed(s)) | 3 |" in section
+
+
+def _git(*args: str) -> str | None:
+    """git's answer in this checkout, or None where there is no git or no checkout."""
+    try:
+        done = subprocess.run(
+            ["git", *args], capture_output=True, text=True, cwd=Path(__file__).parent
+        )
+    except OSError:
+        return None
+    return done.stdout.strip() if done.returncode == 0 else None
+
+
+def test_the_commit_is_unknown_without_git(tmp_path):
+    """No git on the PATH (an installed wheel's machine): the record says so, no error."""
+    import sys
+
+    code = "from ham.experiments.reproduce import environment_record as e; print(e()['commit'])"
+    env = {**os.environ, "PATH": str(tmp_path)}  # an empty folder: no git
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "unknown (no git checkout, or no git)"
 
 
 def test_figures_of_runs_they_do_not_show_are_not_drawn(tmp_path, ham_cli):

@@ -345,10 +345,10 @@ def write_report(
     """``results.json``, ``report.md`` and ``curves.png`` from the finished runs; ``note``: a
     line on how the executor ran them (:func:`ham.experiments.executors.unbatchable_note`)."""
     cells = aggregate(root, grid, jobs)
-    summary = {"grid": grid.to_dict(), "cells": cells, "failures": failures}
+    env = environment_record()
+    summary = {"grid": grid.to_dict(), "cells": cells, "failures": failures, "environment": env}
     write_json(root / "results.json", summary, default=str)
     curves = draw_curves(root, grid, jobs, root / "curves.png")
-    env = environment_record()
     where = f"glance table {grid.table_grid} x {grid.table_grid}" if grid.table_grid else "online"
     lines = [
         f"# ham reproduce grid — `{grid.name}`",

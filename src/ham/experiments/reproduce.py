@@ -517,10 +517,11 @@ def write_outputs(
         figures = draw_figures(root, jobs, profile)
     summary["figures"] = [str(Path(f).relative_to(root)) for f in figures]
     summary["stopped_at_perfect"] = stopped_at_perfect(root, jobs)
+    summary["environment"] = environment_record()
     write_json(root / "summary.json", summary, default=str)
     report = render_report(
         target, profile, sections, summary["figures"], failures, command, executor,
-        stopped=summary["stopped_at_perfect"], steps=profile.steps,
+        stopped=summary["stopped_at_perfect"], steps=profile.steps, env=summary["environment"],
     )  # fmt: skip
     write_text(root / "report.md", report, what="report")
     return summary
@@ -566,8 +567,33 @@ def per_object_markdown(root: Path, jobs: list[Job]) -> str | None:
     return "\n".join(lines)
 
 
+def source_commit() -> str | None:
+    """The git commit of the ``ham`` source this process runs (``+dirty`` when tracked files
+    differ from it), or ``None`` outside a git checkout (an installed wheel): which code made a
+    result, beside its numbers."""
+    import subprocess
+
+    here = Path(__file__).resolve().parent
+
+    def git(*args: str) -> str | None:
+        try:
+            done = subprocess.run(
+                ["git", "-C", str(here), *args], capture_output=True, text=True, timeout=10
+            )
+        except (OSError, subprocess.SubprocessError):  # no git, or it hung
+            return None
+        return done.stdout.strip() if done.returncode == 0 else None
+
+    commit = git("rev-parse", "--short=12", "HEAD")
+    if not commit:
+        return None
+    dirty = git("status", "--porcelain", "--untracked-files=no", "--", str(here.parent))
+    return commit + ("+dirty" if dirty else "")
+
+
 def environment_record() -> dict:
-    """What the results were computed with (versions, CPU, GPU), kept beside them."""
+    """What the results were computed with (the code's version and commit, the machine),
+    kept beside them."""
     import torch
 
     import ham
@@ -576,6 +602,7 @@ def environment_record() -> dict:
     cpu = cpu_info("model name") or platform.processor() or platform.machine()
     return {
         "ham": ham.__version__,
+        "commit": source_commit() or "unknown (no git checkout, or no git)",
         "python": platform.python_version(),
         "torch": torch.__version__,
         "numpy": np.__version__,
@@ -608,8 +635,9 @@ def render_report(
     executor: str,
     stopped: dict[str, int] | None = None,
     steps: int | None = None,
+    env: dict | None = None,
 ) -> str:
-    env = environment_record()
+    env = env or environment_record()
     lines = [
         f"# ham reproduce {target} — profile `{profile.name}`",
         "",
