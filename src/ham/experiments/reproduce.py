@@ -608,6 +608,10 @@ def environment_record() -> dict:
         "numpy": np.__version__,
         "platform": platform.platform(),
         "cpu": cpu,
+        # what decides the last bits of the numbers on a CPU (docs/results: "The same numbers on
+        # another machine"): PyTorch's kernels and MKL's reproducible mode, if set
+        "simd": getattr(torch.backends.cpu, "get_cpu_capability", lambda: "unknown")(),
+        "MKL_CBWR": os.environ.get("MKL_CBWR", "unset"),
         "cores": os.cpu_count(),
         "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else "none",
     }
