@@ -117,3 +117,43 @@ def test_the_project_stands_alone():
     hits += [f"README.md: {n}" for n in needles if n in readme]
     assert not hits, hits
     assert (root / "docs" / "sources.md").is_file()
+
+
+#: The one place a file is written and renamed into place (``ham.world.files``), and the glance
+#: table builder, which renames its resumable partial HDF5 file when the build is complete.
+ATOMIC_WRITERS = {"ham.world.files", "ham.world.table"}
+#: Calls that write a file in place: outside ``ATOMIC_WRITERS`` they may only run inside a
+#: ``lambda tmp: ...`` handed to ``atomic_write``, which writes a temporary file and renames it.
+IN_PLACE = {"write_text", "write_bytes", "savefig", "save", "replace", "dump"}
+
+
+def test_files_are_written_atomically():
+    """No result, report, figure or checkpoint is written in place: a killed run must never
+    leave half a file (``ham.world.files.atomic_write``/``write_json``/``write_text``,
+    ``ham.world.drawing.save_figure``)."""
+    bad = []
+    for path in sorted(SRC.rglob("*.py")):
+        if module_name(path) in ATOMIC_WRITERS:
+            continue
+        tree = ast.parse(path.read_text())
+        in_lambda = {id(n) for lam in ast.walk(tree) if isinstance(lam, ast.Lambda)
+                     for n in ast.walk(lam.body)}  # fmt: skip
+        for node in ast.walk(tree):
+            if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)):
+                continue
+            name, owner = node.func.attr, node.func.value
+            owner_name = owner.id if isinstance(owner, ast.Name) else ""
+            if name not in IN_PLACE or id(node) in in_lambda:
+                continue
+            if name == "dump" and (owner_name != "json" or _to_stdout(node)):
+                continue  # JSON printed for the user, not a file
+            if name == "save" and owner_name != "torch":
+                continue
+            if name == "replace" and owner_name != "os":
+                continue
+            bad.append(f"{module_name(path)}:{node.lineno} {owner_name or '...'}.{name}")
+    assert not bad, f"files written in place (use ham.world.files): {bad}"
+
+
+def _to_stdout(call: ast.Call) -> bool:
+    return len(call.args) > 1 and ast.unparse(call.args[1]) == "sys.stdout"

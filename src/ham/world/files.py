@@ -157,5 +157,6 @@ def write_json(path: str | os.PathLike, obj: object, *, what: str = "file", defa
 
 
 def write_text(path: str | os.PathLike, text: str, *, what: str = "file") -> Path:
-    """``text`` at ``path``, by :func:`atomic_write` (a report, a Markdown table)."""
-    return atomic_write(path, lambda tmp: tmp.write_text(text), what=what)
+    """``text`` at ``path`` in UTF-8 (reports hold "±" and "—" whatever the locale), by
+    :func:`atomic_write`: a report, a Markdown table, a JSON file."""
+    return atomic_write(path, lambda tmp: tmp.write_text(text, encoding="utf-8"), what=what)

@@ -1262,16 +1262,14 @@ def objects_file_entry(obj: HapticObject, samples: int = 129) -> dict:
 def write_objects_file(objs: Sequence[HapticObject], path: str | Path, samples: int = 129) -> Path:
     """Write ``objs`` as a self-contained JSON objects file of ``height_field`` entries
     (atomically); ``--objects-file PATH`` then registers them in any process."""
-    from ham.world.files import atomic_write, check_output
+    from ham.world.files import check_output, write_text
 
     p = check_output(path, (".json",), what="objects file")
     if not objs:
         raise HamError("write_objects_file: no objects; accepted: one or more HapticObjects")
     entries = [objects_file_entry(o, samples) for o in objs]
     text = json.dumps({"objects": entries}, separators=(",", ":")) + "\n"
-    return atomic_write(
-        p, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"), what="objects file"
-    )
+    return write_text(p, text, what="objects file")
 
 
 for _obj in _builtin():
