@@ -242,6 +242,10 @@ def test_a_grid_runs_and_reports(tiny_run):
     assert f"| `glances=2` | glances=2 | 2/2 | 10 | {mean:.3f} ± {sem:.3f} |" in report
     assert "| `diverges` | lr=1e+30 | 0/1 | 10 | — |" in report
     assert "- `diverges-s0`: DivergedError: training diverged" in report
+    # which code and machine made the numbers, in the report and beside the results
+    env = results["environment"]
+    assert {"commit", "cpu", "simd", "MKL_CBWR", "torch"} <= set(env)
+    assert f"commit {env['commit']}, " in report
     assert (out / "curves.png").read_bytes()[:4] == b"\x89PNG"
     # the grid and every run's resolved config are saved beside the results
     plan_ = json.loads((out / "plan.json").read_text())
