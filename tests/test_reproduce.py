@@ -138,6 +138,31 @@ def test_ray_executor_matches_the_local_pool(smoke_all, tmp_path, ham_cli):
     assert ours == local  # same seeds, same numbers, whichever executor ran them
 
 
+def test_ray_workers_compute_as_the_driver_asks(tmp_path):
+    """``MKL_CBWR`` set where ``ham reproduce`` runs reaches a Ray cluster's workers through
+    Ray's runtime environment (a remote node inherits nothing from this shell), so the nodes of
+    a mixed cluster compute alike (docs/results/README.md, "The same numbers on another
+    machine")."""
+    pytest.importorskip("ray")
+    import sys
+
+    code = (
+        "import ray\n"
+        "from ham.experiments.executors import _connect_ray\n"
+        "_connect_ray(None, 1)\n"
+        "task = ray.remote(lambda: ray.get_runtime_context().runtime_env.get('env_vars', {}))\n"
+        "print(ray.get(task.remote()))\n"
+        "ray.shutdown()\n"
+    )
+    env = {**os.environ, "MKL_CBWR": "COMPATIBLE"}
+    env.pop("RAY_ADDRESS", None)
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip().splitlines()[-1] == "{'MKL_CBWR': 'COMPATIBLE'}"
+
+
 def test_bad_arguments(tmp_path, ham_main):
     with pytest.raises(HamError, match="seeds = 0; accepted: an integer from 1 to 10000"):
         reproduce("table1", "smoke", tmp_path, seeds=0)

@@ -289,6 +289,13 @@ def _ray_options(ray, jobs: list[Job]) -> dict:
     return options
 
 
+#: Settings that decide the last bits of a run's numbers on a CPU, handed on to a Ray cluster's
+#: workers (a local pool's workers inherit them): ``MKL_CBWR=COMPATIBLE`` asks MKL for the same
+#: results on every kind of CPU (its conditional numerical reproducibility), so that the nodes
+#: of a mixed cluster give one machine's numbers.
+NUMERICS_ENV: tuple[str, ...] = ("MKL_CBWR",)
+
+
 def _connect_ray(address: str | None, cpus: int | None):
     """Ray, joined to the cluster at ``address`` or started here with ``cpus`` CPUs (default:
     all) unless this process is connected already; and whether it was started by this call."""
@@ -299,6 +306,9 @@ def _connect_ray(address: str | None, cpus: int | None):
     if ray.is_initialized():
         return ray, False
     kwargs = {"address": address} if address else {"num_cpus": cpus or os.cpu_count() or 1}
+    numerics = {k: os.environ[k] for k in NUMERICS_ENV if k in os.environ}
+    if numerics:  # the cluster's nodes compute as this machine asks (docs/results/README.md)
+        kwargs["runtime_env"] = {"env_vars": numerics}
     try:
         ray.init(**kwargs, include_dashboard=False, log_to_driver=False,
                  logging_level="ERROR")  # fmt: skip
