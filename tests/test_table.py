@@ -200,3 +200,22 @@ def test_import_of_the_authors_layout(tmp_path):
         import_authors(tmp_path / "bad.h5", tmp_path / "o.h5")
     with pytest.raises(HamError, match="accepted: x,phi or phi,x"):
         import_authors(src, tmp_path / "o.h5", axes="y")
+
+
+def test_a_table_another_process_is_building_is_named(tmp_path):
+    """Two builds of one ``--out`` at once: the second says another ham process is building it
+    (HDF5's lock on the partial file), in one line, and leaves the first one's file alone."""
+    import os
+
+    from tests.conftest import one_line_error, run_ham
+
+    if os.environ.get("HDF5_USE_FILE_LOCKING", "").upper() == "FALSE":
+        pytest.skip("HDF5 file locking is off here")
+    out = tmp_path / "t.h5"
+    with h5py.File(tmp_path / "t.h5.partial", "w") as held:  # as a running build holds it
+        held.attrs["mark"] = 1
+        line = one_line_error(run_ham("table", "build", "--grid", "5", "--out", str(out)))
+    assert f"glance table '{out}' is being built by another ham process" in line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.h5.partial"]
+    with h5py.File(tmp_path / "t.h5.partial", "r") as f:
+        assert f.attrs["mark"] == 1

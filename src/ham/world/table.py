@@ -430,6 +430,12 @@ def _open_partial(partial: Path):
     try:
         return h5py.File(partial, mode), mode
     except OSError as exc:
+        if "unable to lock file" in str(exc):  # HDF5's own lock: another build holds the file
+            out = partial.with_name(partial.name.removesuffix(".partial"))
+            raise HamError(
+                f"glance table '{out}' is being built by another ham process; accepted: an --out "
+                "no running ham writes (wait for that one to end, or stop it)"
+            ) from None
         raise HamError(f"cannot write glance table {partial}: {exc}") from None
 
 
