@@ -80,6 +80,29 @@ def test_the_commit_is_unknown_without_git(tmp_path):
     assert done.stdout.strip() == "unknown (no git checkout, or no git)"
 
 
+def test_a_copy_inside_another_checkout_names_no_commit(tmp_path):
+    """ham installed (copied, untracked) into a venv inside some git checkout is not that
+    checkout's code: the record names no commit rather than the checkout's."""
+    import shutil
+    import sys
+
+    if _git("--version") is None:
+        pytest.skip("no git here")
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-C", str(tmp_path)]
+    subprocess.run([*git, "init", "-q"], check=True)
+    (tmp_path / "README").write_text("another project\n")
+    subprocess.run([*git, "add", "README"], check=True)
+    subprocess.run([*git, "commit", "-q", "-m", "x"], check=True)
+    site = tmp_path / ".venv" / "site-packages"
+    shutil.copytree(Path(__file__).parents[1] / "src" / "ham", site / "ham",
+                    ignore=shutil.ignore_patterns("__pycache__"))  # fmt: skip
+    code = "from ham.experiments.reproduce import environment_record as e; print(e()['commit'])"
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "unknown (no git checkout, or no git)"
+
+
 def test_figures_of_runs_they_do_not_show_are_not_drawn(tmp_path, ham_cli):
     """The figures show the full model and random locations: with --variants mlp there is
     nothing to draw, so no empty picture is written (matplotlib warned of an empty legend on

@@ -569,8 +569,8 @@ def per_object_markdown(root: Path, jobs: list[Job]) -> str | None:
 
 def source_commit() -> str | None:
     """The git commit of the ``ham`` source this process runs (``+dirty`` when tracked files
-    differ from it), or ``None`` outside a git checkout (an installed wheel): which code made a
-    result, beside its numbers."""
+    differ from it), or ``None`` where this file is not a checkout's tracked file (an installed
+    wheel, also one inside a checkout's venv): which code made a result, beside its numbers."""
     import subprocess
 
     here = Path(__file__).resolve().parent
@@ -584,6 +584,9 @@ def source_commit() -> str | None:
             return None
         return done.stdout.strip() if done.returncode == 0 else None
 
+    # a copy installed into a venv inside some checkout is not that checkout's code
+    if git("ls-files", "--error-unmatch", Path(__file__).name) is None:
+        return None
     commit = git("rev-parse", "--short=12", "HEAD")
     if not commit:
         return None
