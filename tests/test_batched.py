@@ -698,7 +698,8 @@ def test_a_grid_sweep_of_rates_and_betas_is_one_batched_model(tmp_path, ham_cli)
     runs = sorted((tmp_path / "o/runs").iterdir())
     assert len(runs) == 8
     for run in runs:  # 4 cells x 2 seeds, one model
-        assert json.loads((run / "timing.json").read_text())["batched_runs"] == 8
+        timing = json.loads((run / "timing.json").read_text())
+        assert timing["batched_runs"] == 8 and "cpu" in timing["environment"]
     configs = {json.loads((run / "config.json").read_text())["lr"] for run in runs}
     assert configs == {1e-3, 3e-3}
 

@@ -73,7 +73,7 @@ def test_the_commit_is_unknown_without_git(tmp_path):
     """No git on the PATH (an installed wheel's machine): the record says so, no error."""
     import sys
 
-    code = "from ham.experiments.reproduce import environment_record as e; print(e()['commit'])"
+    code = "from ham.world.devices import environment_record as e; print(e()['commit'])"
     env = {**os.environ, "PATH": str(tmp_path)}  # an empty folder: no git
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert done.returncode == 0, done.stderr
@@ -96,7 +96,7 @@ def test_a_copy_inside_another_checkout_names_no_commit(tmp_path):
     site = tmp_path / ".venv" / "site-packages"
     shutil.copytree(Path(__file__).parents[1] / "src" / "ham", site / "ham",
                     ignore=shutil.ignore_patterns("__pycache__"))  # fmt: skip
-    code = "from ham.experiments.reproduce import environment_record as e; print(e()['commit'])"
+    code = "from ham.world.devices import environment_record as e; print(e()['commit'])"
     env = {**os.environ, "PYTHONPATH": str(site)}
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert done.returncode == 0, done.stderr

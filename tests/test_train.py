@@ -98,6 +98,10 @@ def test_cli_train_evaluate_heatmap(tmp_path, capsys):
                 "history"):  # fmt: skip
         assert key in m, key
     assert m["steps"] == 4
+    # how fast, and on what: the machine and code whose last bits the numbers carry
+    timing = json.loads((out / "timing.json").read_text())
+    assert timing["steps_timed"] == 4 and timing["torch_threads"] >= 1
+    assert {"commit", "cpu", "simd", "MKL_CBWR"} <= set(timing["environment"])
     assert [h["step"] for h in m["history"]] == [0, 2, 4]
     assert len(m["accuracy_per_glance"]) == 2
     assert m["config"]["model"]["glances"] == 2

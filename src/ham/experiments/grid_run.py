@@ -32,7 +32,7 @@ from ham.experiments.executors import (
     unbatchable_note,
 )
 from ham.experiments.grid import Grid, GridJob, load_grid, settings_text
-from ham.experiments.reproduce import environment_record, format_mean_sem, mean_sem
+from ham.experiments.reproduce import format_mean_sem, mean_sem
 from ham.experiments.runs import (
     check_seed_count,
     evaluation_path,
@@ -42,6 +42,7 @@ from ham.experiments.runs import (
     read_metrics,
     run_dir,
 )
+from ham.world.devices import environment_record
 from ham.world.drawing import save_figure
 from ham.world.files import check_output_dir, write_json, write_text
 

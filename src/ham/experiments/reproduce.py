@@ -21,7 +21,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import platform
 import time
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass, replace
@@ -47,6 +46,7 @@ from ham.experiments.runs import (
     run_dir,
     stopped_at,
 )
+from ham.world.devices import environment_record
 from ham.world.files import write_json, write_text
 
 if TYPE_CHECKING:
@@ -565,59 +565,6 @@ def per_object_markdown(root: Path, jobs: list[Job]) -> str | None:
             + " |"
         )
     return "\n".join(lines)
-
-
-def source_commit() -> str | None:
-    """The git commit of the ``ham`` source this process runs (``+dirty`` when tracked files
-    differ from it), or ``None`` where this file is not a checkout's tracked file (an installed
-    wheel, also one inside a checkout's venv): which code made a result, beside its numbers."""
-    import subprocess
-
-    here = Path(__file__).resolve().parent
-
-    def git(*args: str) -> str | None:
-        try:
-            done = subprocess.run(
-                ["git", "-C", str(here), *args], capture_output=True, text=True, timeout=10
-            )
-        except (OSError, subprocess.SubprocessError):  # no git, or it hung
-            return None
-        return done.stdout.strip() if done.returncode == 0 else None
-
-    # a copy installed into a venv inside some checkout is not that checkout's code
-    if git("ls-files", "--error-unmatch", Path(__file__).name) is None:
-        return None
-    commit = git("rev-parse", "--short=12", "HEAD")
-    if not commit:
-        return None
-    dirty = git("status", "--porcelain", "--untracked-files=no", "--", str(here.parent))
-    return commit + ("+dirty" if dirty else "")
-
-
-def environment_record() -> dict:
-    """What the results were computed with (the code's version and commit, the machine),
-    kept beside them."""
-    import torch
-
-    import ham
-    from ham.world.devices import cpu_info
-
-    cpu = cpu_info("model name") or platform.processor() or platform.machine()
-    return {
-        "ham": ham.__version__,
-        "commit": source_commit() or "unknown (no git checkout, or no git)",
-        "python": platform.python_version(),
-        "torch": torch.__version__,
-        "numpy": np.__version__,
-        "platform": platform.platform(),
-        "cpu": cpu,
-        # what decides the last bits of the numbers on a CPU (docs/results: "The same numbers on
-        # another machine"): PyTorch's kernels and MKL's reproducible mode, if set
-        "simd": getattr(torch.backends.cpu, "get_cpu_capability", lambda: "unknown")(),
-        "MKL_CBWR": os.environ.get("MKL_CBWR", "unset"),
-        "cores": os.cpu_count(),
-        "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else "none",
-    }
 
 
 KNOWN_DIFFERENCES = """\

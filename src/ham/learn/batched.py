@@ -69,6 +69,7 @@ from ham.learn.train import (
 from ham.model.agent import Episode
 from ham.model.location_net import truncated_normal, uniform_locations
 from ham.model.policy import TruncatedGaussian, Uniform
+from ham.world.devices import environment_record
 from ham.world.files import atomic_write, folder_lock, write_json
 from ham.world.source import check_model_fits, make_source
 
@@ -945,6 +946,7 @@ class BatchedRuns:
         for i in range(len(self.runs)):
             if not isinstance(self.results.get(i), str):
                 write_json(self.outs[i] / METRICS_FILE, self.metrics(i))
+        environment = environment_record() if self._n_train else None
         for i in self._writers:
             if self._n_train:
                 write_json(
@@ -952,7 +954,7 @@ class BatchedRuns:
                     {"steps_timed": self._n_train,
                      "ms_per_step": 1000 * self._t_train / self._n_train,
                      "batched_runs": len(self.runs), "torch_threads": torch.get_num_threads(),
-                     "device": self.runs[i].config.device},
+                     "device": self.runs[i].config.device, "environment": environment},
                 )  # fmt: skip
         return [self.results.get(i, None) or self.metrics(i) for i in range(len(self.runs))]
 

@@ -65,7 +65,7 @@ from ham.learn.probe import PROBE_SCORES, probe_due, probe_glances, probe_round,
 from ham.learn.stopping import STOP_LEARNERS, stop_loss
 from ham.model.agent import Episode, HamConfig, HapticAttentionModel, count_parameters
 from ham.world.config import WorldConfig
-from ham.world.devices import check_device
+from ham.world.devices import check_device, environment_record
 from ham.world.files import atomic_write, check_output_dir, folder_lock, write_json
 from ham.world.sensor import NORMALIZATIONS
 from ham.world.source import ObjectPoseConfig, check_model_fits, make_source, world_pose_dims
@@ -1347,7 +1347,8 @@ def train_loop(run: Run, out: Path, progress: bool) -> dict:
         write_json(
             out / TIMING_FILE,
             {"steps_timed": n_train, "ms_per_step": 1000 * t_train / n_train,
-             "torch_threads": torch.get_num_threads(), "device": c.device},
+             "torch_threads": torch.get_num_threads(), "device": c.device,
+             "environment": environment_record()},
         )  # fmt: skip
     else:  # a finished run resumed (a grid's, whose metrics.json was lost): write it again
         write_json(out / METRICS_FILE, run.metrics())
