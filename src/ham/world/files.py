@@ -2,10 +2,9 @@
 
 Every command that writes a file checks its path first with :func:`check_output` (the extension
 names the format written, so ``--out x.jpg`` for a PNG is refused, as are directories, other
-kinds of existing files and unwritable places) and then writes it with :func:`atomic_write`
-(or :func:`write_json`, :func:`write_text`)
-(a hidden temporary file beside the target, renamed over it only when complete; removed on any
-failure, so no ``.tmp`` file is ever left behind). :func:`check_output_dir` does the same for
+kinds of existing files and unwritable places) and then writes it with :func:`atomic_write`,
+:func:`write_json` or :func:`write_text` (a hidden temporary file beside the target, renamed over
+it only when complete; removed on any failure, so no ``.tmp`` file is ever left behind). :func:`check_output_dir` does the same for
 folders a command fills (run directories, reports).
 """
 
