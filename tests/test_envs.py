@@ -270,6 +270,27 @@ def test_ham_trains_on_an_offline_ap_gym_env_and_beats_random_locations(ap_gym, 
     assert learned["final_accuracy"] > baseline["final_accuracy"]  # and where to look
 
 
+def test_a_sparse_variant_trains_the_ham_as_its_dense_one(ap_gym, tmp_path):
+    """The HAM trains on its own reward (docs/gym.md); a ``-sparse`` variant changes only the
+    env's reward and prediction weights, so the same seed must give the same run, number for
+    number (measured at 250k steps on CircleSquare-sparse-v0: docs/learners.md)."""
+    from ham.learn.ap_adapter import TELEPORT_STEP, ApGymConfig
+    from ham.learn.train import TrainConfig, fit_to_ap_gym, train
+    from ham.model.agent import HamConfig
+
+    runs = {}
+    for env_id in ("CircleSquare-s15-nograd-v0", "CircleSquare-s15-nograd-sparse-v0"):
+        env = ApGymConfig(f"ap_gym:{env_id}", max_step_length=TELEPORT_STEP)
+        config = TrainConfig(model=HamConfig(glances=2), steps=20, batch_size=8, lr=0.003,
+                             eval_every=10, eval_batches=4, seed=3)  # fmt: skip
+        runs[env_id] = train(fit_to_ap_gym(config, env), tmp_path / env_id, progress=False)
+    dense, sparse = runs.values()
+    assert sparse["config"]["env"]["env"] == "ap_gym:CircleSquare-s15-nograd-sparse-v0"
+    assert [h["accuracy"] for h in sparse["history"]] == [h["accuracy"] for h in dense["history"]]
+    assert sparse["history"][-1]["train_loss"] == dense["history"][-1]["train_loss"]
+    assert len(dense["history"]) == 3
+
+
 def test_cli_lists_environments(ap_gym, ham_cli):
     import json
 
