@@ -197,6 +197,9 @@ _MALLOPT_DONE = False
 # 580-640 ms, 2048 rows 710-810 ms)
 _EVAL_ROWS = 512
 _FUSED_SGD = getattr(torch, "_fused_sgd_", None)
+# elements a run's tensor must come in multiples of to be updated over the whole stack (a
+# multiple of every CPU's vector width): no element of it falls in the fused kernel's scalar tail
+_WHOLE_VECTORS = 64
 _GRAPH_WARMUP = 2  # eager steps of a new stack before its step is captured as a CUDA graph
 
 
@@ -384,7 +387,8 @@ class BatchedRuns:
         momentum (PyTorch's ``_fused_sgd_``: the foreach optimizer's numbers to the last bit of
         the momentum buffer) instead of N optimizers looping over their parameters. Runs of one
         rate and momentum (the usual case: one schedule, one step) are updated as whole stacked
-        tensors, others run by run. A run whose loss was not finite is updated too (no host
+        tensors (but each run's small tensors apart: a run's numbers do not depend on which runs
+        share its model), others run by run. A run whose loss was not finite is updated too (no host
         sync before the update); it leaves the group after the step, its update unused."""
         settings = self._settings(runs)
         if self._whole(runs, settings):
@@ -402,23 +406,36 @@ class BatchedRuns:
                 by_scale.setdefault(settings[k][3][name], []).append(name)
             calls += [(idx, k, scale, names) for scale, names in by_scale.items()]
         rates = self._rate_tensor(settings, [(k, scale) for _, k, scale, _ in calls])
+
+        # a small tensor (a 2-element bias) run by run: the fused kernel rounds the elements
+        # of its vector loop (a fused multiply-add) and of its scalar tail differently, so over
+        # a whole stack a run's small tensors would round by where they lie in it, that is by
+        # which runs share its model; a tensor of whole vectors per run has no tail
+        # (docs/batched.md, "A run's numbers and its batch-mates")
+        def views(ts: dict, n: str, idx) -> list[torch.Tensor]:
+            t = ts[n][idx]
+            if isinstance(idx, slice) and t[0].numel() % _WHOLE_VECTORS:
+                return list(t.unbind(0))
+            return [t]
+
         with torch.no_grad():
             for j, (idx, k, scale, names) in enumerate(calls):
                 lr, m, nesterov, _ = settings[k]
-                ps = [self.stacked[n][idx] for n in names]
-                gs = [grads[n][idx] for n in names]
+                ps = [v for n in names for v in views(self.stacked, n, idx)]
+                gs = [v for n in names for v in views(grads, n, idx)]
                 if m == 0 and rates is None:  # the optimizer keeps no buffers
                     torch._foreach_add_(ps, gs, alpha=-(lr * scale))
                 elif _FUSED_SGD is not None:
                     # zero-initialized buffers: 0 * m + g is exactly the first buffer; with a
                     # graph the rate is read from the device (its replays' rates)
-                    _FUSED_SGD(ps, gs, [] if m == 0 else [self.buffers[n][idx] for n in names],
+                    bufs = [v for n in names for v in views(self.buffers, n, idx)] if m else []
+                    _FUSED_SGD(ps, gs, bufs,
                                weight_decay=0.0, momentum=m,
                                lr=lr * scale if rates is None else rates[j], dampening=0.0,
                                nesterov=nesterov, maximize=False,
                                is_first_step=False)  # fmt: skip
                 else:  # torch.optim.SGD's foreach steps
-                    bs = [self.buffers[n][idx] for n in names]
+                    bs = [v for n in names for v in views(self.buffers, n, idx)]
                     torch._foreach_mul_(bs, m)
                     torch._foreach_add_(bs, gs)
                     ds = torch._foreach_add(gs, bs, alpha=m) if nesterov else bs
