@@ -389,16 +389,19 @@ def test_the_gates_forward_in_halves_gives_the_whole_products_numbers(tmp_path, 
 
 
 def test_a_runs_numbers_do_not_depend_on_its_batch_mates(tmp_path):
-    """Bit for bit, not to tolerance: seeds 0 and 1 trained as a model of two, and as a model
-    of five with another seed and runs of another normalization and loss reduction. The fused
-    SGD rounds its vector loop and its scalar tail differently, so over whole stacks a run's
-    2-element biases rounded by their place in the stack (docs/batched.md)."""
+    """Bit for bit, not to tolerance (one torch thread, as the grid's workers): seed 0 as a model
+    of its own, seeds 0 and 1 as a model of two, and both in a model of five with another seed
+    and runs of another normalization and loss reduction. The fused SGD rounds its vector loop
+    and its scalar tail differently, so over whole stacks a run's 2-element biases rounded by
+    their place in the stack (docs/batched.md)."""
+    assert torch.get_num_threads() == 1  # conftest: with more, MKL splits one run's products
     pair = [tiny(0), tiny(1)]
     crowd = [tiny(2), tiny(0, normalization="l1"), tiny(0), tiny(1),
              tiny(1, classification_reduction="mean")]  # fmt: skip
+    train_batched([tiny(0)], [tmp_path / "alone"])
     train_batched(pair, [tmp_path / "p0", tmp_path / "p1"])
     train_batched(crowd, [tmp_path / f"c{i}" for i in range(5)])
-    for p, c in (("p0", "c2"), ("p1", "c3")):
+    for p, c in (("p0", "c2"), ("p1", "c3"), ("alone", "p0")):
         for x, y in zip(weights(tmp_path / p), weights(tmp_path / c), strict=True):
             assert torch.equal(x, y)
         a, b = metrics(tmp_path / p), metrics(tmp_path / c)
