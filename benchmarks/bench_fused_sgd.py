@@ -10,7 +10,7 @@
 2. Cost: one update of ``--runs`` runs of the paper's model (10 glances), CPU time per update
    (median of 15 repeats of 20, one thread), the three ways interleaved in one process: every
    stacked tensor whole (before), every tensor run by run, and the tensors whose per-run size is
-   not a multiple of 64 run by run (``ham.learn.batched``, now).
+   not a multiple of ``ham.learn.batched._WHOLE_VECTORS`` (64) run by run (the trainer, now).
 
     PYTHONPATH=src python benchmarks/bench_fused_sgd.py [--runs 10] [--trials 2000]
 """
@@ -23,6 +23,7 @@ import time
 
 import torch
 
+from ham.learn.batched import _WHOLE_VECTORS
 from ham.model.agent import HamConfig, HapticAttentionModel
 
 SGD = dict(weight_decay=0.0, momentum=0.9, lr=8e-4, dampening=0.0, nesterov=True,
@@ -53,7 +54,7 @@ def cost(runs: int) -> dict[str, float]:
         "whole stacks": lambda ts: ts,
         "every tensor run by run": lambda ts: [v for t in ts for v in t.unbind(0)],
         "small tensors run by run": lambda ts: [
-            v for t in ts for v in (t.unbind(0) if t[0].numel() % 64 else [t])
+            v for t in ts for v in (t.unbind(0) if t[0].numel() % _WHOLE_VECTORS else [t])
         ],
     }
     times: dict[str, list[float]] = {k: [] for k in ways}
