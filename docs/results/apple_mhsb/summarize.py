@@ -1,0 +1,156 @@
+"""Our runs of docs/grids/apple_mhsb.toml beside the APPLE study's released curves, by environment steps.
+
+python docs/results/apple_mhsb/summarize.py RUNS_OUT OUT_DIR
+
+RUNS_OUT is the grid's --out folder (runs/<variant>-s<seed>/metrics.json); OUT_DIR gets
+summary.json, table.md and accuracy_vs_env_steps.png. Our numbers: the evaluation during training
+(10 batches of 64 episodes, mean poses) and the grid's final evaluations (50 batches). Mean ±
+s.e.m. over seeds (ddof=1). APPLE's numbers are quoted, not computed here (below).
+"""
+
+import argparse
+import json
+import math
+import re
+from pathlib import Path
+
+# APPLE's released evaluation curves on HAMTactileClassification-v0 ("MHSB"), final-glance
+# accuracy, mean over their seeds, read off github.com/TimSchneider42/apple at
+# data/HAMTactileClassification-v0/<agent>/eval_final.csv (commit 4b1d71f) at the row nearest to
+# each point; their rows lie every ~20,000 environment steps (102,000 for ham_long).
+APPLE = {
+    "APPLE SAC": {23_277: 0.811, 63_766: 0.900, 104_256: 0.954, 205_480: 0.992, 995_028: 0.989},
+    "APPLE CrossQ": {23_277: 0.759, 63_766: 0.893, 104_256: 0.967, 205_480: 0.997, 995_028: 1.000},
+    "APPLE random actions": {
+        23_277: 0.714,
+        63_766: 0.821,
+        104_256: 0.911,
+        205_480: 0.990,
+        995_028: 1.000,
+    },
+    "APPLE HAM": {20_447: 0.485, 61_262: 0.462, 102_077: 0.509, 204_113: 0.501, 1_000_000: 0.677},
+    # ham_long/eval_final.csv: the same agent for 5,000,000 steps
+    "APPLE HAM, 5M run": {1_019_624: 0.682, 2_039_207: 0.867, 3_058_791: 0.970, 4_996_000: 0.978},
+}
+POINTS = (32_000, 64_000, 96_000, 192_000, 496_000, 1_000_000)  # multiples of 16,000
+NAME = re.compile(r"^(?P<variant>.+)-s(?P<seed>\d+)$")
+LABEL = {
+    "ham": "ours: the paper's HAM (hybrid loss)",
+    "ham-first-learned": "ours: the paper's HAM, first glance learned",
+    "random-locations": "ours: random locations",
+    "info-early": "ours: info learner (its first 32k evaluated every 800)",
+    "info": "ours: info learner",
+}
+
+
+def mean_sem(values: list[float]) -> tuple[float, float]:
+    n = len(values)
+    m = sum(values) / n
+    if n < 2:
+        return m, 0.0
+    return m, math.sqrt(sum((v - m) ** 2 for v in values) / (n - 1)) / math.sqrt(n)
+
+
+def at(history: list[dict], env_steps: int) -> float:
+    """The accuracy of the last evaluation at or before ``env_steps``."""
+    rows = [h for h in history if h["env_steps"] <= env_steps]
+    return rows[-1]["accuracy"]
+
+
+def first_reach(history: list[dict], level: float) -> int | None:
+    return next((h["env_steps"] for h in history if h["accuracy"] >= level), None)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("runs_out", type=Path)
+    ap.add_argument("out_dir", type=Path)
+    args = ap.parse_args()
+    runs: dict[str, list[dict]] = {}
+    for metrics in sorted(args.runs_out.glob("runs/*/metrics.json")):
+        match = NAME.match(metrics.parent.name)
+        m = json.loads(metrics.read_text())
+        finals = {}
+        for f in metrics.parent.glob("eval_*_seed12345.json"):
+            e = json.loads(f.read_text())
+            finals[e["eval_policy"]] = e["accuracy"]
+        runs.setdefault(match["variant"], []).append(
+            {"seed": int(match["seed"]), "history": m["history"], "finals": finals}
+        )
+    summary = {}
+    for variant, rs in runs.items():
+        hist = [r["history"] for r in rs]
+        summary[variant] = {
+            "seeds": [r["seed"] for r in rs],
+            "env_steps": min(h[-1]["env_steps"] for h in hist),
+            "at": {p: mean_sem([at(h, p) for h in hist]) for p in POINTS},
+            "to_0.95": [first_reach(h, 0.95) for h in hist],
+            "to_0.99": [first_reach(h, 0.99) for h in hist],
+            "final_mean_poses": mean_sem([r["finals"]["mean"] for r in rs]),
+            "final_sampled_poses": mean_sem([r["finals"]["sample"] for r in rs]),
+        }
+    args.out_dir.mkdir(parents=True, exist_ok=True)
+    (args.out_dir / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+
+    def fmt(ms: tuple[float, float]) -> str:
+        return f"{ms[0]:.3f} ± {ms[1]:.3f}"
+
+    head = " | ".join(f"{p // 1000}k" for p in POINTS)
+    lines = [
+        f"| agent | {head} | env steps to 0.95 | to 0.99 | final (50 batches): mean poses / sampled |",
+        "|---" * (len(POINTS) + 4) + "|",
+    ]
+    for variant in LABEL:
+        if variant not in summary:
+            continue
+        s = summary[variant]
+        last = s["env_steps"]
+        cells = " | ".join(fmt(s["at"][p]) if p <= last else "" for p in POINTS)
+        reach = [
+            "/".join("-" if v is None else f"{v / 1000:g}k" for v in s[k])
+            for k in ("to_0.95", "to_0.99")
+        ]
+        final = f"{fmt(s['final_mean_poses'])} / {fmt(s['final_sampled_poses'])}"
+        lines.append(f"| {LABEL[variant]} | {cells} | {reach[0]} | {reach[1]} | {final} |")
+    (args.out_dir / "table.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 6))
+    colors = {}
+    for variant, rs in sorted(runs.items(), key=lambda kv: list(LABEL).index(kv[0])):
+        # drop the evaluation before training (0 steps: not on a log axis); the info run draws on
+        # from where info-early ends, in its colour
+        start = 32_000 if variant == "info" and "info-early" in runs else 1
+        rows = [[h for h in r["history"] if h["env_steps"] >= start] for r in rs]
+        xs = [h["env_steps"] for h in rows[0]]
+        ms = [mean_sem([r[i]["accuracy"] for r in rows]) for i in range(len(xs))]
+        mean = [m for m, _ in ms]
+        label = None if variant == "info" else f"{LABEL[variant]} ({len(rs)} seeds)"
+        color = colors.get("info-early") if variant == "info" else None
+        (line,) = ax.plot(xs, mean, label=label, color=color)
+        colors[variant] = line.get_color()
+        ax.fill_between(
+            xs, [m - s for m, s in ms], [m + s for m, s in ms], color=line.get_color(), alpha=0.2
+        )
+    for name, pts in APPLE.items():
+        ax.plot(list(pts), list(pts.values()), "o--", ms=4, lw=1, label=f"{name} (released curve)")
+    ax.set_xscale("log")
+    ax.set_xlabel("environment steps (glances)")
+    ax.set_ylabel("accuracy after the 10th glance")
+    ax.set_ylim(0.2, 1.02)
+    ax.set_title(
+        "The paper's task at 10 glances: ours (paper-gazebo) and APPLE's (MHSB)", fontsize=10
+    )
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(args.out_dir / "accuracy_vs_env_steps.png", dpi=120)
+
+
+if __name__ == "__main__":
+    main()
