@@ -4,8 +4,9 @@ python docs/results/apple_mhsb/summarize.py RUNS_OUT OUT_DIR
 
 RUNS_OUT is the grid's --out folder (runs/<variant>-s<seed>/metrics.json); OUT_DIR gets
 summary.json, table.md and accuracy_vs_env_steps.png. Our numbers: the evaluation during training
-(10 batches of 64 episodes, mean poses) and the grid's final evaluations (50 batches). Mean ±
-s.e.m. over seeds (ddof=1). APPLE's numbers are quoted, not computed here (below).
+(10 batches of 64 episodes, mean poses) and the grid's final evaluations (50 batches): mean,
+s.e.m. and count over seeds (ham.experiments.reproduce.mean_sem). APPLE's numbers are quoted,
+not computed here (below).
 """
 
 import argparse
@@ -13,6 +14,8 @@ import json
 import math
 import re
 from pathlib import Path
+
+from ham.experiments.reproduce import format_mean_sem, mean_sem
 
 # APPLE's released evaluation curves on HAMTactileClassification-v0 ("MHSB"), final-glance
 # accuracy, mean over their seeds, read off github.com/TimSchneider42/apple at
@@ -41,14 +44,6 @@ LABEL = {
     "info-early": "ours: info learner (its first 32k evaluated every 800)",
     "info": "ours: info learner",
 }
-
-
-def mean_sem(values: list[float]) -> tuple[float, float]:
-    n = len(values)
-    m = sum(values) / n
-    if n < 2:
-        return m, 0.0
-    return m, math.sqrt(sum((v - m) ** 2 for v in values) / (n - 1)) / math.sqrt(n)
 
 
 def at(history: list[dict], env_steps: int) -> float:
@@ -92,9 +87,6 @@ def main() -> None:
     args.out_dir.mkdir(parents=True, exist_ok=True)
     (args.out_dir / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
 
-    def fmt(ms: tuple[float, float]) -> str:
-        return f"{ms[0]:.3f} ± {ms[1]:.3f}"
-
     head = " | ".join(f"{p // 1000}k" for p in POINTS)
     lines = [
         f"| agent | {head} | env steps to 0.95 | to 0.99 | final (50 batches): mean poses / sampled |",
@@ -105,12 +97,12 @@ def main() -> None:
             continue
         s = summary[variant]
         last = s["env_steps"]
-        cells = " | ".join(fmt(s["at"][p]) if p <= last else "" for p in POINTS)
+        cells = " | ".join(format_mean_sem(*s["at"][p]) if p <= last else "" for p in POINTS)
         reach = [
             "/".join("-" if v is None else f"{v / 1000:g}k" for v in s[k])
             for k in ("to_0.95", "to_0.99")
         ]
-        final = f"{fmt(s['final_mean_poses'])} / {fmt(s['final_sampled_poses'])}"
+        final = f"{format_mean_sem(*s['final_mean_poses'])} / {format_mean_sem(*s['final_sampled_poses'])}"
         lines.append(f"| {LABEL[variant]} | {cells} | {reach[0]} | {reach[1]} | {final} |")
     (args.out_dir / "table.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
@@ -129,13 +121,18 @@ def main() -> None:
         rows = [[h for h in r["history"] if h["env_steps"] >= start] for r in rs]
         xs = [h["env_steps"] for h in rows[0]]
         ms = [mean_sem([r[i]["accuracy"] for r in rows]) for i in range(len(xs))]
-        mean = [m for m, _ in ms]
+        mean = [m for m, _, _ in ms]
+        sem = [0.0 if math.isnan(e) else e for _, e, _ in ms]
         label = None if variant == "info" else f"{LABEL[variant]} ({len(rs)} seeds)"
         color = colors.get("info-early") if variant == "info" else None
         (line,) = ax.plot(xs, mean, label=label, color=color)
         colors[variant] = line.get_color()
         ax.fill_between(
-            xs, [m - s for m, s in ms], [m + s for m, s in ms], color=line.get_color(), alpha=0.2
+            xs,
+            [m - e for m, e in zip(mean, sem, strict=True)],
+            [m + e for m, e in zip(mean, sem, strict=True)],
+            color=line.get_color(),
+            alpha=0.2,
         )
     for name, pts in APPLE.items():
         ax.plot(list(pts), list(pts.values()), "o--", ms=4, lw=1, label=f"{name} (released curve)")
