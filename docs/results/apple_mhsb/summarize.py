@@ -52,10 +52,6 @@ def at(history: list[dict], env_steps: int) -> float:
     return rows[-1]["accuracy"]
 
 
-def first_reach(history: list[dict], level: float) -> int | None:
-    return next((h["env_steps"] for h in history if h["accuracy"] >= level), None)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("runs_out", type=Path)
@@ -70,7 +66,7 @@ def main() -> None:
             e = json.loads(f.read_text())
             finals[e["eval_policy"]] = e["accuracy"]
         runs.setdefault(match["variant"], []).append(
-            {"seed": int(match["seed"]), "history": m["history"], "finals": finals}
+            {"seed": int(match["seed"]), "history": m["history"], "finals": finals, "metrics": m}
         )
     summary = {}
     for variant, rs in runs.items():
@@ -79,8 +75,9 @@ def main() -> None:
             "seeds": [r["seed"] for r in rs],
             "env_steps": min(h[-1]["env_steps"] for h in hist),
             "at": {p: mean_sem([at(h, p) for h in hist]) for p in POINTS},
-            "to_0.95": [first_reach(h, 0.95) for h in hist],
-            "to_0.99": [first_reach(h, 0.99) for h in hist],
+            # the trainer's own: the first evaluation at or above the level
+            "to_0.95": [r["metrics"]["env_steps_to_0.95"] for r in rs],
+            "to_0.99": [r["metrics"]["env_steps_to_0.99"] for r in rs],
             "final_mean_poses": mean_sem([r["finals"]["mean"] for r in rs]),
             "final_sampled_poses": mean_sem([r["finals"]["sample"] for r in rs]),
         }
