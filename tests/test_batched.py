@@ -113,6 +113,7 @@ def test_runs_of_other_rates_losses_and_evaluations_share_a_batch(tmp_path, devi
         tiny(2, steps=6, lr_min=2e-3, eval_every=3, eval_batches=3, log_every=1),
         tiny(3, steps=6, classification_reduction="mean", beta=0.8),
         tiny(4, steps=6, reinforce_reduction="sum", normalization="l1"),
+        tiny(6, steps=6, classification_glances="all"),
         tiny(5, steps=6, model=HamConfig(glances=3, truncate_bptt=True)),
     ]
     configs = [replace(c, device=device) for c in configs]

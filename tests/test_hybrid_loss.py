@@ -111,6 +111,25 @@ def test_sum_reduction_is_batch_times_mean(env):
         hybrid_loss(ep, reinforce_reduction="max")
 
 
+def test_all_glances_classification_averages_every_glance(env):
+    # APPLE's HAM trains the prediction after every glance: the mean over the glances of each
+    # glance's cross-entropy, summed or averaged over the batch; the rest of the loss is unchanged
+    _, ep = _episode(env)
+    last = hybrid_loss(ep)
+    for reduction in ("sum", "mean"):
+        every = hybrid_loss(ep, classification_reduction=reduction, classification_glances="all")
+        per_glance = [
+            torch.nn.functional.cross_entropy(g, ep.objects, reduction=reduction) for g in ep.logits
+        ]
+        assert len(per_glance) == ep.logits.shape[0] > 1
+        assert torch.allclose(every.classification, torch.stack(per_glance).mean())
+        assert not torch.allclose(every.classification, per_glance[-1])
+        assert torch.equal(every.reward, last.reward)  # the reward stays the last glance's
+        assert torch.allclose(every.reinforce, last.reinforce)
+    with pytest.raises(HamError, match="classification_glances 'first'; accepted: last, all"):
+        hybrid_loss(ep, classification_glances="first")
+
+
 def test_baseline_loss_covers_every_sub_sequence(env):
     _, ep = _episode(env)
     loss = hybrid_loss(ep)

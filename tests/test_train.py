@@ -73,7 +73,8 @@ def test_paper_defaults():
     "kw",
     [{"steps": -1}, {"lr": 0.0}, {"lr": float("nan")}, {"momentum": 1.0}, {"beta": -1.0},
      {"normalization": "max"}, {"device": "tpu"}, {"reinforce_reduction": "median"},
-     {"classification_reduction": "max"}, {"eval_every": 0}],
+     {"classification_reduction": "max"}, {"classification_glances": "first"},
+     {"eval_every": 0}],
 )  # fmt: skip
 def test_bad_train_config(kw):
     with pytest.raises(HamError):

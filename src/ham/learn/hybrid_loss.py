@@ -40,6 +40,10 @@ from ham.model.agent import Episode
 from ham.model.policy import LocationDistribution
 
 REDUCTIONS: tuple[str, ...] = ("sum", "mean")
+#: Which predictions the classification term trains: the one after the last glance (the paper),
+#: or the one after every glance, averaged over the glances (the APPLE study's HAM; ap_gym scores
+#: a prediction at every step).
+CLASSIFICATION_GLANCES: tuple[str, ...] = ("last", "all")
 
 
 @dataclass
@@ -75,6 +79,7 @@ def hybrid_loss(
     beta: float | torch.Tensor = 0.4,
     classification_reduction: str = "sum",
     reinforce_reduction: str = "mean",
+    classification_glances: str = "last",
 ) -> HybridLoss:
     """The hybrid loss of ``episode`` with location weight ``beta`` (0.4), plus the baseline loss.
 
@@ -89,17 +94,29 @@ def hybrid_loss(
     mean-squared error") and a sum over the sub-sequences (Eq baseline). The parts train disjoint
     weights, so each reduction only scales its own part's step; docs/agent.md has the measurements
     behind these defaults.
+
+    ``classification_glances="all"`` trains the prediction after every glance, not only after
+    the last: the cross-entropy of each glance's logits, averaged over the glances (so the last
+    glance's prediction gets 1/S of the weight it has with ``"last"``). The reward stays the last
+    prediction's.
     """
-    for name, value in (
-        ("classification_reduction", classification_reduction),
-        ("reinforce_reduction", reinforce_reduction),
+    for name, value, accepted in (
+        ("classification_reduction", classification_reduction, REDUCTIONS),
+        ("reinforce_reduction", reinforce_reduction, REDUCTIONS),
+        ("classification_glances", classification_glances, CLASSIFICATION_GLANCES),
     ):
-        if value not in REDUCTIONS:
-            raise HamError(f"{name} {value!r}; accepted: {', '.join(REDUCTIONS)}")
+        if value not in accepted:
+            raise HamError(f"{name} {value!r}; accepted: {', '.join(accepted)}")
     objects = episode.objects
     last = episode.logits[-1]
     # -sum_o y_o log pi(o) per episode
-    classification = F.cross_entropy(last, objects, reduction=classification_reduction)
+    if classification_glances == "last":
+        classification = F.cross_entropy(last, objects, reduction=classification_reduction)
+    else:
+        every = F.cross_entropy(
+            episode.logits.flatten(0, 1), objects.repeat(episode.logits.shape[0]), reduction="none"
+        ).view(episode.logits.shape[:2])  # (S, B)
+        classification = getattr(every.mean(0), classification_reduction)()
     r = reward(last.detach(), objects)
     # Eq baseline over every sub-sequence 1..S, target the episode's reward.
     baseline = ((r[None] - episode.baselines) ** 2).sum(0).mean()

@@ -38,6 +38,7 @@ LEARNER_OPTIONS: dict[str, tuple[str, ...]] = {
     "beta": ("hybrid",),
     "classification_reduction": ("hybrid",),
     "reinforce_reduction": ("hybrid",),
+    "classification_glances": ("hybrid",),
     "gamma": ("info", "sac"),
     "gae_lambda": ("info",),
     "entropy_coef": ("info",),

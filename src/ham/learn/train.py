@@ -49,7 +49,7 @@ from ham.errors import (
 from ham.learn.ap_adapter import ApGymConfig, ApGymGlanceEnv
 from ham.learn.environment import HapticEnv, check_pose_noise
 from ham.learn.evaluation import EVAL_POLICIES, EvalResult, evaluate
-from ham.learn.hybrid_loss import REDUCTIONS, HybridLoss, hybrid_loss
+from ham.learn.hybrid_loss import CLASSIFICATION_GLANCES, REDUCTIONS, HybridLoss, hybrid_loss
 from ham.learn.info_loss import (
     MOVE_COSTS,
     InfoLoss,
@@ -103,6 +103,9 @@ class TrainConfig:
         reinforce_reduction: ``mean`` averages the episodes' REINFORCE updates (the estimate of
             the policy gradient); ``sum`` adds them (64 times larger steps of the location heads:
             the policy collapses, docs/agent.md). The baseline's MSE is a batch mean either way.
+        classification_glances: ``last`` trains the prediction after the last glance (the
+            paper); ``all`` the prediction after every glance, averaged over the glances (the
+            APPLE study's HAM).
         eval_every: steps between evaluations and checkpoints (200, the authors' code).
         eval_batches: balanced batches per evaluation (100).
         eval_policy: the location policy during evaluation: ``mean`` poses (training stopped)
@@ -204,6 +207,9 @@ class TrainConfig:
     beta: float = 0.4
     classification_reduction: str = field(default="sum", metadata={"choices": REDUCTIONS})
     reinforce_reduction: str = field(default="mean", metadata={"choices": REDUCTIONS})
+    classification_glances: str = field(
+        default="last", metadata={"choices": CLASSIFICATION_GLANCES}
+    )
     eval_every: int = 200
     eval_batches: int = 100
     eval_policy: str = field(default="mean", metadata={"choices": EVAL_POLICIES})
@@ -1101,7 +1107,13 @@ def train_step(run: Run) -> HybridLoss | InfoLoss | SacLoss:
                 + stop_loss(episode, c.glance_cost, run.policy_generator, c.stop_learner).total
             )
     elif c.learner == "hybrid":
-        loss = hybrid_loss(episode, c.beta, c.classification_reduction, c.reinforce_reduction)
+        loss = hybrid_loss(
+            episode,
+            c.beta,
+            c.classification_reduction,
+            c.reinforce_reduction,
+            c.classification_glances,
+        )
     else:  # a learner of the user's own (ham.learn.learners)
         loss = learner_loss(c.learner, episode, c)
     _descend(run, loss.total)
