@@ -2,8 +2,9 @@
 
 python docs/results/apple_mhsb/summarize.py RUNS_OUT OUT_DIR
 
-RUNS_OUT is the grid's --out folder (runs/<variant>-s<seed>/metrics.json); OUT_DIR gets
-summary.json, table.md and accuracy_vs_env_steps.png. Our numbers: the evaluation during training
+RUNS_OUT is the --out folder of docs/grids/apple_mhsb.toml or apple_mhsb_loss.toml
+(runs/<variant>-s<seed>/metrics.json); OUT_DIR gets summary.json, table.md and
+accuracy_vs_env_steps.png. Our numbers: the evaluation during training
 (10 batches of 64 episodes, mean poses) and the grid's final evaluations (50 batches): mean,
 s.e.m. and count over seeds (ham.experiments.reproduce.mean_sem). APPLE's numbers are quoted,
 not computed here (below).
@@ -41,6 +42,12 @@ LABEL = {
     "ham": "ours: the paper's HAM (hybrid loss)",
     "ham-first-learned": "ours: the paper's HAM, first glance learned",
     "random-locations": "ours: random locations",
+    # docs/grids/apple_mhsb_loss.toml: APPLE's classification loss, one part at a time
+    "ham-mean-loss": "ours: the paper's HAM, loss a batch mean",
+    "ham-mean-loss-first-learned": "ours: the paper's HAM, loss a batch mean, first glance learned",
+    "ham-all-glances": "ours: the paper's HAM, every glance's prediction trained",
+    "ham-apple-loss": "ours: the paper's HAM with APPLE's loss (every glance, batch mean)",
+    "ham-apple-loss-first-learned": "ours: APPLE's loss and first glance learned",
     "info-early": "ours: info learner (its first 32k evaluated every 800)",
     "info": "ours: info learner",
 }
