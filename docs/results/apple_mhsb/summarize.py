@@ -48,6 +48,7 @@ LABEL = {
     "ham-all-glances": "ours: the paper's HAM, every glance's prediction trained",
     "ham-apple-loss": "ours: the paper's HAM with APPLE's loss (every glance, batch mean)",
     "ham-apple-loss-first-learned": "ours: APPLE's loss and first glance learned",
+    "ham-apple-loss-first-learned-apple-lr": "ours: APPLE's loss, first glance and lr schedule",
     "info-early": "ours: info learner (its first 32k evaluated every 800)",
     "info": "ours: info learner",
 }
