@@ -57,6 +57,14 @@ class HybridLoss:
     reward: torch.Tensor
 
 
+def glance_cross_entropy(logits: torch.Tensor, objects: torch.Tensor) -> torch.Tensor:
+    """``-log pi(o | tau_{1:s})`` after every glance ``s``: ``(S, B)`` from logits ``(S, B, K)``."""
+    s, b, k = logits.shape
+    return F.cross_entropy(logits.reshape(s * b, k), objects.repeat(s), reduction="none").reshape(
+        s, b
+    )
+
+
 def reward(logits: torch.Tensor, objects: torch.Tensor) -> torch.Tensor:
     """``r = 1`` if the arg-max class is the true object, else 0 (B,)."""
     return (logits.argmax(-1) == objects).to(logits.dtype)
@@ -113,10 +121,8 @@ def hybrid_loss(
     if classification_glances == "last":
         classification = F.cross_entropy(last, objects, reduction=classification_reduction)
     else:
-        every = F.cross_entropy(
-            episode.logits.flatten(0, 1), objects.repeat(episode.logits.shape[0]), reduction="none"
-        ).view(episode.logits.shape[:2])  # (S, B)
-        classification = getattr(every.mean(0), classification_reduction)()
+        every = glance_cross_entropy(episode.logits, objects).mean(0)  # (B,)
+        classification = every.sum() if classification_reduction == "sum" else every.mean()
     r = reward(last.detach(), objects)
     # Eq baseline over every sub-sequence 1..S, target the episode's reward.
     baseline = ((r[None] - episode.baselines) ** 2).sum(0).mean()

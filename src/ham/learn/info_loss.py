@@ -36,6 +36,7 @@ import torch
 from torch.nn import functional as F
 
 from ham.errors import HamError
+from ham.learn.hybrid_loss import glance_cross_entropy
 from ham.model.agent import Episode
 
 #: Where the move cost acts (``TrainConfig.move_cost_on``; :func:`info_loss`).
@@ -79,10 +80,8 @@ class InfoLoss(GainLoss):
 
 def information_gain(logits: torch.Tensor, objects: torch.Tensor) -> torch.Tensor:
     """``r_s = CE_{s-1} - CE_s`` per glance ``(S, B)`` with ``CE_0 = log K`` (detached)."""
-    s, b, k = logits.shape
-    ce = F.cross_entropy(
-        logits.detach().reshape(s * b, k), objects.repeat(s), reduction="none"
-    ).reshape(s, b)
+    _, b, k = logits.shape
+    ce = glance_cross_entropy(logits.detach(), objects)
     before = torch.cat([ce.new_full((1, b), math.log(k)), ce[:-1]])
     return before - ce
 
