@@ -44,9 +44,7 @@ def measure(run: str, episodes_random: int = 400, episodes_policy: int = 100) ->
         for name, run_ in (("train", train), ("test", test)):
             glanced[name] = torch.stack(
                 [
-                    torch.stack(
-                        [run_.env.glance(torch.full_like(q[0, :, 0], k).long(), p) for p in q]
-                    )
+                    torch.stack([run_.env.glance(torch.full((episodes_random,), k), p) for p in q])
                     for k in range(CLASSES)
                 ]
             )  # (K, S, E, D)
