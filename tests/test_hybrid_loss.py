@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from ham.errors import HamError
-from ham.learn.hybrid_loss import hybrid_loss, reinforce_term, reward
+from ham.learn.hybrid_loss import hybrid_loss, reinforce_term, returns, reward
 from ham.model.agent import HamConfig, HapticAttentionModel
 from ham.model.location_net import gaussian_log_prob
 from ham.model.policy import TruncatedGaussian
@@ -198,3 +198,55 @@ def test_beta_zero_drops_the_reinforce_term(env):
     a, b = hybrid_loss(ep, beta=0.0), hybrid_loss(ep, beta=0.4)
     assert torch.allclose(a.total, a.classification + a.baseline)
     assert not torch.allclose(b.total, a.total) or b.reinforce.item() == 0.0
+
+
+# --------------------------------------------------------------------------- per-glance rewards
+def test_returns_by_hand():
+    # 3 glances, 2 episodes: episode 0 (object 0) right after glances 1 and 3, episode 1 (object
+    # 1) after glance 2
+    says_0, says_1 = [3.0, 0.0], [0.0, 3.0]
+    logits = torch.tensor([[says_0, says_0], [says_1, says_1], [says_0, says_0]])
+    objects = torch.tensor([0, 1])
+    assert returns(logits, objects, "all", 0.5).tolist() == [
+        [1 + 0.5 * 0 + 0.25 * 1, 0 + 0.5 * 1 + 0.25 * 0],  # R_1 = r_1 + g r_2 + g^2 r_3
+        [0 + 0.5 * 1, 1 + 0.5 * 0],
+        [1.0, 0.0],
+    ]
+    assert returns(logits, objects, "last", 0.5).tolist() == [[0.25, 0.0], [0.5, 0.0], [1, 0]]
+    assert returns(logits, objects, "last", 1.0).tolist() == [[1.0, 0.0]] * 3  # the paper's r
+
+
+@pytest.mark.parametrize("first_glance", ["random", "learned"])
+def test_per_glance_reward_credits_each_pose_with_its_return(env, first_glance):
+    # the pose q_{s+1}, chosen from tau_{1:s}, earns R_s; a learned first pose gamma * R_1; each
+    # baseline learns the return of its state; the classification term is not touched
+    _, ep = _episode(env, first_glance=first_glance)
+    ret = returns(ep.logits, ep.objects, "all", 0.9)
+    loss = hybrid_loss(ep, reward_glances="all", reward_discount=0.9)
+    earned = ret[:-1]
+    expected_b = ((ret - ep.baselines) ** 2).sum(0).mean()
+    if first_glance == "learned":
+        earned = torch.cat([0.9 * ret[:1], earned])
+        expected_b = expected_b + ((0.9 * ret[0] - ep.first_baseline) ** 2).mean()
+    assert earned.shape == ep.values().shape
+    expected_r = reinforce_term(ep.locations[ep.chosen], ep.policy, earned - ep.values())
+    assert torch.allclose(loss.reinforce, expected_r)
+    assert torch.allclose(loss.baseline, expected_b)
+    paper = hybrid_loss(ep)
+    assert not torch.allclose(loss.reinforce, paper.reinforce)
+    assert torch.equal(loss.classification, paper.classification)
+    assert torch.equal(loss.reward, paper.reward)  # the reported reward: the last prediction's
+    # the general path at the paper's settings is the paper's loss
+    general = hybrid_loss(ep, reward_discount=1)
+    assert torch.equal(general.total, paper.total)
+
+
+def test_bad_reward_options_are_named(env):
+    _, ep = _episode(env)
+    with pytest.raises(HamError, match="reward_glances 'first'; accepted: last, all"):
+        hybrid_loss(ep, reward_glances="first")
+    for bad in (1.5, -0.1, True):
+        with pytest.raises(
+            HamError, match=rf"reward_discount {bad!r}; accepted: a number in \[0, 1\]"
+        ):
+            hybrid_loss(ep, reward_discount=bad)

@@ -74,6 +74,7 @@ def test_paper_defaults():
     [{"steps": -1}, {"lr": 0.0}, {"lr": float("nan")}, {"momentum": 1.0}, {"beta": -1.0},
      {"normalization": "max"}, {"device": "tpu"}, {"reinforce_reduction": "median"},
      {"classification_reduction": "max"}, {"classification_glances": "first"},
+     {"reward_glances": "every"}, {"reward_discount": 1.01}, {"reward_discount": -0.5},
      {"eval_every": 0}],
 )  # fmt: skip
 def test_bad_train_config(kw):

@@ -79,14 +79,15 @@ _PARTS = ("classification", "reinforce", "baseline_loss")  # TensorBoard, as tra
 
 # What may differ between the runs of one batched model: each run steps at its own learning
 # rate (its schedule, its location network's scale) and momentum (Nesterov or not), has its own
-# loss (beta, the reductions over the batch, the glances classified), normalizes its glances
-# its own way, and is evaluated and logged on its own cadence, batches and policy; and of the
-# model, whether its core's state is detached between glances (model.truncate_bptt). Everything
-# else (the model, the world, the optimizer, the batch) is one for the group.
+# loss (beta, the reductions over the batch, the glances classified and rewarded, the returns'
+# discount), normalizes its glances its own way, and is evaluated and logged on its own cadence,
+# batches and policy; and of the model, whether its core's state is detached between glances
+# (model.truncate_bptt). Everything else (the model, the world, the optimizer, the batch) is one
+# for the group.
 PER_RUN = ("seed", "steps", "lr", "lr_decay", "lr_step", "lr_min", "momentum", "nesterov",
            "policy_lr_scale", "beta", "classification_reduction", "reinforce_reduction",
-           "classification_glances", "normalization", "eval_every", "eval_batches", "eval_policy",
-           "log_every", "pose_noise")  # fmt: skip
+           "classification_glances", "reward_glances", "reward_discount", "normalization",
+           "eval_every", "eval_batches", "eval_policy", "log_every", "pose_noise")  # fmt: skip
 
 
 def shape_key(config: TrainConfig, glances: bool = True) -> str:
@@ -559,13 +560,15 @@ class BatchedRuns:
     def _losses(self, objects, locations, logits, baselines, mu, sigma):
         """Each active run's hybrid loss (:func:`ham.learn.hybrid_loss.hybrid_loss`, mapped
         over the runs): ``(total, reward, classification, reinforce, baseline)``, each ``(N,
-        ...)``. Runs of other loss reductions or classified glances are mapped apart (code, not a
-        number), each with its own beta, and so are runs of other glance counts, each over its
-        own glances (:func:`_own_glances`)."""
+        ...)``. Runs of other loss reductions, classified or rewarded glances or discounts are
+        mapped apart (code, not a number), each with its own beta, and so are runs of other
+        glance counts, each over its own glances (:func:`_own_glances`)."""
         runs = [self.runs[i] for i in self.active]
         kinds = _grouped(range(len(runs)), lambda k: (runs[k].config.classification_reduction,
                                                       runs[k].config.reinforce_reduction,
                                                       runs[k].config.classification_glances,
+                                                      runs[k].config.reward_glances,
+                                                      runs[k].config.reward_discount,
                                                       runs[k].config.model.glances))  # fmt: skip
         args = (objects, locations, logits, baselines, mu, sigma)
         if len(kinds) == 1:
@@ -583,8 +586,8 @@ class BatchedRuns:
 
     def _mapped_loss(self, glances, reductions, runs, objects, locations, logits, baselines, mu,
                      sigma):  # fmt: skip
-        """:func:`hybrid_loss` of ``runs`` (one kind of loss: its reductions and the glances it
-        classifies), mapped over them."""
+        """:func:`hybrid_loss` of ``runs`` (one kind of loss: its reductions, the glances it
+        classifies and rewards, its discount), mapped over them."""
         # one beta for the runs: the number itself; else each run's, mapped with its episode
         betas = [r.config.beta for r in runs]
         beta = self._const(betas, logits.dtype)

@@ -19,6 +19,15 @@ The baseline is trained separately with ``L_b = sum_{s=1..S} (R_s - b(tau_{1:s})
 baseline). With the reward only at the end of the episode and no discount within it, the return
 ``R_s`` seen from every sub-sequence ``1..s`` is the episode's reward ``r`` (Eq total_reward).
 
+Beyond the paper (the APPLE study's HAM), :func:`returns` gives the general case: a reward
+``r_s`` for the prediction after every glance and returns discounted by ``gamma`` within the
+episode, ``R_s = sum_{t=s..S} gamma^(t-s) r_t`` (Eq total_reward). The pose ``q_{s+1}``, chosen
+from ``tau_{1:s}``, is credited with ``R_s`` and its baseline ``b(tau_{1:s})`` learns ``R_s``;
+``r_s`` does not depend on ``q_{s+1}``, but it is known from ``tau_{1:s}``, so the baseline
+takes it out of the advantage (APPLE credits an action with the reward of the prediction made
+beside it the same way). A learned first glance, chosen before any prediction, is credited with
+``gamma * R_1``.
+
 What is detached from what, all explicit below or in the modules:
 
 * the sampled poses ``q`` carry no gradient (``.detach()`` here; they are drawn detached);
@@ -44,6 +53,9 @@ REDUCTIONS: tuple[str, ...] = ("sum", "mean")
 #: or the one after every glance, averaged over the glances (the APPLE study's HAM; ap_gym scores
 #: a prediction at every step).
 CLASSIFICATION_GLANCES: tuple[str, ...] = ("last", "all")
+#: Which predictions earn a reward: the one after the last glance (the paper), or the one after
+#: every glance (the APPLE study's HAM, ``classification_binary_reward``).
+REWARD_GLANCES: tuple[str, ...] = ("last", "all")
 
 
 @dataclass
@@ -70,6 +82,25 @@ def reward(logits: torch.Tensor, objects: torch.Tensor) -> torch.Tensor:
     return (logits.argmax(-1) == objects).to(logits.dtype)
 
 
+def returns(
+    logits: torch.Tensor, objects: torch.Tensor, reward_glances: str, discount: float
+) -> torch.Tensor:
+    """``R_s = sum_{t=s..S} gamma^(t-s) r_t`` seen from every sub-sequence ``tau_{1:s}``, ``(S,
+    B)`` (Eq total_reward within one episode): ``r_t`` is :func:`reward` of the prediction after
+    glance ``t`` with ``reward_glances="all"``; with ``"last"`` only the last prediction is
+    rewarded (``R_s = gamma^(S-s) r``)."""
+    logits = logits.detach()
+    if reward_glances == "last":
+        rewards = [logits.new_zeros(objects.shape)] * (logits.shape[0] - 1)
+        rewards.append(reward(logits[-1], objects))
+    else:
+        rewards = list(reward(logits, objects[None]).unbind(0))
+    out = [rewards[-1]]
+    for r in reversed(rewards[:-1]):  # R_s = r_s + gamma R_{s+1}
+        out.append(r + discount * out[-1])
+    return torch.stack(out[::-1])
+
+
 def reinforce_term(
     q: torch.Tensor, policy: LocationDistribution, advantage: torch.Tensor
 ) -> torch.Tensor:
@@ -88,6 +119,8 @@ def hybrid_loss(
     classification_reduction: str = "sum",
     reinforce_reduction: str = "mean",
     classification_glances: str = "last",
+    reward_glances: str = "last",
+    reward_discount: float = 1.0,
 ) -> HybridLoss:
     """The hybrid loss of ``episode`` with location weight ``beta`` (0.4), plus the baseline loss.
 
@@ -107,14 +140,24 @@ def hybrid_loss(
     the last: the cross-entropy of each glance's logits, averaged over the glances (so the last
     glance's prediction gets 1/S of the weight it has with ``"last"``). The reward stays the last
     prediction's.
+
+    ``reward_glances="all"`` rewards the prediction after every glance and ``reward_discount``
+    (gamma) discounts the returns within the episode (:func:`returns`); the paper's ``"last"``
+    with 1.0 gives every sub-sequence the episode's reward ``r``. ``HybridLoss.reward`` stays
+    the last prediction's ``r`` either way.
     """
     for name, value, accepted in (
         ("classification_reduction", classification_reduction, REDUCTIONS),
         ("reinforce_reduction", reinforce_reduction, REDUCTIONS),
         ("classification_glances", classification_glances, CLASSIFICATION_GLANCES),
+        ("reward_glances", reward_glances, REWARD_GLANCES),
     ):
         if value not in accepted:
             raise HamError(f"{name} {value!r}; accepted: {', '.join(accepted)}")
+    if isinstance(reward_discount, bool) or not (
+        isinstance(reward_discount, (int, float)) and 0 <= reward_discount <= 1
+    ):
+        raise HamError(f"reward_discount {reward_discount!r}; accepted: a number in [0, 1]")
     objects = episode.objects
     last = episode.logits[-1]
     # -sum_o y_o log pi(o) per episode
@@ -124,16 +167,28 @@ def hybrid_loss(
         every = glance_cross_entropy(episode.logits, objects).mean(0)  # (B,)
         classification = every.sum() if classification_reduction == "sum" else every.mean()
     r = reward(last.detach(), objects)
-    # Eq baseline over every sub-sequence 1..S, target the episode's reward.
-    baseline = ((r[None] - episode.baselines) ** 2).sum(0).mean()
+    paper = reward_glances == "last" and reward_discount == 1
+    if paper:  # R_s = r for every s (the same ops as before the general case)
+        ret, first_ret = r[None], r
+    else:
+        ret = returns(episode.logits, objects, reward_glances, reward_discount)
+        first_ret = reward_discount * ret[0]  # the learned first glance: no prediction before
+    # Eq baseline over every sub-sequence 1..S, target its return R_s.
+    baseline = ((ret - episode.baselines) ** 2).sum(0).mean()
     if episode.first_baseline is not None:  # a learned first glance: b(tau_0) too
-        baseline = baseline + ((r - episode.first_baseline) ** 2).mean()
+        baseline = baseline + ((first_ret - episode.first_baseline) ** 2).mean()
     policy = episode.policy
     # (a tensor beta, one per run of a batched model, is never 0: batched.shape_key)
     if policy is None or not policy.trainable or (not torch.is_tensor(beta) and beta == 0):
         reinforce = last.new_zeros(())
     else:
-        advantage = r[None] - episode.values()  # b(tau_{1:s-1}) for the pose q_s
+        if paper:
+            advantage = r[None] - episode.values()  # b(tau_{1:s-1}) for the pose q_s
+        else:  # q_{s+1} earns R_s; a learned first glance gamma * R_1
+            earned = ret[:-1]
+            if episode.first_baseline is not None:
+                earned = torch.cat([first_ret[None], earned])
+            advantage = earned - episode.values()
         reinforce = reinforce_term(episode.locations[episode.chosen], policy, advantage)
         if reinforce_reduction == "sum":
             reinforce = reinforce * objects.shape[0]

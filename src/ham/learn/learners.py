@@ -39,6 +39,8 @@ LEARNER_OPTIONS: dict[str, tuple[str, ...]] = {
     "classification_reduction": ("hybrid",),
     "reinforce_reduction": ("hybrid",),
     "classification_glances": ("hybrid",),
+    "reward_glances": ("hybrid",),
+    "reward_discount": ("hybrid",),
     "gamma": ("info", "sac"),
     "gae_lambda": ("info",),
     "entropy_coef": ("info",),

@@ -49,7 +49,13 @@ from ham.errors import (
 from ham.learn.ap_adapter import ApGymConfig, ApGymGlanceEnv
 from ham.learn.environment import HapticEnv, check_pose_noise
 from ham.learn.evaluation import EVAL_POLICIES, EvalResult, evaluate
-from ham.learn.hybrid_loss import CLASSIFICATION_GLANCES, REDUCTIONS, HybridLoss, hybrid_loss
+from ham.learn.hybrid_loss import (
+    CLASSIFICATION_GLANCES,
+    REDUCTIONS,
+    REWARD_GLANCES,
+    HybridLoss,
+    hybrid_loss,
+)
 from ham.learn.info_loss import (
     MOVE_COSTS,
     InfoLoss,
@@ -106,6 +112,11 @@ class TrainConfig:
         classification_glances: ``last`` trains the prediction after the last glance (the
             paper); ``all`` the prediction after every glance, averaged over the glances (the
             APPLE study's HAM).
+        reward_glances: ``last`` rewards the prediction after the last glance (the paper);
+            ``all`` rewards the prediction after every glance (the APPLE study's HAM), each
+            pose credited with the rewards from its state on (:func:`ham.learn.hybrid_loss.returns`).
+        reward_discount: gamma of the hybrid loss's returns within an episode (1: none, the
+            paper; 0.99 in the APPLE study's HAM).
         eval_every: steps between evaluations and checkpoints (200, the authors' code).
         eval_batches: balanced batches per evaluation (100).
         eval_policy: the location policy during evaluation: ``mean`` poses (training stopped)
@@ -210,6 +221,8 @@ class TrainConfig:
     classification_glances: str = field(
         default="last", metadata={"choices": CLASSIFICATION_GLANCES}
     )
+    reward_glances: str = field(default="last", metadata={"choices": REWARD_GLANCES})
+    reward_discount: float = 1.0
     eval_every: int = 200
     eval_batches: int = 100
     eval_policy: str = field(default="mean", metadata={"choices": EVAL_POLICIES})
@@ -293,7 +306,7 @@ class TrainConfig:
             raise unknown_learner(self.learner)
         self._check_plugin_used()
         check_choices(self)
-        for name in ("gamma", "gae_lambda"):
+        for name in ("gamma", "gae_lambda", "reward_discount"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and 0 <= v <= 1):
                 raise HamError(f"{name} = {v!r}; accepted: a number in [0, 1]")
@@ -1113,6 +1126,8 @@ def train_step(run: Run) -> HybridLoss | InfoLoss | SacLoss:
             c.classification_reduction,
             c.reinforce_reduction,
             c.classification_glances,
+            c.reward_glances,
+            c.reward_discount,
         )
     else:  # a learner of the user's own (ham.learn.learners)
         loss = learner_loss(c.learner, episode, c)
