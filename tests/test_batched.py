@@ -86,8 +86,20 @@ def assert_same_runs(tmp_path: Path, configs: list[TrainConfig], atol: float = 1
         ),
         HamConfig(glances=1, combiner="add"),
         HamConfig(glances=3, core="mlp"),
+        HamConfig(glances=3, first_glance="learned"),
+        HamConfig(glances=2, first_glance="learned", std_activation="sigmoid"),
+        HamConfig(glances=2, policy="random", first_glance="learned"),  # random: nothing learned
     ],  # fmt: skip
-    ids=["full", "rloc-mlp-mul", "code-options", "one-glance-add", "mlp"],
+    ids=[
+        "full",
+        "rloc-mlp-mul",
+        "code-options",
+        "one-glance-add",
+        "mlp",
+        "first-learned",
+        "first-learned-sigmoid",
+        "rloc-first-learned",
+    ],
 )
 def test_batched_equals_single_runs(tmp_path, model):
     configs = [tiny(s, model=model) for s in range(3)]
@@ -180,17 +192,20 @@ def test_the_portable_path_equals_single_runs(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize(
-    "policy,device",
-    [("learned", "cpu"), ("random", "cpu"), pytest.param("learned", "cuda", marks=CUDA)],
-    ids=["learned", "random", "learned-cuda"],
-)
-def test_runs_of_other_glance_counts_share_a_batch(tmp_path, policy, device):
+    "policy,first,device",
+    [("learned", "random", "cpu"), ("random", "random", "cpu"), ("learned", "learned", "cpu"),
+     pytest.param("learned", "random", "cuda", marks=CUDA),
+     pytest.param("learned", "learned", "cuda", marks=CUDA)],
+    ids=["learned", "random", "first-learned", "learned-cuda", "first-learned-cuda"],
+)  # fmt: skip
+def test_runs_of_other_glance_counts_share_a_batch(tmp_path, policy, first, device):
     # a Table 1 column's runs in one model that steps 4 glances: each run's loss, draws and
     # evaluations its own glances' (the others computed and left out); a 2-glance run goes on
     # alone after the others finished (the model then steps 2 glances)
     counts = (2, 4, 3, 2)
     configs = [tiny(s, steps=6 + 2 * (s == 0), device=device, eval_policy="sample",
-                    model=HamConfig(glances=g, policy=policy)) for s, g in enumerate(counts)]  # fmt: skip
+                    model=HamConfig(glances=g, policy=policy, first_glance=first))
+               for s, g in enumerate(counts)]  # fmt: skip
     assert len({batched.shape_key(c) for c in configs}) == 3
     assert len({batched.shape_key(c, glances=False) for c in configs}) == 1
     one = replace(configs[0], model=HamConfig(glances=1, policy=policy))
@@ -241,8 +256,10 @@ def test_the_batched_evaluation_under_pose_noise_equals_each_runs_own(
         (HamConfig(glances=3), "mean"),
         (HamConfig(glances=3), "sample"),
         (HamConfig(glances=2, policy="random", core="mlp"), "mean"),
+        (HamConfig(glances=3, first_glance="learned"), "mean"),
+        (HamConfig(glances=3, first_glance="learned"), "sample"),
     ],  # fmt: skip
-    ids=["learned-mean", "learned-sample", "random"],
+    ids=["learned-mean", "learned-sample", "random", "first-learned-mean", "first-learned-sample"],
 )
 def test_the_batched_evaluation_equals_each_runs_own(tmp_path, monkeypatch, model, policy):
     # 5 evaluation batches of 8 in passes of 2 batches (16 rows): the poses of every batch are
@@ -601,6 +618,11 @@ def test_refused_configs(tmp_path):
     # the stacked HAM has the lstm and mlp cores only (the transformer was a KeyError)
     with pytest.raises(HamError, match="core 'transformer' cannot be batched; accepted: lstm"):
         train_batched([tiny(0, model=HamConfig(core="transformer"))], [tmp_path / "a"])
+    with pytest.raises(HamError, match="first_glance 'own' cannot be batched; accepted: random, "):
+        train_batched([tiny(0, model=HamConfig(first_glance="own"))], [tmp_path / "a"])
+    with pytest.raises(HamError, match="first_glance 'learned' with 1 glance cannot be batched"):
+        train_batched([tiny(0, model=HamConfig(glances=1, first_glance="learned"))],
+                      [tmp_path / "a"])  # fmt: skip
     one = {"model": HamConfig(glances=1)}  # no pose to choose: not with runs of 3 glances
     for kw in ({"optimizer": "adam"}, {"batch_size": 4}, {"beta": 0.0}, one):  # one per group
         with pytest.raises(HamError, match="differ in more than seed, steps, lr, lr_decay"):
@@ -827,14 +849,17 @@ class _Calls(TorchDispatchMode):
         return func(*args, **kwargs)
 
 
+@pytest.mark.parametrize("first", ["random", "learned"])
 @pytest.mark.parametrize("cuda_graph", [True, False], ids=["graphed", "eager"])
-def test_a_graph_would_replay_the_steps_own_numbers(tmp_path, cuda_graph):
+def test_a_graph_would_replay_the_steps_own_numbers(tmp_path, cuda_graph, first):
     # a graph replays the operators of the step it captured, numbers included: two later steps
     # must dispatch the same operators with the same arguments but for tensors' values (a rate
     # passed as a number, as the eager step passes it, would be frozen at the captured step)
     table = str(build_table(WorldConfig(), 5, tmp_path / "t.h5", progress=False))
     configs = [tiny(s, table=table, **kw) for s, kw in enumerate(
-        ({}, {"lr": 0.01, "policy_lr_scale": 0.3}, {"model": HamConfig(glances=2)}))]  # fmt: skip
+        ({"model": HamConfig(glances=3, first_glance=first)},
+         {"lr": 0.01, "policy_lr_scale": 0.3, "model": HamConfig(glances=3, first_glance=first)},
+         {"model": HamConfig(glances=2, first_glance=first)}))]  # fmt: skip
     outs = [tmp_path / f"b{c.seed}" for c in configs]
     group = BatchedRuns(_open_runs(configs, outs), outs, cuda_graph=cuda_graph)
     steps = []

@@ -44,6 +44,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import torch
+from torch.nn import functional as F
 
 from ham.errors import HamError
 from ham.learn.environment import HapticEnv
@@ -74,6 +75,8 @@ from ham.world.files import atomic_write, folder_lock, write_json
 from ham.world.source import check_model_fits, make_source
 
 STOPPED_KEY = "stopped_at_perfect"
+#: the biases a learned first glance reads (BatchedRuns._first_glance)
+_FIRST_BIASES = ("location.mu.bias", "location.sigma.bias", "baseline.dense.bias")
 _PARTS = ("classification", "reinforce", "baseline_loss")  # TensorBoard, as train_loop
 
 
@@ -144,10 +147,15 @@ def check_batchable(config: TrainConfig) -> None:
             "stay_gate cannot be batched; accepted: no --stay-gate (train it with ham train or "
             "--executor local)"
         )
-    if config.model.first_glance != "random":
+    if config.model.first_glance not in ("random", "learned"):
         raise HamError(
-            f"first_glance {config.model.first_glance!r} cannot be batched; accepted: random "
-            "(train it with ham train or --executor local)"
+            f"first_glance {config.model.first_glance!r} cannot be batched; accepted: random, "
+            "learned (train it with ham train or --executor local)"
+        )
+    if config.model.first_glance == "learned" and config.model.glances == 1:
+        raise HamError(
+            "first_glance 'learned' with 1 glance cannot be batched; accepted: 2 or more "
+            "glances (train it with ham train or --executor local)"
         )
     if config.model.pose_dims != ("x", "phi") or config.model.height_input:
         raise HamError(
@@ -231,12 +239,15 @@ def _grouped(items, key) -> dict:
 
 
 def _own_glances(episode: list, glances: int) -> list:
-    """The episode tensors ``(objects, locations, logits, baselines, mu, sigma)`` of runs of
-    ``glances`` glances in a model stepping more (runs of other glance counts): their first
-    ``glances`` along axis 1 (``glances - 1`` of the policy's ``mu`` and ``sigma``)."""
-    objects, locations, logits, baselines, mu, sigma = episode
-    policy = [None if t is None else t[:, : glances - 1] for t in (mu, sigma)]
-    return [objects, locations[:, :glances], logits[:, :glances], baselines[:, :glances], *policy]
+    """The episode tensors ``(objects, locations, logits, baselines, mu, sigma,
+    first_baseline)`` of runs of ``glances`` glances in a model stepping more (runs of other
+    glance counts): their first ``glances`` along axis 1 (of the policy's ``mu`` and ``sigma``
+    ``glances - 1``, or ``glances`` with a learned first glance)."""
+    objects, locations, logits, baselines, mu, sigma, first = episode
+    chosen = glances if first is not None else glances - 1
+    policy = [None if t is None else t[:, :chosen] for t in (mu, sigma)]
+    return [objects, locations[:, :glances], logits[:, :glances], baselines[:, :glances], *policy,
+            first]  # fmt: skip
 
 
 def _executed(runs: list[Run], q: torch.Tensor, glancing: list[bool], noise=None) -> torch.Tensor:
@@ -518,10 +529,17 @@ class BatchedRuns:
                 return drawn
             return torch.where(self._const(drawing).view(-1, 1, 1), drawn.to(q.dtype), q)
 
-        # the first glance: random (the paper), transformed once for all runs
-        q = uniform_locations(batch, None, uniform=draws([True] * n, (batch, 2), torch.float32))
-        state = None  # the core's initial state (LSTMCore's zeros)
         locations, logits, baselines, mus, sigmas = [], [], [], [], []
+        first = self._first_glance(self.stacked, batch)
+        if first is None:  # the first glance: random (the paper), transformed once for all runs
+            u = draws([True] * n, (batch, 2), torch.float32)
+            q, first_baseline = uniform_locations(batch, None, uniform=u), None
+        else:  # chosen by the policy from tau_0 (first_glance "learned")
+            mu0, sigma0, first_baseline = first
+            mus.append(mu0)
+            sigmas.append(sigma0)
+            q = truncated_normal(mu0, sigma0, uniform=draws([True] * n, (batch, 2), torch.float64))
+        state = None  # the core's initial state (LSTMCore's zeros)
         flat_objects = objects.reshape(-1)
         for s in range(glances):
             # one lookup of N * B glances: a glance depends only on its object and pose
@@ -555,9 +573,46 @@ class BatchedRuns:
             torch.stack(baselines, 1),
             mu,
             sigma,
+            first_baseline,
         )
 
-    def _losses(self, objects, locations, logits, baselines, mu, sigma):
+    def _first_glance(self, p: dict, batch: int):
+        """With ``first_glance = "learned"`` (:meth:`HapticAttentionModel.first_glance`): the
+        location network's ``(mu, sigma)`` and the baseline at ``tau_0 = 0``, ``(N, B, 2)`` twice
+        and ``(N, B)``; ``None`` for a random first glance. At ``tau_0 = 0`` each head's output
+        is its bias: read straight from the biases, whose gradient autograd leaves in their
+        ``.grad`` (:meth:`_first_grads`)."""
+        c = self._template.config
+        if c.first_glance != "learned" or c.policy != "learned":
+            return None
+
+        def out(name: str) -> torch.Tensor:  # a head's output at tau_0: its bias, or 0
+            bias = p.get(name + ".bias")
+            if bias is not None:
+                return bias
+            weight = p[name + ".weight"]
+            return weight.new_zeros(weight.shape[:2])
+
+        mu = torch.tanh(out("location.mu"))
+        s = out("location.sigma")
+        sigma = F.softplus(s) if c.std_activation == "softplus" else torch.sigmoid(s)
+        n = mu.shape[0]
+        return (
+            mu[:, None].expand(n, batch, -1),
+            (sigma + c.sigma_min)[:, None].expand(n, batch, -1),
+            out("baseline.dense").expand(n, batch),
+        )
+
+    def _first_grads(self, grads: dict) -> None:
+        """The gradients of the heads' biases through the learned first glance (autograd's, in
+        the stacked leaves' ``.grad``) added to the layers' ``grads``, and the leaves cleared."""
+        for name in _FIRST_BIASES:
+            leaf = self.stacked.get(name)
+            if leaf is not None and leaf.grad is not None:
+                grads[name] = grads[name] + leaf.grad
+                leaf.grad = None
+
+    def _losses(self, objects, locations, logits, baselines, mu, sigma, first_baseline=None):
         """Each active run's hybrid loss (:func:`ham.learn.hybrid_loss.hybrid_loss`, mapped
         over the runs): ``(total, reward, classification, reinforce, baseline)``, each ``(N,
         ...)``. Runs of other loss reductions, classified or rewarded glances or discounts are
@@ -570,7 +625,7 @@ class BatchedRuns:
                                                       runs[k].config.reward_glances,
                                                       runs[k].config.reward_discount,
                                                       runs[k].config.model.glances))  # fmt: skip
-        args = (objects, locations, logits, baselines, mu, sigma)
+        args = (objects, locations, logits, baselines, mu, sigma, first_baseline)
         if len(kinds) == 1:
             (((*reductions, glances), ks),) = kinds.items()
             return self._mapped_loss(glances, reductions, [runs[k] for k in ks], *args)
@@ -585,30 +640,35 @@ class BatchedRuns:
         return tuple(torch.stack(xs) for xs in zip(*out, strict=True))
 
     def _mapped_loss(self, glances, reductions, runs, objects, locations, logits, baselines, mu,
-                     sigma):  # fmt: skip
+                     sigma, first_baseline):  # fmt: skip
         """:func:`hybrid_loss` of ``runs`` (one kind of loss: its reductions, the glances it
         classifies and rewards, its discount), mapped over them."""
         # one beta for the runs: the number itself; else each run's, mapped with its episode
         betas = [r.config.beta for r in runs]
         beta = self._const(betas, logits.dtype)
         one = len(set(betas)) == 1
+        chosen = glances if first_baseline is not None else glances - 1  # the policy's poses
 
-        def loss(objects, locations, logits, baselines, mu, sigma, beta):
-            if glances == 1:
+        def loss(objects, locations, logits, baselines, beta, mu=None, sigma=None, first=None):
+            if chosen == 0:
                 policy = None
             elif mu is None:
-                policy = Uniform((glances - 1, objects.shape[0]), objects.device)
+                policy = Uniform((chosen, objects.shape[0]), objects.device)
             else:
                 policy = TruncatedGaussian(mu, sigma)
-            episode = Episode(objects, locations, logits, baselines, policy)
+            episode = Episode(objects, locations, logits, baselines, policy, first)
             h = hybrid_loss(episode, betas[0] if one else beta, *reductions)
             return h.total, h.reward, h.classification, h.reinforce, h.baseline
 
-        if mu is None:
-            return torch.vmap(lambda o, lo, lg, b, be: loss(o, lo, lg, b, None, None, be))(
-                objects, locations, logits, baselines, beta
-            )
-        return torch.vmap(loss)(objects, locations, logits, baselines, mu, sigma, beta)
+        # the optional tensors by name: vmap maps tensors, not None
+        given = {k: v for k, v in (("mu", mu), ("sigma", sigma), ("first", first_baseline))
+                 if v is not None}  # fmt: skip
+
+        def mapped(objects, locations, logits, baselines, beta, *rest):
+            return loss(objects, locations, logits, baselines, beta,
+                        **dict(zip(given, rest, strict=True)))  # fmt: skip
+
+        return torch.vmap(mapped)(objects, locations, logits, baselines, beta, *given.values())
 
     def step(self) -> list[tuple[int, int]]:
         """One training step of every active run (:func:`ham.learn.train.train_step` for N).
@@ -724,6 +784,7 @@ class BatchedRuns:
         # a run whose loss is not finite takes no part in the backward (its gradient is zeros)
         torch.where(finite, totals, torch.zeros_like(totals)).sum().backward()
         grads = self._net.grads()  # None of a layer unused (one glance: the location heads)
+        self._first_grads(grads)
         if self._sgd:
             self._sgd_step(runs, grads)
         else:
@@ -781,13 +842,20 @@ class BatchedRuns:
                  for name in self._names}  # fmt: skip
         later = 0 if greedy else glances - 1  # draws per batch after the first glance's
         dtype = torch.float64 if learned else torch.float32  # truncated_normal's, Uniform's
-        first = torch.empty(n, batches, batch, 2, device=device)
+        # the first glance: random (Uniform's draws), or the policy's from tau_0 (its mode or
+        # truncated_normal's draws)
+        chosen = self._first_glance(p, 1)
+        first_dtype = torch.float32 if chosen is None else torch.float64
+        first = None if chosen is not None and greedy else torch.empty(
+            n, batches, batch, 2, device=device, dtype=first_dtype)  # fmt: skip
         draws = torch.empty(n, batches, later, batch, 2, device=device, dtype=dtype)
         for j, r in enumerate(runs):
             g = torch.Generator(device=device)
             g.manual_seed(stream_seed(r.config.seed, 2))
             for b in range(batches):
-                torch.rand(batch, 2, generator=g, device=device, out=first[j, b])
+                if first is not None:
+                    torch.rand(batch, 2, generator=g, device=device, dtype=first_dtype,
+                               out=first[j, b])  # fmt: skip
                 for s in range(later):
                     torch.rand(batch, 2, generator=g, device=device, dtype=dtype,
                                out=draws[j, b, s])  # fmt: skip
@@ -818,7 +886,15 @@ class BatchedRuns:
             rows = (b1 - b0) * batch
             objects = torch.cat([env.balanced_objects(b) for b in range(b0, b1)])
             flat_objects = objects.expand(n, rows).reshape(-1)
-            q = first[:, b0:b1].reshape(n, rows, 2) * 2 - 1  # uniform_locations
+            if chosen is None:
+                q = first[:, b0:b1].reshape(n, rows, 2) * 2 - 1  # uniform_locations
+            else:  # the learned first glance: the same distribution for every episode
+                mu0, sigma0 = (t.expand(n, rows, -1) for t in chosen[:2])
+                if greedy:
+                    q = torch.nan_to_num(mu0).clamp(-1, 1)  # TruncatedGaussian.mode
+                else:
+                    u = first[:, b0:b1].reshape(n, rows, 2)
+                    q = truncated_normal(mu0, sigma0, uniform=u)
             state = None  # the core's initial state
             locations, logits, mode = [], [], None
             for s in range(glances):
