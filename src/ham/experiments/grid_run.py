@@ -360,7 +360,8 @@ def write_report(
         + (f" {note[0].upper()}{note[1:]}." if note else ""),
         "",
         f"{len(jobs)} run(s) in {len(cells)} cell(s); glances: {where}; world objects "
-        f"`{grid.world.get('objects')}`. Every run: "
+        f"`{grid.world.get('objects')}`. Every run (but where its cell's settings say "
+        "otherwise): "
         + (settings_text(grid.base) or "the defaults")
         + ". Entries are mean ± standard error of the mean over the finished seeds "
         "(`runs` finished/planned); the grid is in `grid.json`, every run's config in "
