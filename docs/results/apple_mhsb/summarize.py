@@ -3,11 +3,13 @@
 python docs/results/apple_mhsb/summarize.py RUNS_OUT OUT_DIR
 
 RUNS_OUT is the --out folder of docs/grids/apple_mhsb.toml or apple_mhsb_loss.toml
-(runs/<variant>-s<seed>/metrics.json); OUT_DIR gets summary.json, table.md and
-accuracy_vs_env_steps.png. Our numbers: the evaluation during training
-(10 batches of 64 episodes, mean poses) and the grid's final evaluations (50 batches): mean,
-s.e.m. and count over seeds (ham.experiments.reproduce.mean_sem). APPLE's numbers are quoted,
-not computed here (below).
+(runs/<variant>-s<seed>/metrics.json); OUT_DIR gets summary.json, table.md,
+accuracy_vs_env_steps.png and training_accuracy.png (each seed's training accuracy); --variants V ... keeps only those variants. Our numbers: the
+evaluation during training (10 batches of 64 episodes, mean poses), the grid's final evaluations
+(50 batches), and how steady training is: each seed's training accuracy (the last glance's
+reward on the training batches, sampled poses) averaged over the evaluations in the second half
+of its run; mean, s.e.m. and count over seeds (ham.experiments.reproduce.mean_sem). APPLE's
+numbers are quoted, not computed here (below).
 """
 
 import argparse
@@ -49,6 +51,15 @@ LABEL = {
     "ham-apple-loss": "ours: the paper's HAM with APPLE's loss (every glance, batch mean)",
     "ham-apple-loss-first-learned": "ours: APPLE's loss and first glance learned",
     "ham-apple-loss-first-learned-apple-lr": "ours: APPLE's loss, first glance and lr schedule",
+    "ham-apple-reward": "ours: the paper's HAM with APPLE's reward (every glance, gamma 0.99)",
+    "ham-apple-loss-first-learned-apple-reward": "ours: APPLE's loss, first glance and reward",
+    "ham-apple-loss-first-learned-apple-reward-apple-lr": "ours: APPLE's loss, first glance, "
+    "reward and lr schedule",
+    "ham-apple-reward-beta-0.04": "ours: the paper's HAM with APPLE's reward, beta 0.04",
+    "ham-apple-loss-first-learned-apple-reward-beta-0.04": "ours: APPLE's loss, first glance and "
+    "reward, beta 0.04",
+    "ham-apple-loss-first-learned-apple-reward-3M": "ours: APPLE's loss, first glance and "
+    "reward, 3M steps",
     "info-early": "ours: info learner (its first 32k evaluated every 800)",
     "info": "ours: info learner",
 }
@@ -60,14 +71,28 @@ def at(history: list[dict], env_steps: int) -> float:
     return rows[-1]["accuracy"]
 
 
+def late_training(history: list[dict]) -> float:
+    """The mean training accuracy (``train_reward``) of the evaluations in the second half of
+    the run."""
+    half = history[-1]["env_steps"] / 2
+    rows = [h["train_reward"] for h in history if h["env_steps"] > half]
+    return sum(rows) / len(rows)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("runs_out", type=Path)
     ap.add_argument("out_dir", type=Path)
+    ap.add_argument("--variants", nargs="+", metavar="V", help="only these variants")
     args = ap.parse_args()
+    unknown = set(args.variants or ()) - set(LABEL)
+    if unknown:
+        ap.error(f"--variants {' '.join(sorted(unknown))}: unknown; accepted: {', '.join(LABEL)}")
     runs: dict[str, list[dict]] = {}
     for metrics in sorted(args.runs_out.glob("runs/*/metrics.json")):
         match = NAME.match(metrics.parent.name)
+        if args.variants and match["variant"] not in args.variants:
+            continue
         m = json.loads(metrics.read_text())
         finals = {}
         for f in metrics.parent.glob("eval_*_seed12345.json"):
@@ -88,14 +113,16 @@ def main() -> None:
             "to_0.99": [r["metrics"]["env_steps_to_0.99"] for r in rs],
             "final_mean_poses": mean_sem([r["finals"]["mean"] for r in rs]),
             "final_sampled_poses": mean_sem([r["finals"]["sample"] for r in rs]),
+            "late_training_accuracy": [late_training(h) for h in hist],
         }
     args.out_dir.mkdir(parents=True, exist_ok=True)
     (args.out_dir / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
 
     head = " | ".join(f"{p // 1000}k" for p in POINTS)
     lines = [
-        f"| agent | {head} | env steps to 0.95 | to 0.99 | final (50 batches): mean poses / sampled |",
-        "|---" * (len(POINTS) + 4) + "|",
+        f"| agent | {head} | env steps to 0.95 | to 0.99 | final (50 batches): mean poses / "
+        "sampled | training accuracy, 2nd half (per seed) |",
+        "|---" * (len(POINTS) + 5) + "|",
     ]
     for variant in LABEL:
         if variant not in summary:
@@ -108,7 +135,8 @@ def main() -> None:
             for k in ("to_0.95", "to_0.99")
         ]
         final = f"{format_mean_sem(*s['final_mean_poses'])} / {format_mean_sem(*s['final_sampled_poses'])}"
-        lines.append(f"| {LABEL[variant]} | {cells} | {reach[0]} | {reach[1]} | {final} |")
+        late = " / ".join(f"{v:.3f}" for v in s["late_training_accuracy"])
+        lines.append(f"| {LABEL[variant]} | {cells} | {reach[0]} | {reach[1]} | {final} | {late} |")
     (args.out_dir / "table.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
@@ -151,7 +179,33 @@ def main() -> None:
     ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(args.out_dir / "accuracy_vs_env_steps.png", dpi=120)
+    fig.savefig(args.out_dir / "accuracy_vs_env_steps.png", dpi=120, bbox_inches="tight")
+    plt.close(fig)
+
+    # how steady training is: each seed's training accuracy, one panel per variant
+    shown = [v for v in LABEL if v in runs and v != "info-early"]
+    cols = 2 if len(shown) > 1 else 1
+    rows = math.ceil(len(shown) / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 2.2 * rows), sharey=True,
+                             squeeze=False)  # fmt: skip
+    for ax, variant in zip(axes.flat, shown, strict=False):
+        for r in sorted(runs[variant], key=lambda r: r["seed"]):
+            rows_ = [h for h in r["history"] if h["env_steps"] > 0]
+            ax.plot([h["env_steps"] for h in rows_], [h["train_reward"] for h in rows_], lw=0.8,
+                    label=f"seed {r['seed']}")  # fmt: skip
+        ax.set_title(LABEL[variant].removeprefix("ours: "), fontsize=8)
+        ax.set_xscale("log")
+        ax.set_ylim(0, 1.02)
+        ax.grid(alpha=0.3)
+        ax.tick_params(labelsize=7)
+    for ax in axes.flat[len(shown) :]:
+        ax.axis("off")
+    axes.flat[0].legend(fontsize=7)
+    fig.supxlabel("environment steps (glances)", fontsize=9)
+    fig.supylabel("training accuracy (sampled poses)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(args.out_dir / "training_accuracy.png", dpi=110)
+    plt.close(fig)
 
 
 if __name__ == "__main__":
