@@ -15,7 +15,10 @@ the other glance counts interpolated linearly in G from the measured ones, and e
 costed as the full model (the MLP core is cheaper: an upper bound).
 
     PYTHONPATH=src python benchmarks/bench_batched.py [--table TABLE] [--runs 10] [--glances 3 10]
-        [--repeats 4] [--device cuda]
+        [--repeats 4] [--device cuda] [--first-glance learned]
+
+``--first-glance learned``: the model's first glance chosen by its policy (the APPLE study's
+HAM; batched since it reads the heads' biases at ``tau_0``, docs/batched.md).
 
 With ``--device cuda`` the times are wall-clock (the GPU synchronized before each reading: CPU
 time says nothing there) and the projection is in GPU-hours, one batched group after another.
@@ -46,8 +49,10 @@ TABLE1_GLANCES = (1, 2, 3, 4, 6, 8, 10)
 STEPS, EVALS, SEEDS = 50_000, 250, 10
 
 
-def measure(glances: int, runs: int, repeats: int, table: str | None, device: str = "cpu") -> dict:
-    configs = [TrainConfig(model=HamConfig(glances=glances), seed=s, table=table, device=device)
+def measure(glances: int, runs: int, repeats: int, table: str | None, device: str = "cpu",
+            first_glance: str = "random") -> dict:  # fmt: skip
+    model = HamConfig(glances=glances, first_glance=first_glance)
+    configs = [TrainConfig(model=model, seed=s, table=table, device=device)
                for s in range(runs)]  # fmt: skip
     cuda = device.startswith("cuda")
     sync = torch.cuda.synchronize if cuda else (lambda: None)
@@ -146,6 +151,8 @@ def main() -> None:
     p.add_argument("--products", choices=("auto", "onednn", "bmm"), default="auto",
                    help="the batched CPU products: auto (by the CPU: oneDNN on AMD with AVX-512), one oneDNN "
                    "product per run, or one MKL bmm for all runs")  # fmt: skip
+    p.add_argument("--first-glance", choices=("random", "learned"), default="random",
+                   help="random (the paper) or chosen by the policy")  # fmt: skip
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
@@ -153,7 +160,8 @@ def main() -> None:
         stacked_ham._PER_RUN_ONEDNN = args.products == "onednn"
     products = "oneDNN per run" if stacked_ham._PER_RUN_ONEDNN else "bmm"
     vendor = cpu_info("vendor_id")
-    rows = [measure(g, args.runs, args.repeats, args.table, args.device) for g in args.glances]
+    rows = [measure(g, args.runs, args.repeats, args.table, args.device, args.first_glance)
+            for g in args.glances]  # fmt: skip
     cuda = args.device.startswith("cuda")
     unit = "GPU-hours" if cuda else "CPU-hours"
     before = grid_hours(rows, "single_ms_per_run_step", "eval_ms")
@@ -161,10 +169,11 @@ def main() -> None:
     if args.json:
         key = "grid_gpu_hours" if cuda else "grid_cpu_hours"
         print(json.dumps({"device": args.device, "cpu_vendor": vendor, "products": products,
+                          "first_glance": args.first_glance,
                           "rows": rows, key: [before, after]}, indent=1))  # fmt: skip
         return
-    print(f"{args.runs} runs, {args.threads} torch thread(s), batch 64, the paper's model, "
-          f"on {args.device} ({vendor or 'CPU vendor unknown'}; CPU products: {products})")  # fmt: skip
+    print(f"{args.runs} runs, {args.threads} torch thread(s), batch 64, the paper's model "
+          f"(first glance {args.first_glance}), on {args.device} ({vendor or 'CPU vendor unknown'}; CPU products: {products})")  # fmt: skip
     clock = "wall-clock time (GPU synchronized)" if cuda else "CPU time per process"
     print(f"{clock}, median of {args.repeats} interleaved repeats; load average "
           f"{os.getloadavg()[0]:.1f} at the end")  # fmt: skip

@@ -612,7 +612,7 @@ class BatchedRuns:
                 grads[name] = grads[name] + leaf.grad
                 leaf.grad = None
 
-    def _losses(self, objects, locations, logits, baselines, mu, sigma, first_baseline=None):
+    def _losses(self, objects, locations, logits, baselines, mu, sigma, first_baseline):
         """Each active run's hybrid loss (:func:`ham.learn.hybrid_loss.hybrid_loss`, mapped
         over the runs): ``(total, reward, classification, reinforce, baseline)``, each ``(N,
         ...)``. Runs of other loss reductions, classified or rewarded glances or discounts are
