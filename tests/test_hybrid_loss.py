@@ -236,9 +236,13 @@ def test_per_glance_reward_credits_each_pose_with_its_return(env, first_glance):
     assert not torch.allclose(loss.reinforce, paper.reinforce)
     assert torch.equal(loss.classification, paper.classification)
     assert torch.equal(loss.reward, paper.reward)  # the reported reward: the last prediction's
-    # the general path at the paper's settings is the paper's loss
-    general = hybrid_loss(ep, reward_discount=1)
-    assert torch.equal(general.total, paper.total)
+    # the last glance's reward discounted: pose q_{s+1} earns gamma^(S-s) r
+    last = hybrid_loss(ep, reward_discount=0.5)
+    ret = returns(ep.logits, ep.objects, "last", 0.5)
+    earned = ret[:-1] if first_glance == "random" else torch.cat([0.5 * ret[:1], ret[:-1]])
+    expected_r = reinforce_term(ep.locations[ep.chosen], ep.policy, earned - ep.values())
+    assert torch.allclose(last.reinforce, expected_r)
+    assert not torch.allclose(last.reinforce, paper.reinforce)
 
 
 def test_bad_reward_options_are_named(env):
