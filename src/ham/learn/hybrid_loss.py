@@ -88,8 +88,11 @@ def returns(
     """``R_s = sum_{t=s..S} gamma^(t-s) r_t`` seen from every sub-sequence ``tau_{1:s}``, ``(S,
     B)`` (Eq total_reward within one episode): ``r_t`` is :func:`reward` of the prediction after
     glance ``t`` with ``reward_glances="all"``; with ``"last"`` only the last prediction is
-    rewarded (``R_s = gamma^(S-s) r``)."""
+    rewarded (``R_s = gamma^(S-s) r``); the paper's, with no discount, is ``r`` seen ``S``
+    times (a view: no more work than the paper's loss)."""
     logits = logits.detach()
+    if reward_glances == "last" and discount == 1:
+        return reward(logits[-1], objects).expand(logits.shape[:2])
     if reward_glances == "last":
         rewards = [logits.new_zeros(objects.shape)] * (logits.shape[0] - 1)
         rewards.append(reward(logits[-1], objects))
@@ -167,12 +170,8 @@ def hybrid_loss(
         every = glance_cross_entropy(episode.logits, objects).mean(0)  # (B,)
         classification = every.sum() if classification_reduction == "sum" else every.mean()
     r = reward(last.detach(), objects)
-    paper = reward_glances == "last" and reward_discount == 1
-    if paper:  # R_s = r for every s (the same ops as before the general case)
-        ret, first_ret = r[None], r
-    else:
-        ret = returns(episode.logits, objects, reward_glances, reward_discount)
-        first_ret = reward_discount * ret[0]  # the learned first glance: no prediction before
+    ret = returns(episode.logits, objects, reward_glances, reward_discount)  # (S, B)
+    first_ret = reward_discount * ret[0]  # the learned first glance: no prediction before it
     # Eq baseline over every sub-sequence 1..S, target its return R_s.
     baseline = ((ret - episode.baselines) ** 2).sum(0).mean()
     if episode.first_baseline is not None:  # a learned first glance: b(tau_0) too
@@ -182,13 +181,11 @@ def hybrid_loss(
     if policy is None or not policy.trainable or (not torch.is_tensor(beta) and beta == 0):
         reinforce = last.new_zeros(())
     else:
-        if paper:
-            advantage = r[None] - episode.values()  # b(tau_{1:s-1}) for the pose q_s
-        else:  # q_{s+1} earns R_s; a learned first glance gamma * R_1
-            earned = ret[:-1]
-            if episode.first_baseline is not None:
-                earned = torch.cat([first_ret[None], earned])
-            advantage = earned - episode.values()
+        # q_{s+1} earns R_s, against b(tau_{1:s}); a learned first glance gamma * R_1
+        earned = ret[:-1]
+        if episode.first_baseline is not None:
+            earned = torch.cat([first_ret[None], earned])
+        advantage = earned - episode.values()
         reinforce = reinforce_term(episode.locations[episode.chosen], policy, advantage)
         if reinforce_reduction == "sum":
             reinforce = reinforce * objects.shape[0]
