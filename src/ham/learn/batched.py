@@ -582,9 +582,9 @@ class BatchedRuns:
         and ``(N, B)``; ``None`` for a random first glance. At ``tau_0 = 0`` each head's output
         is its bias: read straight from the biases, whose gradient autograd leaves in their
         ``.grad`` (:meth:`_first_grads`)."""
-        c = self._template.config
-        if c.first_glance != "learned" or c.policy != "learned":
+        if not self._template.chooses_first_glance:  # (check_batchable refuses "own")
             return None
+        c = self._template.config
 
         def out(name: str) -> torch.Tensor:  # a head's output at tau_0: its bias, or 0
             bias = p.get(name + ".bias")
