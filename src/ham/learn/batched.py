@@ -142,6 +142,11 @@ def check_batchable(config: TrainConfig) -> None:
             f"policy {config.model.policy!r} cannot be batched; accepted: learned, random "
             "(train it with ham train or --executor local)"
         )
+    if config.model.encoders != "shared":
+        raise HamError(
+            f"encoders {config.model.encoders!r} cannot be batched; accepted: shared (train it "
+            "with ham train or --executor local)"
+        )
     if config.model.stay_gate:
         raise HamError(
             "stay_gate cannot be batched; accepted: no --stay-gate (train it with ham train or "

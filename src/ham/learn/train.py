@@ -526,11 +526,12 @@ class TrainConfig:
             ("epochs", self.epochs > 1, "epochs = 1"),
             ("move_cost", self.move_cost > 0, "move_cost = 0"),
             ("stay_gate", self.model.stay_gate, "no --stay-gate"),
+            ("encoders", self.model.encoders != "shared", "encoders 'shared'"),
             ("entropy_coef", self.entropy_coef > 0, "entropy_coef = 0 (the temperature is tuned)"),
         )
         for name, bad, accepted in refused:
             if bad:
-                in_model = name in ("policy", "stop", "stay_gate")
+                in_model = name in ("policy", "stop", "stay_gate", "encoders")
                 value = getattr(self.model, name, None) if in_model else None
                 value = getattr(self, name) if value is None else value
                 raise HamError(f"{name} = {value!r} with learner 'sac'; accepted: {accepted}")
@@ -1191,15 +1192,19 @@ def replay_episode(
         )
         dists.append(dist)
     state = agent.core.initial_state(batch, pressures)
+    heads_state = agent.initial_heads_state(batch, pressures)
     for s in range(glances):
         height = None if heights is None else heights[s]
         tau, state = agent.step(pressures[s], where[s], state, height)
+        tau_policy, tau_value, heads_state = agent.heads_step(
+            tau, pressures[s], where[s], heads_state, height
+        )
         logits.append(agent.classifier(tau))
-        baselines.append(agent.baseline(tau))
+        baselines.append(agent.baseline(tau_value))
         if s < glances - 1:
             dists.append(
                 agent.next_distribution(
-                    tau, played.locations[s], logits[-1], glance=s + 1, position=where[s]
+                    tau_policy, played.locations[s], logits[-1], glance=s + 1, position=where[s]
                 )
             )
     return Episode(

@@ -62,6 +62,9 @@ FIRST_GLANCES: tuple[str, ...] = ("random", "learned", "own", "probe")
 STAY_GATE_BIAS = -3.0
 #: What the learned stop's head reads (``HamConfig.stop_input``).
 STOP_INPUTS: tuple[str, ...] = ("confidence", "core")
+#: What the location policy and the baseline read (``HamConfig.encoders``): the classifier's core
+#: output, detached (the paper), or an encoder each of their own (the APPLE study's HAM).
+ENCODERS: tuple[str, ...] = ("shared", "separate")
 #: ``phi`` and ``phi_y`` of the pose dims (:data:`ham.world.glance.POSE_DIMS`) are angles, fed to
 #: the tactile network as ``q * phi_scale``.
 ANGLE_DIMS: tuple[str, ...] = ("phi", "phi_y")
@@ -149,6 +152,12 @@ class HamConfig:
             one where-input each. Set from the world by :func:`ham.learn.train.model_for_source`.
         height_input: feed the glance's contact height ``h`` (m, over ``MAX_HEIGHT``) to the
             tactile network's where-layer (the paper's Discussion, ``g: q -> (p, h)``).
+        encoders: what the location policy and the baseline read: ``shared`` (the paper: the
+            classifier's core output, detached, so only the classification loss trains the
+            tactile network and the core) or ``separate`` (beyond the paper, the APPLE study's
+            HAM: each reads a tactile network and a core of its own, as the classifier's, which
+            its own loss trains: the policy's by the REINFORCE term, the baseline's by Eq
+            baseline; :class:`Encoder`). ``separate`` needs the ``learned`` policy.
     """
 
     glances: int = 3
@@ -178,6 +187,7 @@ class HamConfig:
     stay_gate: bool = False
     pose_dims: tuple[str, ...] = PAPER_POSE_DIMS
     height_input: bool = False
+    encoders: str = field(default="shared", metadata={"choices": ENCODERS})
     moves: bool = False
     move_length: float = 0.0
     plugin: dict | None = None
@@ -229,6 +239,11 @@ class HamConfig:
             raise HamError(
                 f"stay_gate with policy {self.policy!r}; accepted: --policy learned (a mean pose "
                 "to gate)"
+            )
+        if self.encoders == "separate" and self.policy != "learned":
+            raise HamError(
+                f"encoders 'separate' with policy {self.policy!r}; accepted: --policy learned "
+                "(a location network whose encoder the REINFORCE term trains)"
             )
         if self.n_objects < 2:
             raise HamError(f"n_objects = {self.n_objects}; accepted: >= 2 objects to classify")
@@ -375,6 +390,23 @@ class StopHead(nn.Module):
         return self.net(self.confidence(logits)).squeeze(-1)
 
 
+class Encoder(nn.Module):
+    """A tactile network and a core of their own (``HamConfig.encoders = "separate"``): the
+    location policy's or the baseline's features, ``(p_s, l_s) -> tau'_{1:s}``, trained by that
+    head's loss alone (the APPLE study's HAM has one such recurrent encoder each for its policy,
+    classifier and value)."""
+
+    def __init__(self, tactile: nn.Module, core: nn.Module) -> None:
+        super().__init__()
+        self.tactile = tactile
+        self.core = core
+
+    def forward(
+        self, pressure: torch.Tensor, where: torch.Tensor, state: State
+    ) -> tuple[torch.Tensor, State]:
+        return self.core(self.tactile(pressure, where), state)
+
+
 def count_parameters(module: nn.Module) -> int:
     """Trainable weights (the number the paper reports as 741,248 for its model)."""
     return sum(p.numel() for p in module.parameters() if p.requires_grad)
@@ -388,32 +420,11 @@ class HapticAttentionModel(nn.Module):
         self.config = c = config or HamConfig()
         if c.plugin is not None:  # a config unpickled in a worker has not run its __post_init__
             load_plugin(c.plugin)
-        self.tactile = TactileNetwork(
-            c.pressure_dim,
-            c.location_dim,
-            c.what_units,
-            c.where_units,
-            c.combiner,
-            c.combine_units,
-            c.bias,
-        )
-        self.core = build_part(
-            "core",
-            c.core,
-            CORES,
-            make_core,
-            c.core,
-            self.tactile.out_features,
-            c.hidden_units,
-            activation=c.lstm_activation,
-            truncate_bptt=c.truncate_bptt,
-            forget_bias=c.forget_bias,
-            bias=c.bias,
-            layers=c.transformer_layers,
-            heads=c.transformer_heads,
-        )
+        self.tactile = self._tactile_network()
+        self.core = self._core()
         self.classifier = Classifier(c.hidden_units, c.n_objects, c.bias)
-        self.baseline = Baseline(c.hidden_units, c.bias)
+        separate = c.encoders == "separate"
+        self.baseline = Baseline(c.hidden_units, c.bias, trains_input=separate)
         # the location policy (ham.model.policy); created last, as its weights always were
         self.location = build_part("policy", c.policy, POLICIES, make_policy, c)
         he_normal_init(self)
@@ -436,6 +447,11 @@ class HapticAttentionModel(nn.Module):
             he_normal_init(self.stay)
             nn.init.zeros_(self.stay.net[-1].weight)
             nn.init.constant_(self.stay.net[-1].bias, STAY_GATE_BIAS)
+        if separate:  # last: every other part's initial weights stay those of shared encoders
+            self.policy_encoder = Encoder(self._tactile_network(), self._core())
+            self.value_encoder = Encoder(self._tactile_network(), self._core())
+            he_normal_init(self.policy_encoder)
+            he_normal_init(self.value_encoder)
         # where-input column i: q_i, times phi_scale for an angle
         self._angle = [d in ANGLE_DIMS for d in c.pose_dims]
         # a core or policy of the user's own keeps the contract the model relies on
@@ -444,6 +460,68 @@ class HapticAttentionModel(nn.Module):
         # and keeps it at every glance: a batch of 8 can break what 2 episodes kept
         self._own_core = c.core not in BUILTIN_CORES
         self._own_policy = c.policy not in BUILTIN_POLICIES
+
+    def _tactile_network(self) -> TactileNetwork:
+        c = self.config
+        return TactileNetwork(
+            c.pressure_dim,
+            c.location_dim,
+            c.what_units,
+            c.where_units,
+            c.combiner,
+            c.combine_units,
+            c.bias,
+        )
+
+    def _core(self) -> nn.Module:
+        c = self.config
+        return build_part(
+            "core",
+            c.core,
+            CORES,
+            make_core,
+            c.core,
+            self.tactile.out_features,
+            c.hidden_units,
+            activation=c.lstm_activation,
+            truncate_bptt=c.truncate_bptt,
+            forget_bias=c.forget_bias,
+            bias=c.bias,
+            layers=c.transformer_layers,
+            heads=c.transformer_heads,
+        )
+
+    @property
+    def separate_encoders(self) -> bool:
+        """The policy and the baseline read encoders of their own (``encoders = "separate"``)."""
+        return self.config.encoders == "separate"
+
+    def initial_heads_state(self, batch: int, like: torch.Tensor) -> tuple[State, State] | None:
+        """The separate encoders' states before the first glance (``None`` when shared)."""
+        if not self.separate_encoders:
+            return None
+        return (
+            self.policy_encoder.core.initial_state(batch, like),
+            self.value_encoder.core.initial_state(batch, like),
+        )
+
+    def heads_step(
+        self,
+        tau: torch.Tensor,
+        pressure: torch.Tensor,
+        where: torch.Tensor,
+        state: tuple[State, State] | None,
+        height: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor, tuple[State, State] | None]:
+        """What the location policy and the baseline read after a glance: the classifier's
+        core output ``tau`` twice (shared; they detach it), or each separate encoder's output on
+        the same glance ``(p_s, where_s[, h_s])``, and the encoders' next states."""
+        if state is None:
+            return tau, tau, None
+        w = self.where(where, height)
+        tau_policy, policy_state = self.policy_encoder(pressure, w, state[0])
+        tau_value, value_state = self.value_encoder(pressure, w, state[1])
+        return tau_policy, tau_value, (policy_state, value_state)
 
     @property
     def chooses_first_glance(self) -> bool:
@@ -528,19 +606,27 @@ class HapticAttentionModel(nn.Module):
             check_poses(self.config.policy, q, batch, len(self.config.pose_dims), like)
         return q
 
-    def glance_step(
-        self, env, objects: torch.Tensor, q: torch.Tensor, state: State
-    ) -> tuple[torch.Tensor, State]:
-        """Glance ``objects`` at ``q`` in ``env`` and take the :meth:`step` on it: the contact
-        height too with ``height_input``; the where-input is ``env.observed_location`` when the
-        environment reports one, else ``q``."""
+    def glance(
+        self, env, objects: torch.Tensor, q: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """Glance ``objects`` at ``q`` in ``env``: the pressures, the where-input's pose
+        (``env.observed_location`` when the environment reports one, else ``q``) and the contact
+        height (``None`` without ``height_input``)."""
         height = None
         if self.config.height_input:
             pressure, height = env.glance_height(objects, q)
         else:
             pressure = env.glance(objects, q)
         where = getattr(env, "observed_location", None)
-        return self.step(pressure, q if where is None else where, state, height)
+        return pressure, q if where is None else where, height
+
+    def glance_step(
+        self, env, objects: torch.Tensor, q: torch.Tensor, state: State
+    ) -> tuple[torch.Tensor, State]:
+        """Glance ``objects`` at ``q`` in ``env`` (:meth:`glance`) and take the :meth:`step` on
+        it."""
+        pressure, where, height = self.glance(env, objects, q)
+        return self.step(pressure, where, state, height)
 
     def forward(
         self,
@@ -569,11 +655,16 @@ class HapticAttentionModel(nn.Module):
             # the paper: random
             q = uniform_locations(batch, generator, objects.device, len(self.config.pose_dims))
         state = self.core.initial_state(batch, q)
+        heads_state = self.initial_heads_state(batch, q)
         for s in range(self.config.glances):
-            tau, state = self.glance_step(env, objects, q, state)
+            pressure, where, height = self.glance(env, objects, q)
+            tau, state = self.step(pressure, where, state, height)
+            tau_policy, tau_value, heads_state = self.heads_step(
+                tau, pressure, where, heads_state, height
+            )
             locations.append(q)
             logits.append(self.classifier(tau))
-            baselines.append(self.baseline(tau))
+            baselines.append(self.baseline(tau_value))
             if self.config.stop:  # reads detached inputs: the stop's loss trains only its head
                 if self.config.stop_input == "core":
                     stops.append(self.stop_head(tau.detach()).squeeze(-1))
@@ -581,9 +672,7 @@ class HapticAttentionModel(nn.Module):
                     stops.append(self.stop_head(logits[-1]))
             if s == self.config.glances - 1:
                 break
-            where = getattr(env, "observed_location", None)
-            position = q if where is None else where
-            dist = self.next_distribution(tau, q, logits[-1], glance=s + 1, position=position)
+            dist = self.next_distribution(tau_policy, q, logits[-1], glance=s + 1, position=where)
             q = self._act(dist, generator, greedy, batch)
             dists.append(dist)
         return Episode(
@@ -609,16 +698,20 @@ class HapticAttentionModel(nn.Module):
         the glances, the location distributions after glances 1..S-1 (``None`` for one glance).
         Used by the benchmark as the reference cost."""
         state = self.core.initial_state(pressures.shape[1], pressures)
+        heads_state = self.initial_heads_state(pressures.shape[1], pressures)
         logits, baselines, dists = [], [], []
         for s in range(pressures.shape[0]):
             h = None if heights is None else heights[s]
             tau, state = self.step(pressures[s], locations[s], state, h)
+            tau_policy, tau_value, heads_state = self.heads_step(
+                tau, pressures[s], locations[s], heads_state, h
+            )
             logits.append(self.classifier(tau))
-            baselines.append(self.baseline(tau))
+            baselines.append(self.baseline(tau_value))
             if s < pressures.shape[0] - 1:
                 dists.append(
                     self.next_distribution(
-                        tau, locations[s], logits[-1], glance=s + 1, position=locations[s]
+                        tau_policy, locations[s], logits[-1], glance=s + 1, position=locations[s]
                     )
                 )
         return (

@@ -14,7 +14,9 @@ What is detached (paper; the authors' code, docs/sources.md "The network": the c
 trained through the location branch):
 
 * the core output enters the location network detached: the REINFORCE term trains only the
-  location heads, never the core or the tactile network;
+  location heads, never the core or the tactile network (with an encoder of its own,
+  ``HamConfig.encoders = "separate"``, beyond the paper, it trains that encoder too:
+  ``trains_input``);
 * the sample ``q`` is drawn from detached ``mu, sigma`` and carries no gradient: the eligibilities
   of Eqs (reinforce_mean, reinforce_std) differentiate ``log N(q; mu, sigma)`` at a *fixed* ``q``.
 """
@@ -41,6 +43,8 @@ class LocationNetwork(nn.Module):
         sigma_min: a floor added to ``sigma`` (not in the paper) so that the eligibilities'
             ``1 / sigma^3`` stay finite.
         bias: give the heads a bias (the authors' code has none).
+        trains_input: the gradient flows into ``tau`` (an encoder of the policy's own);
+            ``False`` (the paper): ``tau`` is detached.
     """
 
     def __init__(
@@ -50,8 +54,10 @@ class LocationNetwork(nn.Module):
         sigma_min: float = 1e-3,
         bias: bool = True,
         dims: int = 2,
+        trains_input: bool = False,
     ) -> None:
         super().__init__()
+        self.trains_input = trains_input
         if std_activation not in STD_ACTIVATIONS:
             raise HamError(
                 f"std activation {std_activation!r}; accepted: {', '.join(STD_ACTIVATIONS)}"
@@ -64,7 +70,8 @@ class LocationNetwork(nn.Module):
         self.sigma = nn.Linear(input_size, dims, bias=bias)
 
     def forward(self, tau: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        tau = tau.detach()  # the core is not trained through the location branch
+        if not self.trains_input:
+            tau = tau.detach()  # the core is not trained through the location branch
         mu = torch.tanh(self.mu(tau))
         s = self.sigma(tau)
         sigma = F.softplus(s) if self.std_activation == "softplus" else torch.sigmoid(s)

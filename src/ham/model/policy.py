@@ -258,6 +258,7 @@ class GaussianPolicy(LocationNetwork, LocationPolicy):
             config.sigma_min,
             config.bias,
             dims=len(config.pose_dims),
+            trains_input=config.encoders == "separate",
         )
 
     def distribution(self, tau: torch.Tensor) -> TruncatedGaussian:
