@@ -60,6 +60,11 @@ LABEL = {
     "reward, beta 0.04",
     "ham-apple-loss-first-learned-apple-reward-3M": "ours: APPLE's loss, first glance and "
     "reward, 3M steps",
+    "ham-separate-encoders": "ours: the paper's HAM with separate encoders",
+    "ham-apple-loss-first-learned-separate-encoders": "ours: APPLE's loss and first glance, "
+    "separate encoders",
+    "ham-apple-loss-first-learned-apple-reward-separate-encoders": "ours: APPLE's loss, first "
+    "glance, reward and separate encoders",
     "info-early": "ours: info learner (its first 32k evaluated every 800)",
     "info": "ours: info learner",
 }

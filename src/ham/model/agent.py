@@ -18,6 +18,10 @@ Section "The Haptic Attention Model" and Fig "Illustration of the Used Model". O
    or a fixed sweep (``grid``: the pose depends on the glance index alone, which the model
    passes to every policy, :meth:`ham.model.policy.LocationPolicy.distribution_at`).
 
+The location policy and the baseline read the classifier's core output, detached (the paper);
+beyond it, ``encoders = "separate"`` gives each a tactile network and a core of its own
+(:class:`Encoder`, the APPLE study's HAM), which its own loss trains.
+
 Every hyperparameter of the network is a field of :class:`HamConfig` with the paper's value as its
 default; where the authors' code differs, the field offers the code's choice as an option.
 """
