@@ -1,6 +1,7 @@
 """Environment steps per second of each learner, and its ratio to the bare network's.
 
-Learners: ``hybrid`` (the paper's loss, SGD), ``info`` (the information learner's recipe: Adam,
+Learners: ``hybrid`` (the paper's loss, SGD), ``hybrid+separate`` (the same with
+``--encoders separate``: the policy and the baseline read encoders of their own), ``info`` (the information learner's recipe: Adam,
 learned first glance), ``info+stop`` (the same with a learned stop, ``--glance-cost 0.1``) and
 ``sac`` (the off-policy learner with the squashed policy: a fresh batch played into the replay
 buffer, then its updates on replayed episodes).
@@ -30,6 +31,7 @@ from ham.model.agent import HamConfig
 #: the learners compared, as ``TrainConfig`` fields beyond the common ones
 LEARNERS: dict[str, dict] = {
     "hybrid": {},
+    "hybrid+separate": {},
     "info": {"learner": "info", "optimizer": "adam", "lr": 3e-3, "policy_lr_scale": 0.3},
     "info+stop": {
         "learner": "info",
@@ -49,6 +51,7 @@ def make_run(name: str, glances: int, batch: int, table: str | None, device: str
         first_glance="learned" if name.startswith("info") else "random",
         stop=name.endswith("+stop"),
         policy="squashed" if name == "sac" else "learned",
+        encoders="separate" if name.endswith("+separate") else "shared",
     )
     config = TrainConfig(model=model, batch_size=batch, table=table, device=device, **kw)
     return Run.create(config)
@@ -124,10 +127,10 @@ def main() -> None:
     r0 = rows[0]
     print(f"learners, {r0['glances']} glances, batch {r0['batch_size']}, {r0['source']} glances, "
           f"{args.device}, {args.threads} thread(s), median of {args.repeats}")  # fmt: skip
-    print(f"{'learner':>9}  {'step ms':>7}  {'env steps/s':>11}  {'bare ms':>7}  "
+    print(f"{'learner':>15}  {'step ms':>7}  {'env steps/s':>11}  {'bare ms':>7}  "
           f"{'bare env steps/s':>16}  {'ratio':>5}")  # fmt: skip
     for r in rows:
-        print(f"{r['learner']:>9}  {r['train_step_ms']:>7.2f}  {r['env_steps_per_s']:>11.0f}  "
+        print(f"{r['learner']:>15}  {r['train_step_ms']:>7.2f}  {r['env_steps_per_s']:>11.0f}  "
               f"{r['bare_forward_backward_ms']:>7.2f}  {r['bare_env_steps_per_s']:>16.0f}  "
               f"{r['ratio']:>5.2f}")  # fmt: skip
 
