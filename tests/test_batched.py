@@ -128,6 +128,7 @@ def test_runs_of_other_rates_losses_and_evaluations_share_a_batch(tmp_path, devi
         tiny(6, steps=6, classification_glances="all"),
         tiny(7, steps=6, reward_glances="all", reward_discount=0.9),
         tiny(8, steps=6, reward_discount=0.5),
+        tiny(9, steps=6, glance_reduction="mean", reward_glances="all", reward_discount=0.9),
         tiny(5, steps=6, model=HamConfig(glances=3, truncate_bptt=True)),
     ]
     configs = [replace(c, device=device) for c in configs]

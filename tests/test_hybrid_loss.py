@@ -245,6 +245,24 @@ def test_per_glance_reward_credits_each_pose_with_its_return(env, first_glance):
     assert not torch.allclose(last.reinforce, paper.reinforce)
 
 
+@pytest.mark.parametrize("first_glance", ["random", "learned"])
+def test_a_mean_over_the_glances_divides_each_sum_by_its_terms(env, first_glance):
+    # APPLE's policy and value losses are means over the steps: the REINFORCE term over the
+    # policy's poses (S - 1, or S with a learned first glance), the baseline loss over its terms
+    # (S, or S + 1 with b(tau_0))
+    _, ep = _episode(env, first_glance=first_glance)
+    kw = dict(reward_glances="all", reward_discount=0.9)
+    summed = hybrid_loss(ep, **kw)
+    mean = hybrid_loss(ep, glance_reduction="mean", **kw)
+    poses = 3 if first_glance == "learned" else 2
+    assert torch.allclose(mean.reinforce, summed.reinforce / poses)
+    assert torch.allclose(mean.baseline, summed.baseline / (poses + 1))
+    assert torch.equal(mean.classification, summed.classification)
+    assert torch.allclose(mean.total, mean.classification + 0.4 * mean.reinforce + mean.baseline)
+    with pytest.raises(HamError, match="glance_reduction 'median'; accepted: sum, mean"):
+        hybrid_loss(ep, glance_reduction="median")
+
+
 def test_bad_reward_options_are_named(env):
     _, ep = _episode(env)
     with pytest.raises(HamError, match="reward_glances 'first'; accepted: last, all"):

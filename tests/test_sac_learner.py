@@ -224,6 +224,7 @@ def test_sac_run_on_ap_gym_checkpoints_and_resumes_bit_identically(tmp_path):
         ({"epochs": 2}, "epochs = 2 with learner 'sac'"),
         ({"reward_glances": "all"}, "reward_glances = 'all' with learner 'sac'.*--learner hybrid"),
         ({"reward_discount": 0.99}, "reward_discount = 0.99 with learner 'sac'"),
+        ({"glance_reduction": "mean"}, "glance_reduction = 'mean' with learner 'sac'"),
         ({"model": HamConfig(stop=True)}, "a learned stop"),
         ({"replay_batch": 0}, "replay_batch = 0"),
         ({"replay_size": 2.5}, "replay_size = 2.5"),

@@ -75,7 +75,7 @@ def test_paper_defaults():
      {"normalization": "max"}, {"device": "tpu"}, {"reinforce_reduction": "median"},
      {"classification_reduction": "max"}, {"classification_glances": "first"},
      {"reward_glances": "every"}, {"reward_discount": 1.01}, {"reward_discount": -0.5},
-     {"eval_every": 0}],
+     {"glance_reduction": "max"}, {"eval_every": 0}],
 )  # fmt: skip
 def test_bad_train_config(kw):
     with pytest.raises(HamError):

@@ -67,6 +67,7 @@ LABEL = {
     "glance, reward and separate encoders",
     "ham-apple-loss-first-learned-apple-reward-beta-0.04-separate-encoders": "ours: APPLE's "
     "loss, first glance, reward and separate encoders, beta 0.04",
+    "ham-apple-all": "ours: APPLE's loss, first glance, reward, step means and separate encoders",
     "info-early": "ours: info learner (its first 32k evaluated every 800)",
     "info": "ours: info learner",
 }

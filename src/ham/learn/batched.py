@@ -89,8 +89,8 @@ _PARTS = ("classification", "reinforce", "baseline_loss")  # TensorBoard, as tra
 # for the group.
 PER_RUN = ("seed", "steps", "lr", "lr_decay", "lr_step", "lr_min", "momentum", "nesterov",
            "policy_lr_scale", "beta", "classification_reduction", "reinforce_reduction",
-           "classification_glances", "reward_glances", "reward_discount", "normalization",
-           "eval_every", "eval_batches", "eval_policy", "log_every", "pose_noise")  # fmt: skip
+           "classification_glances", "reward_glances", "reward_discount", "glance_reduction",
+           "normalization", "eval_every", "eval_batches", "eval_policy", "log_every", "pose_noise")  # fmt: skip
 
 
 def shape_key(config: TrainConfig, glances: bool = True) -> str:
@@ -629,6 +629,7 @@ class BatchedRuns:
                                                       runs[k].config.classification_glances,
                                                       runs[k].config.reward_glances,
                                                       runs[k].config.reward_discount,
+                                                      runs[k].config.glance_reduction,
                                                       runs[k].config.model.glances))  # fmt: skip
         args = (objects, locations, logits, baselines, mu, sigma, first_baseline)
         if len(kinds) == 1:

@@ -124,6 +124,7 @@ def hybrid_loss(
     classification_glances: str = "last",
     reward_glances: str = "last",
     reward_discount: float = 1.0,
+    glance_reduction: str = "sum",
 ) -> HybridLoss:
     """The hybrid loss of ``episode`` with location weight ``beta`` (0.4), plus the baseline loss.
 
@@ -148,12 +149,18 @@ def hybrid_loss(
     (gamma) discounts the returns within the episode (:func:`returns`); the paper's ``"last"``
     with 1.0 gives every sub-sequence the episode's reward ``r``. ``HybridLoss.reward`` stays
     the last prediction's ``r`` either way.
+
+    ``glance_reduction`` combines an episode's glances in the REINFORCE term and the baseline
+    loss: ``"sum"`` (the paper: Eq update_weights sums over the poses, Eq baseline over the
+    sub-sequences) or ``"mean"`` (the APPLE study's HAM: its policy and value losses are means
+    over the steps), each sum divided by its number of terms.
     """
     for name, value, accepted in (
         ("classification_reduction", classification_reduction, REDUCTIONS),
         ("reinforce_reduction", reinforce_reduction, REDUCTIONS),
         ("classification_glances", classification_glances, CLASSIFICATION_GLANCES),
         ("reward_glances", reward_glances, REWARD_GLANCES),
+        ("glance_reduction", glance_reduction, REDUCTIONS),
     ):
         if value not in accepted:
             raise HamError(f"{name} {value!r}; accepted: {', '.join(accepted)}")
@@ -173,9 +180,15 @@ def hybrid_loss(
     ret = returns(episode.logits, objects, reward_glances, reward_discount)  # (S, B)
     first_ret = reward_discount * ret[0]  # the learned first glance: no prediction before it
     # Eq baseline over every sub-sequence 1..S, target its return R_s.
-    baseline = ((ret - episode.baselines) ** 2).sum(0).mean()
-    if episode.first_baseline is not None:  # a learned first glance: b(tau_0) too
-        baseline = baseline + ((first_ret - episode.first_baseline) ** 2).mean()
+    squares = (ret - episode.baselines) ** 2
+    if glance_reduction == "sum":
+        baseline = squares.sum(0).mean()
+        if episode.first_baseline is not None:  # a learned first glance: b(tau_0) too
+            baseline = baseline + ((first_ret - episode.first_baseline) ** 2).mean()
+    else:
+        if episode.first_baseline is not None:
+            squares = torch.cat([((first_ret - episode.first_baseline) ** 2)[None], squares])
+        baseline = squares.mean(0).mean()
     policy = episode.policy
     # (a tensor beta, one per run of a batched model, is never 0: batched.shape_key)
     if policy is None or not policy.trainable or (not torch.is_tensor(beta) and beta == 0):
@@ -189,5 +202,7 @@ def hybrid_loss(
         reinforce = reinforce_term(episode.locations[episode.chosen], policy, advantage)
         if reinforce_reduction == "sum":
             reinforce = reinforce * objects.shape[0]
+        if glance_reduction == "mean":
+            reinforce = reinforce / advantage.shape[0]
     total = classification + beta * reinforce + baseline
     return HybridLoss(total, classification, reinforce, baseline, r)

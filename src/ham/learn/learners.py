@@ -41,6 +41,7 @@ LEARNER_OPTIONS: dict[str, tuple[str, ...]] = {
     "classification_glances": ("hybrid",),
     "reward_glances": ("hybrid",),
     "reward_discount": ("hybrid",),
+    "glance_reduction": ("hybrid",),
     "gamma": ("info", "sac"),
     "gae_lambda": ("info",),
     "entropy_coef": ("info",),

@@ -117,6 +117,10 @@ class TrainConfig:
             pose credited with the rewards from its state on (:func:`ham.learn.hybrid_loss.returns`).
         reward_discount: gamma of the hybrid loss's returns within an episode (1: none, the
             paper; 0.99 in the APPLE study's HAM).
+        glance_reduction: ``sum`` adds the REINFORCE term over an episode's poses and the
+            baseline loss over its sub-sequences (the paper); ``mean`` averages both over the
+            glances (the APPLE study's HAM: its policy and value losses are means over the steps;
+            at 10 glances the REINFORCE term is then that of a tenth of beta).
         eval_every: steps between evaluations and checkpoints (200, the authors' code).
         eval_batches: balanced batches per evaluation (100).
         eval_policy: the location policy during evaluation: ``mean`` poses (training stopped)
@@ -223,6 +227,7 @@ class TrainConfig:
     )
     reward_glances: str = field(default="last", metadata={"choices": REWARD_GLANCES})
     reward_discount: float = 1.0
+    glance_reduction: str = field(default="sum", metadata={"choices": REDUCTIONS})
     eval_every: int = 200
     eval_batches: int = 100
     eval_policy: str = field(default="mean", metadata={"choices": EVAL_POLICIES})
@@ -1129,6 +1134,7 @@ def train_step(run: Run) -> HybridLoss | InfoLoss | SacLoss:
             c.classification_glances,
             c.reward_glances,
             c.reward_discount,
+            c.glance_reduction,
         )
     else:  # a learner of the user's own (ham.learn.learners)
         loss = learner_loss(c.learner, episode, c)
