@@ -90,7 +90,8 @@ _PARTS = ("classification", "reinforce", "baseline_loss")  # TensorBoard, as tra
 PER_RUN = ("seed", "steps", "lr", "lr_decay", "lr_step", "lr_min", "momentum", "nesterov",
            "policy_lr_scale", "beta", "classification_reduction", "reinforce_reduction",
            "classification_glances", "reward_glances", "reward_discount", "glance_reduction",
-           "normalization", "eval_every", "eval_batches", "eval_policy", "log_every", "pose_noise")  # fmt: skip
+           "normalization", "eval_every", "eval_batches", "eval_policy", "log_every",
+           "pose_noise")  # fmt: skip
 
 
 def shape_key(config: TrainConfig, glances: bool = True) -> str:

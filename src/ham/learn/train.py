@@ -120,7 +120,8 @@ class TrainConfig:
         glance_reduction: ``sum`` adds the REINFORCE term over an episode's poses and the
             baseline loss over its sub-sequences (the paper); ``mean`` averages both over the
             glances (the APPLE study's HAM: its policy and value losses are means over the steps;
-            at 10 glances the REINFORCE term is then that of a tenth of beta).
+            at 10 glances with a learned first glance the REINFORCE term is then that of a
+            tenth of beta, a ninth with a random one).
         eval_every: steps between evaluations and checkpoints (200, the authors' code).
         eval_batches: balanced batches per evaluation (100).
         eval_policy: the location policy during evaluation: ``mean`` poses (training stopped)

@@ -427,8 +427,7 @@ class HapticAttentionModel(nn.Module):
         self.tactile = self._tactile_network()
         self.core = self._core()
         self.classifier = Classifier(c.hidden_units, c.n_objects, c.bias)
-        separate = c.encoders == "separate"
-        self.baseline = Baseline(c.hidden_units, c.bias, trains_input=separate)
+        self.baseline = Baseline(c.hidden_units, c.bias, trains_input=self.separate_encoders)
         # the location policy (ham.model.policy); created last, as its weights always were
         self.location = build_part("policy", c.policy, POLICIES, make_policy, c)
         he_normal_init(self)
@@ -451,7 +450,7 @@ class HapticAttentionModel(nn.Module):
             he_normal_init(self.stay)
             nn.init.zeros_(self.stay.net[-1].weight)
             nn.init.constant_(self.stay.net[-1].bias, STAY_GATE_BIAS)
-        if separate:  # last: every other part's initial weights stay those of shared encoders
+        if self.separate_encoders:  # last: the other parts start as with shared encoders
             self.policy_encoder = Encoder(self._tactile_network(), self._core())
             self.value_encoder = Encoder(self._tactile_network(), self._core())
             he_normal_init(self.policy_encoder)
