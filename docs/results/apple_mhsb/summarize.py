@@ -68,6 +68,8 @@ LABEL = {
     "ham-apple-loss-first-learned-apple-reward-beta-0.04-separate-encoders": "ours: APPLE's "
     "loss, first glance, reward and separate encoders, beta 0.04",
     "ham-apple-all": "ours: APPLE's loss, first glance, reward, step means and separate encoders",
+    "ham-apple-all-3M": "ours: APPLE's loss, first glance, reward, step means and separate "
+    "encoders, 3M steps",
     "info-early": "ours: info learner (its first 32k evaluated every 800)",
     "info": "ours: info learner",
 }
