@@ -13,7 +13,14 @@ from ham.errors import HamError
 from ham.learn.batched import check_batchable
 from ham.learn.hybrid_loss import hybrid_loss
 from ham.learn.info_loss import info_loss
-from ham.learn.train import GlanceRecorder, TrainConfig, replay_episode, resume, train
+from ham.learn.train import (
+    GlanceRecorder,
+    TrainConfig,
+    parameter_groups,
+    replay_episode,
+    resume,
+    train,
+)
 from ham.model.agent import HamConfig, HapticAttentionModel
 from tests.conftest import ok, one_line_error
 
@@ -107,6 +114,22 @@ def test_replay_of_a_recorded_episode_gives_the_played_one(env):
     assert torch.allclose(again.baselines, played.baselines)
     assert torch.allclose(again.policy.mu, played.policy.mu)
     assert torch.allclose(again.policy.sigma, played.policy.sigma)
+
+
+def test_the_policy_rate_covers_the_policy_encoder():
+    torch.manual_seed(0)
+    model = HapticAttentionModel(SEPARATE)
+    rest, policy = parameter_groups(model, policy_lr_scale=0.3)
+    assert policy["lr_scale"] == 0.3
+    names = {id(p): n for n, p in model.named_parameters()}
+    assert {names[id(p)].split(".")[0] for p in policy["params"]} == {"location", "policy_encoder"}
+    assert {names[id(p)].split(".")[0] for p in rest["params"]} == {
+        "tactile",
+        "core",
+        "classifier",
+        "baseline",
+        "value_encoder",
+    }
 
 
 def tiny(**kw) -> TrainConfig:

@@ -163,7 +163,7 @@ class TrainConfig:
             deviation over the batch (default ``False``: raw advantages in nats; normalized,
             the noise of a solved batch is blown up to unit size, docs/learners.md).
         policy_lr_scale: the location network's learning rate relative to ``lr`` (1: one rate
-            for all weights). Under Adam a loss weight cannot slow a part down (its steps are
+            for all weights; with separate encoders the policy's encoder's too). Under Adam a loss weight cannot slow a part down (its steps are
             scale-free); this can: a fast classifier, a slower policy.
         first_pose_lr_scale: the learning rate of the first glance's own pose distribution
             (``HamConfig.first_glance = "own"``) relative to ``lr``, on the same schedule (10:
@@ -586,13 +586,16 @@ def parameter_groups(
 ) -> list[dict]:
     """The optimizer's parameter groups: one (every weight at ``lr``), or, when the location
     network or the first glance's own pose (``first_glance = "own"``) learns at its own rate,
-    the rest, the location network (with the stay gate) and the first pose (``lr_scale`` each)."""
+    the rest, the location network (with the stay gate and the policy's own encoder,
+    ``encoders = "separate"``) and the first pose (``lr_scale`` each)."""
     first = getattr(agent, "first_pose", None)
     if policy_lr_scale == 1.0 and first is None:
         return [{"params": list(agent.parameters()), "lr_scale": 1.0}]
     location = [agent.location]
     if getattr(agent, "stay", None) is not None:  # the stay gate is the location policy's
         location.append(agent.stay)
+    if agent.separate_encoders:  # and so is its encoder: only the policy's loss trains it
+        location.append(agent.policy_encoder)
     parts = [(nn.ModuleList(location), policy_lr_scale)]
     if first is not None:
         parts.append((first, first_pose_lr_scale))
