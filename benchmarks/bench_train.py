@@ -24,10 +24,10 @@ from ham.model.agent import HamConfig
 
 def bare_step(run: Run, pressures: torch.Tensor, locations: torch.Tensor, objects: torch.Tensor):
     """The network alone: forward over recorded glances, a loss touching every head, backward."""
-    logits, baselines, policy = run.agent.replay(pressures, locations)
-    loss = F.cross_entropy(logits[-1], objects) + baselines.square().mean()
-    if policy is not None and policy.trainable:
-        loss = loss - policy.log_prob(locations[1:]).mean()
+    episode = run.agent.replay(pressures, locations)
+    loss = F.cross_entropy(episode.logits[-1], objects) + episode.baselines.square().mean()
+    if episode.policy is not None and episode.policy.trainable:
+        loss = loss - episode.policy.log_prob(locations[1:]).mean()
     run.optimizer.zero_grad(set_to_none=True)
     loss.backward()
 

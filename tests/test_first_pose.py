@@ -16,7 +16,6 @@ from ham.learn.train import (
     GlanceRecorder,
     Run,
     TrainConfig,
-    replay_episode,
     resume,
     train,
     train_step,
@@ -118,8 +117,9 @@ def test_a_replayed_episode_keeps_the_components_it_played(env):
     model = HapticAttentionModel(HamConfig(glances=3, first_glance="own", first_pose_grid=3))
     recorder = GlanceRecorder(env)
     played = model(recorder, env.sample_objects(), torch.Generator().manual_seed(1))
-    again = replay_episode(model, played, torch.stack(recorder.pressures),
-                           torch.stack(recorder.where))  # fmt: skip
+    again = model.replay(
+        torch.stack(recorder.pressures), torch.stack(recorder.where), played=played
+    )
     assert torch.equal(again.first_choice, played.first_choice)
     q = played.locations[played.chosen]
     assert torch.allclose(again.policy.log_prob(q), played.policy.log_prob(q))

@@ -322,14 +322,14 @@ def test_replay_gives_the_played_episode_and_the_first_pass_gradient_of_info_los
     """The network replayed on a batch's recorded glances gives the played episode's numbers,
     and the clipped loss's first pass (ratio 1) the gradient of :func:`info_loss`."""
     from ham.learn.info_loss import clipped_info_loss, info_targets
-    from ham.learn.train import GlanceRecorder, replay_episode
+    from ham.learn.train import GlanceRecorder
 
     torch.manual_seed(0)
     model = HapticAttentionModel(HamConfig(glances=4, first_glance=first_glance))
     recorder = GlanceRecorder(env)
     played = model(recorder, env.sample_objects(), torch.Generator().manual_seed(0))
-    again = replay_episode(
-        model, played, torch.stack(recorder.pressures), torch.stack(recorder.where)
+    again = model.replay(
+        torch.stack(recorder.pressures), torch.stack(recorder.where), played=played
     )
     assert torch.allclose(again.logits, played.logits, atol=1e-6)
     assert torch.allclose(again.policy.mu, played.policy.mu, atol=1e-6)

@@ -154,7 +154,7 @@ def test_gym_envs_take_the_extended_world():
 def test_epochs_replay_the_recorded_contact_heights(tmp_path):
     """PPO-style epochs on 4-D poses with the height input: the replayed first pass is the
     played episode (heights included), and training runs."""
-    from ham.learn.train import GlanceRecorder, replay_episode
+    from ham.learn.train import GlanceRecorder
 
     config = _tiny(W4, epochs=2)
     torch.manual_seed(0)
@@ -166,12 +166,11 @@ def test_epochs_replay_the_recorded_contact_heights(tmp_path):
     recorder = GlanceRecorder(env)
     played = model(recorder, env.sample_objects(), torch.Generator().manual_seed(1))
     assert len(recorder.heights) == config.model.glances
-    again = replay_episode(
-        model,
-        played,
+    again = model.replay(
         torch.stack(recorder.pressures),
         torch.stack(recorder.where),
         torch.stack(recorder.heights),
+        played=played,
     )
     assert torch.allclose(again.logits, played.logits, atol=1e-5)
     metrics = train(config, tmp_path / "run", progress=False)

@@ -17,7 +17,6 @@ from ham.learn.train import (
     GlanceRecorder,
     TrainConfig,
     parameter_groups,
-    replay_episode,
     resume,
     train,
 )
@@ -93,22 +92,22 @@ def test_the_classifier_does_not_depend_on_the_separate_encoders(env):
     model, ep = _episode(env)
     pressures = torch.randn(3, 8, model.config.pressure_dim).abs()
     locations = torch.rand(3, 8, 2) * 2 - 1
-    logits, baselines, dists = model.replay(pressures, locations)
+    first = model.replay(pressures, locations)
     with torch.no_grad():
         for p in [*model.policy_encoder.parameters(), *model.value_encoder.parameters()]:
             p.add_(0.1)
-    logits2, baselines2, dists2 = model.replay(pressures, locations)
-    assert torch.equal(logits, logits2)
-    assert not torch.allclose(baselines, baselines2)
-    assert not torch.allclose(dists.mu, dists2.mu)
+    again = model.replay(pressures, locations)
+    assert torch.equal(first.logits, again.logits)
+    assert not torch.allclose(first.baselines, again.baselines)
+    assert not torch.allclose(first.policy.mu, again.policy.mu)
 
 
 def test_replay_of_a_recorded_episode_gives_the_played_one(env):
     model, _ = _episode(env, first_glance="learned")
     recorder = GlanceRecorder(env)
     played = model(recorder, env.sample_objects(), torch.Generator().manual_seed(1))
-    again = replay_episode(
-        model, played, torch.stack(recorder.pressures), torch.stack(recorder.where)
+    again = model.replay(
+        torch.stack(recorder.pressures), torch.stack(recorder.where), played=played
     )
     assert torch.allclose(again.logits, played.logits)
     assert torch.allclose(again.baselines, played.baselines)

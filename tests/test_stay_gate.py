@@ -13,7 +13,7 @@ import torch
 from ham.errors import HamError
 from ham.learn.batched import check_batchable
 from ham.learn.info_loss import info_loss, mean_travel_penalty
-from ham.learn.train import GlanceRecorder, TrainConfig, replay_episode, resume, train
+from ham.learn.train import GlanceRecorder, TrainConfig, resume, train
 from ham.model.agent import HamConfig, HapticAttentionModel
 from tests.conftest import ok, one_line_error
 
@@ -90,8 +90,9 @@ def test_a_replayed_episode_has_the_gated_distributions(env):
     agent = HapticAttentionModel(GATED)
     recorder = GlanceRecorder(env)
     played = agent(recorder, env.sample_objects(), torch.Generator().manual_seed(1))
-    again = replay_episode(agent, played, torch.stack(recorder.pressures),
-                           torch.stack(recorder.where))  # fmt: skip
+    again = agent.replay(
+        torch.stack(recorder.pressures), torch.stack(recorder.where), played=played
+    )
     assert torch.allclose(again.policy.mu, played.policy.mu)
 
 

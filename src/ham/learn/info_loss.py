@@ -219,7 +219,7 @@ def clipped_info_loss(
     episode: Episode, targets: InfoTargets, clip: float = 0.2, entropy_coef: float = 0.0
 ) -> InfoLoss:
     """The information learner's loss for one more pass over a batch already played (the
-    network replayed on its recorded glances, :func:`ham.learn.train.replay_episode`): the
+    network replayed on its recorded glances, :meth:`HapticAttentionModel.replay`): the
     classification after every glance as in :func:`info_loss`; the policy term PPO's clipped
     surrogate ``-min(rho A, clip(rho, 1 - clip, 1 + clip) A)``, ``rho = pi(q) / pi_old(q)``,
     summed over the glances, a mean over the batch; the critic's MSE to the fixed targets.

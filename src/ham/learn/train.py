@@ -69,7 +69,7 @@ from ham.learn.learners import LEARNER_OPTIONS, LEARNERS, READS, learner_loss, u
 from ham.learn.off_policy import SacLoss, SacState, sac_update
 from ham.learn.probe import PROBE_SCORES, probe_due, probe_glances, probe_round, probe_schedule
 from ham.learn.stopping import STOP_LEARNERS, stop_loss
-from ham.model.agent import Episode, HamConfig, HapticAttentionModel, count_parameters
+from ham.model.agent import HamConfig, HapticAttentionModel, count_parameters
 from ham.world.config import WorldConfig
 from ham.world.devices import check_device, environment_record
 from ham.world.files import atomic_write, check_output_dir, folder_lock, write_json
@@ -1183,51 +1183,6 @@ class GlanceRecorder:
         return self.where[-1]
 
 
-def replay_episode(
-    agent: HapticAttentionModel,
-    played: Episode,
-    pressures: torch.Tensor,
-    where: torch.Tensor,
-    heights: torch.Tensor | None = None,
-) -> Episode:
-    """The episode ``played`` again, through the network as it is now: the recorded glances
-    ``pressures`` ``(S, B, D)`` at ``where`` ``(S, B, k)`` (with their contact ``heights``
-    ``(S, B)`` where the model reads them), the same poses, no environment."""
-    batch, glances = pressures.shape[1], pressures.shape[0]
-    dists, logits, baselines = [], [], []
-    first_baseline = None
-    if played.first_baseline is not None:  # a chosen first glance
-        dist, first_baseline = agent.first_glance(
-            batch, pressures.device, choice=played.first_choice
-        )
-        dists.append(dist)
-    state = agent.core.initial_state(batch, pressures)
-    heads_state = agent.initial_heads_state(batch, pressures)
-    for s in range(glances):
-        height = None if heights is None else heights[s]
-        tau, state = agent.step(pressures[s], where[s], state, height)
-        tau_policy, tau_value, heads_state = agent.heads_step(
-            tau, pressures[s], where[s], heads_state, height
-        )
-        logits.append(agent.classifier(tau))
-        baselines.append(agent.baseline(tau_value))
-        if s < glances - 1:
-            dists.append(
-                agent.next_distribution(
-                    tau_policy, played.locations[s], logits[-1], glance=s + 1, position=where[s]
-                )
-            )
-    return Episode(
-        objects=played.objects,
-        locations=played.locations,
-        logits=torch.stack(logits),
-        baselines=torch.stack(baselines),
-        policy=type(dists[0]).stack(dists) if dists else None,
-        first_baseline=first_baseline,
-        first_choice=played.first_choice,
-    )
-
-
 def train_step_epochs(run: Run) -> InfoLoss:
     """One training step of ``epochs`` optimizer steps (info learner, PPO-style): play a fresh
     batch once without gradients, recording its glances; fix its log-probabilities, advantages
@@ -1244,7 +1199,7 @@ def train_step_epochs(run: Run) -> InfoLoss:
     heights = torch.stack(recorder.heights) if recorder.heights else None
     policy_epochs = c.epochs if c.policy_epochs is None else c.policy_epochs
     for epoch in range(c.epochs):
-        episode = replay_episode(run.agent, played, pressures, where, heights)
+        episode = run.agent.replay(pressures, where, heights, played)
         loss = clipped_info_loss(episode, targets, c.clip, c.entropy_coef)
         if c.move_cost > 0 and c.move_cost_on in ("mean", "both"):
             loss.total = loss.total + mean_travel_penalty(episode, c.move_cost)

@@ -315,7 +315,8 @@ class Episode:
     """What one batch of ``S`` glances leaves for the loss and the evaluation.
 
     Attributes:
-        objects: ``(B,)`` the true object ids.
+        objects: ``(B,)`` the true object ids (``None`` in a replay of bare glances:
+            :meth:`HapticAttentionModel.replay`).
         locations: ``(S, B, k)`` the poses ``q`` of the glances (detached samples), columns in
             ``HamConfig.pose_dims`` order.
         logits: ``(S, B, K)`` classifier outputs after each glance.
@@ -328,7 +329,7 @@ class Episode:
             first glance (``None`` when the first glance is random).
     """
 
-    objects: torch.Tensor
+    objects: torch.Tensor | None
     locations: torch.Tensor
     logits: torch.Tensor
     baselines: torch.Tensor
@@ -661,13 +662,12 @@ class HapticAttentionModel(nn.Module):
         heads_state = self.initial_heads_state(batch, q)
         for s in range(self.config.glances):
             pressure, where, height = self.glance(env, objects, q)
-            tau, state = self.step(pressure, where, state, height)
-            tau_policy, tau_value, heads_state = self.heads_step(
-                tau, pressure, where, heads_state, height
+            tau, tau_policy, logit, baseline, state, heads_state = self.read(
+                pressure, where, height, state, heads_state
             )
             locations.append(q)
-            logits.append(self.classifier(tau))
-            baselines.append(self.baseline(tau_value))
+            logits.append(logit)
+            baselines.append(baseline)
             if self.config.stop:  # reads detached inputs: the stop's loss trains only its head
                 if self.config.stop_input == "core":
                     stops.append(self.stop_head(tau.detach()).squeeze(-1))
@@ -689,38 +689,74 @@ class HapticAttentionModel(nn.Module):
             first_choice=getattr(dists[0], "choice", None) if first_baseline is not None else None,
         )
 
+    def read(
+        self,
+        pressure: torch.Tensor,
+        where: torch.Tensor,
+        height: torch.Tensor | None,
+        state: State,
+        heads_state: tuple[State, State] | None,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, State, tuple | None]:
+        """One glance ``(p_s, where_s[, h_s])`` read by every part, the body of an episode played
+        (:meth:`forward`) or replayed (:meth:`replay`): ``(tau, tau_policy, logits, baseline,
+        state, heads_state)``, the core output ``tau_{1:s}``, what the location policy reads
+        (:meth:`heads_step`), the classifier's logits and the baseline ``b(tau_{1:s})``, and the
+        next states of the core and of the separate encoders."""
+        tau, state = self.step(pressure, where, state, height)
+        tau_policy, tau_value, heads_state = self.heads_step(
+            tau, pressure, where, heads_state, height
+        )
+        return tau, tau_policy, self.classifier(tau), self.baseline(tau_value), state, heads_state
+
     def replay(
         self,
         pressures: torch.Tensor,
-        locations: torch.Tensor,
+        where: torch.Tensor,
         heights: torch.Tensor | None = None,
-    ) -> tuple[torch.Tensor, torch.Tensor, LocationDistribution | None]:
-        """The bare network on recorded glances ``(S, B, pressure_dim)`` at ``(S, B, k)`` (contact
-        heights ``(S, B)`` with ``height_input``): no environment,
-        no sampling. Returns ``(logits, baselines, policy)``: logits and baselines stacked over
-        the glances, the location distributions after glances 1..S-1 (``None`` for one glance).
-        Used by the benchmark as the reference cost."""
-        state = self.core.initial_state(pressures.shape[1], pressures)
-        heads_state = self.initial_heads_state(pressures.shape[1], pressures)
+        played: Episode | None = None,
+    ) -> Episode:
+        """The network as it is now on recorded glances: pressures ``(S, B, pressure_dim)`` at the
+        where-inputs ``(S, B, k)`` (contact heights ``(S, B)`` with ``height_input``); no
+        environment, no sampling.
+
+        ``played``: the episode that recorded them (:class:`ham.learn.train.GlanceRecorder`);
+        its poses asked for are the replay's (the stay gate pulls towards them) and its chosen
+        first glance is replayed too (the same mixture component). Without it the where-inputs
+        stand for the poses, the first glance counts as random and ``objects`` is ``None``: the
+        bare network, the benchmark's reference cost. The PPO-style epochs of the info learner
+        replay each batch so."""
+        batch, glances = pressures.shape[1], pressures.shape[0]
+        locations = where if played is None else played.locations
         logits, baselines, dists = [], [], []
-        for s in range(pressures.shape[0]):
-            h = None if heights is None else heights[s]
-            tau, state = self.step(pressures[s], locations[s], state, h)
-            tau_policy, tau_value, heads_state = self.heads_step(
-                tau, pressures[s], locations[s], heads_state, h
+        first_baseline = None
+        if played is not None and played.first_baseline is not None:  # a chosen first glance
+            dist, first_baseline = self.first_glance(
+                batch, pressures.device, choice=played.first_choice
             )
-            logits.append(self.classifier(tau))
-            baselines.append(self.baseline(tau_value))
-            if s < pressures.shape[0] - 1:
+            dists.append(dist)
+        state = self.core.initial_state(batch, pressures)
+        heads_state = self.initial_heads_state(batch, pressures)
+        for s in range(glances):
+            h = None if heights is None else heights[s]
+            tau, tau_policy, logit, baseline, state, heads_state = self.read(
+                pressures[s], where[s], h, state, heads_state
+            )
+            logits.append(logit)
+            baselines.append(baseline)
+            if s < glances - 1:
                 dists.append(
                     self.next_distribution(
-                        tau_policy, locations[s], logits[-1], glance=s + 1, position=locations[s]
+                        tau_policy, locations[s], logit, glance=s + 1, position=where[s]
                     )
                 )
-        return (
-            torch.stack(logits),
-            torch.stack(baselines),
-            type(dists[0]).stack(dists) if dists else None,
+        return Episode(
+            objects=None if played is None else played.objects,
+            locations=locations,
+            logits=torch.stack(logits),
+            baselines=torch.stack(baselines),
+            policy=type(dists[0]).stack(dists) if dists else None,
+            first_baseline=first_baseline,
+            first_choice=None if played is None else played.first_choice,
         )
 
     def describe(self) -> str:
