@@ -8,6 +8,7 @@ environments) -> ``model`` -> ``learn`` -> ``experiments`` -> ``cli``. A module 
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -100,6 +101,27 @@ def test_no_import_cycles():
 @pytest.mark.parametrize("layer", LAYERS[1:])
 def test_each_layer_is_a_package(layer):
     assert (SRC / layer).is_dir() and (SRC / layer / "__init__.py").is_file()
+
+
+def test_the_readme_map_names_every_module():
+    """The README's layout block (a newcomer's map) names every module of each layer, so the map
+    cannot fall behind the package."""
+    readme = (SRC.parents[1] / "README.md").read_text()
+    block = readme[readme.index("```text\nsrc/ham/") :]
+    block = block[: block.index("```", 3)]
+    sections: dict[str, str] = {}
+    for line in block.splitlines()[1:]:
+        head = line[:19].strip()
+        if head.endswith("/"):
+            layer = head[:-1]
+        sections[layer] = sections.get(layer, "") + " " + line[19:]
+    missing = [
+        f"{layer}/{p.stem}"
+        for layer in LAYERS[1:]
+        for p in sorted((SRC / layer).glob("*.py"))
+        if p.stem != "__init__" and not re.search(rf"(?<![\w.]){p.stem}(?!\w)", sections[layer])
+    ]
+    assert not missing, f"modules missing from the README's layout: {missing}"
 
 
 def test_the_project_stands_alone():
