@@ -244,7 +244,7 @@ def test_the_batched_evaluation_under_pose_noise_equals_each_runs_own(
         r = group.runs[i]
         want = evaluate(r.agent, r.env, 5, seed=stream_seed(i, 2), policy=policy).to_dict()
         got = got.to_dict()
-        for key in ("path_length", "mu_mean"):
+        for key in ("path_length", "mu_mean", "pose_spread", "pose_spread_within_object"):
             assert torch.allclose(
                 torch.tensor(got.pop(key)), torch.tensor(want.pop(key)), atol=1e-5
             )
@@ -275,7 +275,7 @@ def test_the_batched_evaluation_equals_each_runs_own(tmp_path, monkeypatch, mode
             r = group.runs[i]
             want = evaluate(r.agent, r.env, 5, seed=stream_seed(i, 2), policy=policy).to_dict()
             got = got.to_dict()
-            for key in ("path_length", "mu_mean"):
+            for key in ("path_length", "mu_mean", "pose_spread", "pose_spread_within_object"):
                 a, b = got.pop(key), want.pop(key)
                 if key == "mu_mean":  # the random policy has no mode
                     assert (a is None) == (b is None) == (model.policy == "random")

@@ -39,6 +39,40 @@ def test_confusion_matrix_counts_every_episode_by_true_and_predicted_object(env,
     assert result.per_object_accuracy == [last[o, o].item() / 6 for o in range(4)]
 
 
+@pytest.mark.parametrize("policy", ["learned", "random"])
+def test_pose_spread_is_the_poses_standard_deviation_over_the_episodes(env, policy):
+    torch.manual_seed(3)
+    agent = HapticAttentionModel(HamConfig(glances=3, policy=policy))
+    result = evaluate(agent, env, batches=4, seed=5)
+    # the same episodes again (as above), their poses' spread computed directly
+    g = torch.Generator().manual_seed(5)
+    agent.eval()
+    with torch.no_grad():
+        runs = [(env.balanced_objects(b), None) for b in range(4)]
+        runs = [(o, agent(env, o, g, greedy=True).locations) for o, _ in runs]
+    objects = torch.cat([o for o, _ in runs])
+    q = torch.cat([loc for _, loc in runs], 1).double()  # (S, 32, 2)
+    overall = q.var(1, unbiased=False).mean(-1).sqrt()
+    within = torch.stack(
+        [q[:, objects == o].var(1, unbiased=False) for o in range(4)]  # 8 episodes each
+    ).mean(0).mean(-1).sqrt()  # fmt: skip
+    assert result.pose_spread == pytest.approx(overall.tolist(), abs=1e-9)
+    assert result.pose_spread_within_object == pytest.approx(within.tolist(), abs=1e-9)
+    # the first glance is uniform in [-1, 1]^2 (std 1/sqrt(3)), and so is every random one
+    assert 0.4 < result.pose_spread[0] < 0.75
+    if policy == "random":
+        assert all(0.4 < s < 0.75 for s in result.pose_spread)
+
+
+def test_a_fixed_sequence_of_glances_has_no_pose_spread(env):
+    """The grid policy's glances ignore what was felt: from the second on, every episode is at
+    the same pose."""
+    agent = HapticAttentionModel(HamConfig(glances=3, policy="grid"))
+    result = evaluate(agent, env, batches=2, seed=1)
+    assert result.pose_spread[1:] == [0.0, 0.0]
+    assert result.pose_spread_within_object[1:] == [0.0, 0.0]
+
+
 def test_metrics_carry_the_confusion_matrix(tmp_path):
     config = TrainConfig(model=HamConfig(glances=2), steps=4, batch_size=8, eval_every=2,
                          eval_batches=2, seed=3)  # fmt: skip

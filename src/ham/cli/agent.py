@@ -404,11 +404,20 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         f"{args.run}: step {run.step}, {result.episodes} episodes ({result.batches} balanced "
         f"batches), {policy} poses"
     )
-    print(f"{'glance':>6}  {'accuracy':>8}  {'accumulated':>11}")
-    for s, (a, b) in enumerate(
-        zip(result.accuracy_per_glance, result.accumulated_accuracy_per_glance, strict=True)
+    # pose spread: the std of the poses over the episodes (within: the same per true object)
+    print(
+        f"{'glance':>6}  {'accuracy':>8}  {'accumulated':>11}  {'pose spread':>11}  {'within':>6}"
+    )
+    for s, row in enumerate(
+        zip(
+            result.accuracy_per_glance,
+            result.accumulated_accuracy_per_glance,
+            result.pose_spread,
+            result.pose_spread_within_object,
+            strict=True,
+        )
     ):
-        print(f"{s + 1:>6}  {a:>8.4f}  {b:>11.4f}")
+        print(f"{s + 1:>6}  {row[0]:>8.4f}  {row[1]:>11.4f}  {row[2]:>11.3f}  {row[3]:>6.3f}")
     print(f"accuracy after the last glance: {result.accuracy:.4f}")
     _print_confusion(result.confusion[-1], result.per_object_accuracy, result.objects)
     if swap is not None:

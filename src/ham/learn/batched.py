@@ -48,7 +48,7 @@ from torch.nn import functional as F
 
 from ham.errors import HamError
 from ham.learn.environment import HapticEnv
-from ham.learn.evaluation import EvalResult, eval_result
+from ham.learn.evaluation import EvalResult, eval_result, pose_sums
 from ham.learn.hybrid_loss import hybrid_loss
 from ham.learn.stacked_ham import StackedHam
 from ham.learn.train import (
@@ -887,6 +887,7 @@ class BatchedRuns:
         mu_sum = torch.zeros(n, k, 2, device=device, dtype=torch.float64)
         n_obj = torch.zeros(k, device=device, dtype=torch.float64)
         path = torch.zeros(n, device=device, dtype=torch.float64)
+        poses = torch.zeros(n, glances, k, 5, device=device, dtype=torch.float64)  # pose_sums
         per = max(1, _EVAL_ROWS // batch)  # batches per pass
         for b0 in range(0, batches, per):
             b1 = min(batches, b0 + per)
@@ -935,12 +936,13 @@ class BatchedRuns:
             accumulated += (averaged.argmax(-1) == objects).sum(-1)
             loc = torch.stack(locations, 1)  # (N, S, rows, 2): path_lengths per run
             path += (loc[:, 1:] - loc[:, :-1]).norm(dim=-1).sum(1).sum(-1).double()
+            poses += pose_sums(loc, objects, k)
             if mode is not None:
                 mu_sum.index_add_(1, objects, mode.double())
                 n_obj += torch.bincount(objects, minlength=k)
         confusion = confusion.view(n, -1)
         return [eval_result(env, batches, correct[j], accumulated[j], confusion[j], mu_sum[j],
-                            n_obj, path[j]) for j in range(n)]  # fmt: skip
+                            n_obj, path[j], poses=poses[j]) for j in range(n)]  # fmt: skip
 
     def _evaluate(self, due: list[tuple[int, float | None, float | None]]) -> dict[int, dict]:
         """Evaluate and record the runs ``due`` (run index, mean train loss and reward since

@@ -61,6 +61,13 @@ class EvalResult:
     #: with a learned stop (greedy, ``p > 1/2``): accuracy at the stop and mean glances used
     stop_accuracy: float | None = None
     mean_glances: float | None = None
+    #: per glance, how far the poses ``q`` spread over the episodes: the standard deviation of
+    #: each pose coordinate over all episodes, root-mean-squared over the coordinates (a
+    #: uniform pose in ``[-1, 1]``: 1/sqrt(3) = 0.577; a fixed sequence of glances: 0)
+    pose_spread: list[float] | None = None
+    #: the same within each true object (pooled over the objects): what spreads the poses
+    #: beyond the object itself, e.g. what the earlier glances of the episode felt
+    pose_spread_within_object: list[float] | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -76,6 +83,30 @@ def path_lengths(locations: torch.Tensor) -> torch.Tensor:
     if locations.shape[0] < 2:
         return locations.new_zeros(locations.shape[1])
     return (locations[1:] - locations[:-1]).norm(dim=-1).sum(0)
+
+
+def pose_sums(locations: torch.Tensor, objects: torch.Tensor, k: int) -> torch.Tensor:
+    """Per glance and true object, the episodes' count, summed poses and summed squared poses:
+    ``locations (..., S, B, d)`` of episodes of ``objects (B,)`` -> ``(..., S, k, 1 + 2 d)``
+    in float64 (summed over evaluation batches, :func:`pose_spreads` reads them)."""
+    q = locations.double()
+    x = torch.cat([torch.ones_like(q[..., :1]), q, q * q], -1)
+    out = x.new_zeros(*x.shape[:-2], k, x.shape[-1])
+    return out.index_add_(x.dim() - 2, objects, x)
+
+
+def pose_spreads(sums: torch.Tensor) -> tuple[list[float], list[float]]:
+    """:attr:`EvalResult.pose_spread` and :attr:`EvalResult.pose_spread_within_object` from
+    :func:`pose_sums` ``(S, k, 1 + 2 d)``."""
+    d = (sums.shape[-1] - 1) // 2
+    n, s1, s2 = sums[..., 0], sums[..., 1 : 1 + d], sums[..., 1 + d :]
+    total = n.sum(-1)[:, None]  # (S, 1)
+    var = s2.sum(1) / total - (s1.sum(1) / total) ** 2  # (S, d)
+    within = (s2 - s1**2 / n.clamp_min(1)[..., None]).sum(1) / total
+    return (
+        var.mean(-1).clamp_min(0).sqrt().tolist(),
+        within.mean(-1).clamp_min(0).sqrt().tolist(),
+    )
 
 
 def check_evaluation(batches: int, policy: str, seed: int = 0) -> None:
@@ -138,6 +169,7 @@ def evaluate(
     path = torch.zeros((), device=env.device, dtype=torch.float64)
     stop_correct = torch.zeros((), device=env.device, dtype=torch.float64)
     stop_glances_sum = torch.zeros((), device=env.device, dtype=torch.float64)
+    poses = None
     with _evaluating(agent, env, seed) as generator:
         for b in _batch_range(batches, progress, "evaluate"):
             objects = env.balanced_objects(b)
@@ -145,6 +177,8 @@ def evaluate(
             predicted = episode.logits.argmax(-1)  # (S, B)
             correct += (predicted == objects).sum(1)
             path += path_lengths(episode.locations).sum().double()
+            sums = pose_sums(episode.locations, objects, k)
+            poses = sums if poses is None else poses + sums
             if episode.stop_logits is not None:
                 at, _ = stop_glances(episode.stop_logits, greedy=True)
                 answer = predicted[at - 1, torch.arange(objects.shape[0], device=env.device)]
@@ -160,7 +194,9 @@ def evaluate(
                 mu_sum.index_add_(0, objects, mode[-1].double())
                 n_obj += torch.bincount(objects, minlength=k)
     stop = (stop_correct, stop_glances_sum) if agent.config.stop else None
-    return eval_result(env, batches, correct, accumulated, confusion, mu_sum, n_obj, path, stop)
+    return eval_result(
+        env, batches, correct, accumulated, confusion, mu_sum, n_obj, path, stop, poses
+    )
 
 
 def eval_result(
@@ -173,12 +209,13 @@ def eval_result(
     n_obj: torch.Tensor,
     path: torch.Tensor,
     stop: tuple[torch.Tensor, torch.Tensor] | None = None,
+    poses: torch.Tensor | None = None,
 ) -> EvalResult:
     """The :class:`EvalResult` of one evaluation's counts over ``batches`` batches of ``env``:
     correct answers per glance ``(S,)``, the same of the averaged outputs ``(S,)``, the
     confusion counts ``(S * K * K,)``, the summed modes of the last policy ``(K, k)`` over
-    ``n_obj`` episodes per object, the summed path lengths, and with a learned stop its correct
-    answers and glances used. (:mod:`ham.learn.batched` evaluates N runs at once and gives each
+    ``n_obj`` episodes per object, the summed path lengths, with a learned stop its correct
+    answers and glances used, and the poses' :func:`pose_sums`. (:mod:`ham.learn.batched` evaluates N runs at once and gives each
     its counts here.)"""
     glances, k = correct.shape[0], env.n_objects
     n = batches * env.batch_size
@@ -187,6 +224,7 @@ def eval_result(
     confusion = confusion.view(glances, k, k)
     last, shown = confusion[-1].diagonal().tolist(), confusion[-1].sum(1).tolist()
     per_object = [c / t if t else None for c, t in zip(last, shown, strict=True)]
+    spreads = pose_spreads(poses) if poses is not None else (None, None)
     return EvalResult(
         accuracy=per_glance[-1],
         accuracy_per_glance=per_glance,
@@ -200,6 +238,8 @@ def eval_result(
         path_length=float(path / n),
         stop_accuracy=float(stop[0] / n) if stop is not None else None,
         mean_glances=float(stop[1] / n) if stop is not None else None,
+        pose_spread=spreads[0],
+        pose_spread_within_object=spreads[1],
     )
 
 
