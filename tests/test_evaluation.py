@@ -179,3 +179,19 @@ def test_a_progress_bar_changes_no_number(env, capsys):
     swaps = last_pose_swap(agent, env, 3, seed=2, progress=True)
     assert "last pose swaps" in capsys.readouterr().err
     assert swaps == last_pose_swap(agent, env, 3, seed=2)
+
+
+def test_the_pose_spread_is_in_the_history_and_on_tensorboard(tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    config = TrainConfig(model=HamConfig(glances=2), steps=4, batch_size=8, eval_every=2,
+                         eval_batches=2, seed=3)  # fmt: skip
+    m = train(config, tmp_path / "r", progress=False)
+    assert m["pose_spread"] == m["history"][-1]["pose_spread"]
+    events = EventAccumulator(str(tmp_path / "r" / "tb"))
+    events.Reload()
+    for s in range(2):
+        logged = [(e.step, e.value) for e in events.Scalars(f"eval/pose_spread_glance_{s + 1}")]
+        want = [(h["step"], h["pose_spread"][s]) for h in m["history"]]
+        assert [t for t, _ in logged] == [t for t, _ in want]
+        assert [v for _, v in logged] == pytest.approx([v for _, v in want], rel=1e-6)

@@ -1366,3 +1366,5 @@ def log_evaluation(writer, record: dict, glances: int) -> None:
             record["accumulated_accuracy_per_glance"][s],
             step,
         )
+        if record.get("pose_spread") is not None:
+            writer.add_scalar(f"eval/pose_spread_glance_{s + 1}", record["pose_spread"][s], step)
