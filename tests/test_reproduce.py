@@ -56,6 +56,14 @@ def test_all_writes_tables_figures_and_report(smoke_all):
     section = report.split("## Accuracy per object")[1].split("##")[0]
     assert "| run | glances | box | ramp_up | convex | ramp_down |" in section
     assert "| full-concat2 (1 seed(s)) | 3 |" in section
+    # each glance's pose spread, from each run's last evaluation
+    section = report.split("## Pose spread per glance")[1].split("##")[0]
+    assert "| run | glance 1 | glance 2 | glance 3 |" in section
+    metrics = json.loads((out / "runs" / "rloc-concat2-g2-s0" / "metrics.json").read_text())
+    last = metrics["history"][-1]
+    spreads = zip(last["pose_spread"], last["pose_spread_within_object"], strict=True)
+    cells = [f"{a:.3f} ({b:.3f})" for a, b in spreads]
+    assert f"| rloc-concat2 (1 seed(s)) | {cells[0]} | {cells[1]} | — |" in section
 
 
 def _git(*args: str) -> str | None:

@@ -512,6 +512,9 @@ def write_outputs(
     per_object = per_object_markdown(root, jobs)
     if per_object:
         sections.append(("Accuracy per object (last evaluation, mean over seeds)", per_object))
+    spread = pose_spread_markdown(root, jobs)
+    if spread:
+        sections.append(("Pose spread per glance (last evaluation, mean over seeds)", spread))
     figures = []
     if target in ("figures", "all"):
         figures = draw_figures(root, jobs, profile)
@@ -564,6 +567,43 @@ def per_object_markdown(root: Path, jobs: list[Job]) -> str | None:
             + " | ".join(cells)
             + " |"
         )
+    return "\n".join(lines)
+
+
+def pose_spread_markdown(root: Path, jobs: list[Job]) -> str | None:
+    """Per run group: each glance's pose spread at the last evaluation, over all episodes and
+    (in parentheses) within an object, mean over the finished seeds
+    (:attr:`ham.learn.evaluation.EvalResult.pose_spread`)."""
+    groups: dict[tuple, list[tuple[list[float], list[float]]]] = {}
+    for j in jobs:
+        history = read_metrics(run_dir(root, j.key)).get("history")
+        last = history[-1] if history else {}
+        if last.get("pose_spread") is None:  # a run of before the spread was recorded
+            continue
+        key = (j.variant, j.combiner, j.glances)
+        groups.setdefault(key, []).append((last["pose_spread"], last["pose_spread_within_object"]))
+    if not groups:
+        return None
+    width = max(g for _, _, g in groups)
+    lines = [
+        "0.577: uniform poses (the random first glance); 0: one fixed path for every episode; "
+        "in parentheses: within the episodes of one object.",
+        "",
+        "| run | " + " | ".join(f"glance {s + 1}" for s in range(width)) + " |",
+        "|---|" + "---|" * width,
+    ]
+    for (variant, combiner, glances), runs in sorted(
+        groups.items(), key=lambda kv: (kv[0][2], kv[0][0], kv[0][1])
+    ):
+        cells = []
+        for s in range(width):
+            if s >= glances:
+                cells.append("—")
+                continue
+            overall = sum(r[0][s] for r in runs) / len(runs)
+            within = sum(r[1][s] for r in runs) / len(runs)
+            cells.append(f"{overall:.3f} ({within:.3f})")
+        lines.append(f"| {variant}-{combiner} ({len(runs)} seed(s)) | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
