@@ -61,7 +61,8 @@ class EvalResult:
     #: with a learned stop (greedy, ``p > 1/2``): accuracy at the stop and mean glances used
     stop_accuracy: float | None = None
     mean_glances: float | None = None
-    #: per glance, how far the poses ``q`` spread over the episodes: the standard deviation of
+    #: per glance, how far the poses ``q`` asked for (``Episode.locations``; with relative
+    #: actions, the moves) spread over the episodes: the standard deviation of
     #: each pose coordinate over all episodes, root-mean-squared over the coordinates (a
     #: uniform pose in ``[-1, 1]``: 1/sqrt(3) = 0.577; a fixed sequence of glances: 0)
     pose_spread: list[float] | None = None
