@@ -229,6 +229,10 @@ def aggregate(root: Path, grid: Grid, jobs: list[GridJob]) -> list[dict]:
             "final_accuracy": _stat(m["final_accuracy"] for m in metrics),
             "best_accumulated_accuracy": _stat(m["best_accumulated_accuracy"] for m in metrics),
             "accuracy_per_glance": _mean_lists([m.get("accuracy_per_glance") for m in metrics]),
+            "pose_spread": _mean_lists([m.get("pose_spread") for m in metrics]),
+            "pose_spread_within_object": _mean_lists(
+                [m.get("pose_spread_within_object") for m in metrics]
+            ),
             "evaluations": [
                 {
                     **spec,
@@ -280,6 +284,27 @@ def results_markdown(grid: Grid, cells: list[dict]) -> str:
             ", ".join(f"{a:.3f}" for a in per) if per else "—",
         ]
         lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
+def pose_spread_markdown(cells: list[dict]) -> str | None:
+    """Per cell: each glance's pose spread at the last evaluation during training, over all
+    episodes and (in parentheses) within an object, mean over the finished seeds."""
+    rows = [c for c in cells if c.get("pose_spread") and c.get("pose_spread_within_object")]
+    if not rows:
+        return None
+    width = max(len(c["pose_spread"]) for c in rows)
+    lines = [
+        "0.577: uniform poses; 0: one fixed path for every episode; in parentheses: within the "
+        "episodes of one object.",
+        "",
+        "| cell | " + " | ".join(f"glance {s + 1}" for s in range(width)) + " |",
+        "|---|" + "---|" * width,
+    ]
+    for c in rows:
+        pairs = list(zip(c["pose_spread"], c["pose_spread_within_object"], strict=True))
+        cells = [f"{a:.3f} ({b:.3f})" for a, b in pairs] + ["—"] * (width - len(pairs))
+        lines.append(f"| `{c['cell']}` | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -377,6 +402,9 @@ def write_report(
     po = per_object_markdown(cells)
     if po:
         lines += ["## Accuracy per object (last evaluation during training)", "", po, ""]
+    spread = pose_spread_markdown(cells)
+    if spread:
+        lines += ["## Pose spread per glance (last evaluation during training)", "", spread, ""]
     if curves is not None:
         lines += ["## Learning curves", "", f"![curves]({curves.name})", ""]
     if failures:

@@ -741,6 +741,7 @@ class Run:
             "average_accuracy": sum(per_glance) / len(per_glance) if per_glance else None,
             "path_length": last.get("path_length"),
             "pose_spread": last.get("pose_spread"),
+            "pose_spread_within_object": last.get("pose_spread_within_object"),
             "stop_accuracy": last.get("stop_accuracy"),
             "mean_glances": last.get("mean_glances"),
             "env_steps_to_0.95": self.reached(0.95),
