@@ -243,10 +243,9 @@ def test_a_grid_runs_and_reports(tiny_run):
     assert "| `diverges` | lr=1e+30 | 0/1 | 10 | — |" in report
     assert "- `diverges-s0`: DivergedError: training diverged" in report
     # each glance's pose spread at the last evaluation, mean over the cell's seeds
-    spreads = [
-        json.loads((out / "runs" / f"glances=2-s{s}" / "metrics.json").read_text()) for s in (0, 1)
-    ]
-    want = [(a["pose_spread"][g] + b["pose_spread"][g]) / 2 for g in range(2) for a, b in [spreads]]
+    a, b = (json.loads((out / "runs" / f"glances=2-s{s}" / "metrics.json").read_text())
+            for s in (0, 1))  # fmt: skip
+    want = [(a["pose_spread"][g] + b["pose_spread"][g]) / 2 for g in range(2)]
     assert g2["pose_spread"] == pytest.approx(want)
     section = report.split("## Pose spread per glance")[1].split("##")[0]
     assert f"| `glances=2` | {want[0]:.3f} (" in section
