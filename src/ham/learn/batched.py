@@ -887,7 +887,8 @@ class BatchedRuns:
         mu_sum = torch.zeros(n, k, 2, device=device, dtype=torch.float64)
         n_obj = torch.zeros(k, device=device, dtype=torch.float64)
         path = torch.zeros(n, device=device, dtype=torch.float64)
-        poses = torch.zeros(n, glances, k, 5, device=device, dtype=torch.float64)  # pose_sums
+        # pose_sums of the 2-D poses: count, sums and sums of squares per glance and object
+        poses = torch.zeros(n, glances, k, 1 + 2 * 2, device=device, dtype=torch.float64)
         per = max(1, _EVAL_ROWS // batch)  # batches per pass
         for b0 in range(0, batches, per):
             b1 = min(batches, b0 + per)

@@ -216,8 +216,8 @@ def eval_result(
     correct answers per glance ``(S,)``, the same of the averaged outputs ``(S,)``, the
     confusion counts ``(S * K * K,)``, the summed modes of the last policy ``(K, k)`` over
     ``n_obj`` episodes per object, the summed path lengths, with a learned stop its correct
-    answers and glances used, and the poses' :func:`pose_sums`. (:mod:`ham.learn.batched` evaluates N runs at once and gives each
-    its counts here.)"""
+    answers and glances used, and the poses' :func:`pose_sums`. (:mod:`ham.learn.batched`
+    evaluates N runs at once and gives each its counts here.)"""
     glances, k = correct.shape[0], env.n_objects
     n = batches * env.batch_size
     per_glance = (correct / n).tolist()
