@@ -723,8 +723,8 @@ class HapticAttentionModel(nn.Module):
         its poses asked for are the replay's (the stay gate pulls towards them) and its chosen
         first glance is replayed too (the same mixture component). Without it the where-inputs
         stand for the poses, the first glance counts as random and ``objects`` is ``None``: the
-        bare network, the benchmark's reference cost. The PPO-style epochs of the info learner
-        replay each batch so."""
+        bare network, the benchmark's reference cost. The info learner's PPO-style epochs replay
+        each batch with the episode that played it."""
         batch, glances = pressures.shape[1], pressures.shape[0]
         locations = where if played is None else played.locations
         logits, baselines, dists = [], [], []
