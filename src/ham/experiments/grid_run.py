@@ -32,7 +32,7 @@ from ham.experiments.executors import (
     unbatchable_note,
 )
 from ham.experiments.grid import Grid, GridJob, load_grid, settings_text
-from ham.experiments.reproduce import format_mean_sem, mean_sem
+from ham.experiments.reproduce import format_mean_sem, mean_sem, spread_table
 from ham.experiments.runs import (
     check_seed_count,
     evaluation_path,
@@ -290,22 +290,12 @@ def results_markdown(grid: Grid, cells: list[dict]) -> str:
 def pose_spread_markdown(cells: list[dict]) -> str | None:
     """Per cell: each glance's pose spread at the last evaluation during training, over all
     episodes and (in parentheses) within an object, mean over the finished seeds."""
-    rows = [c for c in cells if c.get("pose_spread") and c.get("pose_spread_within_object")]
-    if not rows:
-        return None
-    width = max(len(c["pose_spread"]) for c in rows)
-    lines = [
-        "0.577: uniform poses; 0: one fixed path for every episode; in parentheses: within the "
-        "episodes of one object.",
-        "",
-        "| cell | " + " | ".join(f"glance {s + 1}" for s in range(width)) + " |",
-        "|---|" + "---|" * width,
+    rows = [
+        (f"`{c['cell']}`", c["pose_spread"], c["pose_spread_within_object"])
+        for c in cells
+        if c.get("pose_spread") and c.get("pose_spread_within_object")
     ]
-    for c in rows:
-        pairs = list(zip(c["pose_spread"], c["pose_spread_within_object"], strict=True))
-        cells = [f"{a:.3f} ({b:.3f})" for a, b in pairs] + ["—"] * (width - len(pairs))
-        lines.append(f"| `{c['cell']}` | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    return spread_table(rows, first="cell") if rows else None
 
 
 def per_object_markdown(cells: list[dict]) -> str | None:

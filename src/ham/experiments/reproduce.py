@@ -570,41 +570,45 @@ def per_object_markdown(root: Path, jobs: list[Job]) -> str | None:
     return "\n".join(lines)
 
 
+def spread_table(rows: list[tuple[str, list[float], list[float]]], first: str = "run") -> str:
+    """Markdown of ``(label, pose spread per glance, within an object per glance)`` rows under
+    the heading ``first``, one column per glance (``—`` past a row's glances)."""
+    width = max(len(spread) for _, spread, _ in rows)
+    lines = [
+        "0.577: uniform poses (a random glance); 0: one fixed path for every episode; in "
+        "parentheses: within the episodes of one object.",
+        "",
+        f"| {first} | " + " | ".join(f"glance {s + 1}" for s in range(width)) + " |",
+        "|---|" + "---|" * width,
+    ]
+    for label, spread, within in rows:
+        cells = [f"{a:.3f} ({b:.3f})" for a, b in zip(spread, within, strict=True)]
+        lines.append(f"| {label} | " + " | ".join(cells + ["—"] * (width - len(cells))) + " |")
+    return "\n".join(lines)
+
+
 def pose_spread_markdown(root: Path, jobs: list[Job]) -> str | None:
     """Per run group: each glance's pose spread at the last evaluation, over all episodes and
     (in parentheses) within an object, mean over the finished seeds
     (:attr:`ham.learn.evaluation.EvalResult.pose_spread`)."""
-    groups: dict[tuple, list[tuple[list[float], list[float]]]] = {}
+    groups: dict[tuple, list[dict]] = {}
     for j in jobs:
         history = read_metrics(run_dir(root, j.key)).get("history")
         last = history[-1] if history else {}
-        if last.get("pose_spread") is None:  # a run of before the spread was recorded
-            continue
-        key = (j.variant, j.combiner, j.glances)
-        groups.setdefault(key, []).append((last["pose_spread"], last["pose_spread_within_object"]))
+        if last.get("pose_spread") is not None:  # not in runs of before it was recorded
+            groups.setdefault((j.variant, j.combiner, j.glances), []).append(last)
     if not groups:
         return None
-    width = max(g for _, _, g in groups)
-    lines = [
-        "0.577: uniform poses (the random first glance); 0: one fixed path for every episode; "
-        "in parentheses: within the episodes of one object.",
-        "",
-        "| run | " + " | ".join(f"glance {s + 1}" for s in range(width)) + " |",
-        "|---|" + "---|" * width,
-    ]
+    rows = []
     for (variant, combiner, glances), runs in sorted(
         groups.items(), key=lambda kv: (kv[0][2], kv[0][0], kv[0][1])
     ):
-        cells = []
-        for s in range(width):
-            if s >= glances:
-                cells.append("—")
-                continue
-            overall = sum(r[0][s] for r in runs) / len(runs)
-            within = sum(r[1][s] for r in runs) / len(runs)
-            cells.append(f"{overall:.3f} ({within:.3f})")
-        lines.append(f"| {variant}-{combiner} ({len(runs)} seed(s)) | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+        mean = [
+            [sum(r[key][s] for r in runs) / len(runs) for s in range(glances)]
+            for key in ("pose_spread", "pose_spread_within_object")
+        ]
+        rows.append((f"{variant}-{combiner} ({len(runs)} seed(s))", *mean))
+    return spread_table(rows)
 
 
 KNOWN_DIFFERENCES = """\
