@@ -14,22 +14,29 @@ from ham.learn.train import TrainConfig, load_run, train
 from ham.model.agent import HamConfig, HapticAttentionModel
 
 
+def _evaluated_again(agent, env, batches: int, seed: int) -> list:
+    """The episodes of ``evaluate(agent, env, batches, seed=seed)`` (mean poses) played again by
+    hand, ``(objects, episode)`` per batch: evaluation draws only from its seeded generator."""
+    g = torch.Generator().manual_seed(seed)
+    agent.eval()
+    with torch.no_grad():
+        return [
+            (o, agent(env, o, g, greedy=True)) for o in map(env.balanced_objects, range(batches))
+        ]
+
+
 @pytest.mark.parametrize("policy", ["learned", "random"])
 def test_confusion_matrix_counts_every_episode_by_true_and_predicted_object(env, policy):
     torch.manual_seed(3)
     agent = HapticAttentionModel(HamConfig(glances=3, policy=policy))
     result = evaluate(agent, env, batches=3, seed=5)
-    # The same episodes again, counted by hand: evaluation draws only from its seeded generator.
-    g = torch.Generator().manual_seed(5)
+    # the same episodes again, counted by hand
     expected = torch.zeros(3, 4, 4, dtype=torch.long)
-    agent.eval()
-    with torch.no_grad():
-        for b in range(3):
-            objects = env.balanced_objects(b)
-            predicted = agent(env, objects, g, greedy=True).logits.argmax(-1)
-            for s in range(3):
-                for o, p in zip(objects.tolist(), predicted[s].tolist(), strict=True):
-                    expected[s, o, p] += 1
+    for objects, episode in _evaluated_again(agent, env, 3, 5):
+        predicted = episode.logits.argmax(-1)
+        for s in range(3):
+            for o, p in zip(objects.tolist(), predicted[s].tolist(), strict=True):
+                expected[s, o, p] += 1
     assert result.confusion == expected.tolist()
     assert result.objects == ["box", "ramp_up", "convex", "ramp_down"]
     for s in range(3):
@@ -44,14 +51,10 @@ def test_pose_spread_is_the_poses_standard_deviation_over_the_episodes(env, poli
     torch.manual_seed(3)
     agent = HapticAttentionModel(HamConfig(glances=3, policy=policy))
     result = evaluate(agent, env, batches=4, seed=5)
-    # the same episodes again (as above), their poses' spread computed directly
-    g = torch.Generator().manual_seed(5)
-    agent.eval()
-    with torch.no_grad():
-        runs = [(env.balanced_objects(b), None) for b in range(4)]
-        runs = [(o, agent(env, o, g, greedy=True).locations) for o, _ in runs]
+    # the same episodes again, their poses' spread computed directly
+    runs = _evaluated_again(agent, env, 4, 5)
     objects = torch.cat([o for o, _ in runs])
-    q = torch.cat([loc for _, loc in runs], 1).double()  # (S, 32, 2)
+    q = torch.cat([episode.locations for _, episode in runs], 1).double()  # (S, 32, 2)
     overall = q.var(1, unbiased=False).mean(-1).sqrt()
     within = torch.stack(
         [q[:, objects == o].var(1, unbiased=False) for o in range(4)]  # 8 episodes each

@@ -943,7 +943,7 @@ class BatchedRuns:
                 n_obj += torch.bincount(objects, minlength=k)
         confusion = confusion.view(n, -1)
         return [eval_result(env, batches, correct[j], accumulated[j], confusion[j], mu_sum[j],
-                            n_obj, path[j], poses=poses[j]) for j in range(n)]  # fmt: skip
+                            n_obj, path[j], poses[j]) for j in range(n)]  # fmt: skip
 
     def _evaluate(self, due: list[tuple[int, float | None, float | None]]) -> dict[int, dict]:
         """Evaluate and record the runs ``due`` (run index, mean train loss and reward since

@@ -170,7 +170,8 @@ def evaluate(
     path = torch.zeros((), device=env.device, dtype=torch.float64)
     stop_correct = torch.zeros((), device=env.device, dtype=torch.float64)
     stop_glances_sum = torch.zeros((), device=env.device, dtype=torch.float64)
-    poses = None
+    width = 1 + 2 * len(agent.config.pose_dims)  # pose_sums: count, sums, sums of squares
+    poses = torch.zeros(glances, k, width, device=env.device, dtype=torch.float64)
     with _evaluating(agent, env, seed) as generator:
         for b in _batch_range(batches, progress, "evaluate"):
             objects = env.balanced_objects(b)
@@ -178,8 +179,7 @@ def evaluate(
             predicted = episode.logits.argmax(-1)  # (S, B)
             correct += (predicted == objects).sum(1)
             path += path_lengths(episode.locations).sum().double()
-            sums = pose_sums(episode.locations, objects, k)
-            poses = sums if poses is None else poses + sums
+            poses += pose_sums(episode.locations, objects, k)
             if episode.stop_logits is not None:
                 at, _ = stop_glances(episode.stop_logits, greedy=True)
                 answer = predicted[at - 1, torch.arange(objects.shape[0], device=env.device)]
@@ -196,7 +196,7 @@ def evaluate(
                 n_obj += torch.bincount(objects, minlength=k)
     stop = (stop_correct, stop_glances_sum) if agent.config.stop else None
     return eval_result(
-        env, batches, correct, accumulated, confusion, mu_sum, n_obj, path, stop, poses
+        env, batches, correct, accumulated, confusion, mu_sum, n_obj, path, poses, stop
     )
 
 
@@ -209,14 +209,14 @@ def eval_result(
     mu_sum: torch.Tensor,
     n_obj: torch.Tensor,
     path: torch.Tensor,
+    poses: torch.Tensor,
     stop: tuple[torch.Tensor, torch.Tensor] | None = None,
-    poses: torch.Tensor | None = None,
 ) -> EvalResult:
     """The :class:`EvalResult` of one evaluation's counts over ``batches`` batches of ``env``:
     correct answers per glance ``(S,)``, the same of the averaged outputs ``(S,)``, the
     confusion counts ``(S * K * K,)``, the summed modes of the last policy ``(K, k)`` over
-    ``n_obj`` episodes per object, the summed path lengths, with a learned stop its correct
-    answers and glances used, and the poses' :func:`pose_sums`. (:mod:`ham.learn.batched`
+    ``n_obj`` episodes per object, the summed path lengths, the poses' :func:`pose_sums`, and
+    with a learned stop its correct answers and glances used. (:mod:`ham.learn.batched`
     evaluates N runs at once and gives each its counts here.)"""
     glances, k = correct.shape[0], env.n_objects
     n = batches * env.batch_size
@@ -225,7 +225,7 @@ def eval_result(
     confusion = confusion.view(glances, k, k)
     last, shown = confusion[-1].diagonal().tolist(), confusion[-1].sum(1).tolist()
     per_object = [c / t if t else None for c, t in zip(last, shown, strict=True)]
-    spreads = pose_spreads(poses) if poses is not None else (None, None)
+    spread, within = pose_spreads(poses)
     return EvalResult(
         accuracy=per_glance[-1],
         accuracy_per_glance=per_glance,
@@ -239,8 +239,8 @@ def eval_result(
         path_length=float(path / n),
         stop_accuracy=float(stop[0] / n) if stop is not None else None,
         mean_glances=float(stop[1] / n) if stop is not None else None,
-        pose_spread=spreads[0],
-        pose_spread_within_object=spreads[1],
+        pose_spread=spread,
+        pose_spread_within_object=within,
     )
 
 
