@@ -173,6 +173,31 @@ def test_an_interrupted_run_resumes_bit_identically(tmp_path, monkeypatch, algo,
     assert all(torch.equal(ha[k], hb[k]) for k in ha)
 
 
+@pytest.mark.parametrize(
+    ("algo", "n_envs", "kwargs", "steps", "chunk"),
+    [
+        ("ppo", 1, {"n_steps": 48, "batch_size": 16, "n_epochs": 1}, 144, 48),  # 3 rollouts
+        ("sac", 2, {"learning_starts": 32, "batch_size": 32, "train_freq": 3}, 102, 6),
+    ],
+)
+def test_a_budget_between_sb3s_chunks_is_said_and_trained_to_the_next(
+    tmp_path, capsys, algo, n_envs, kwargs, steps, chunk
+):
+    config = Sb3Config(
+        algo=algo, env="ham/HapticGlanceAP-v0", env_kwargs={"glances": 2}, env_steps=100,
+        n_envs=n_envs, eval_every=1000, eval_episodes=2, algo_kwargs=kwargs,
+    )  # fmt: skip
+    m = train_sb3(config, tmp_path / algo)
+    assert m["env_steps"] == steps  # SB3's own count, as predicted and said
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"ham sb3: {algo} steps its environments {chunk} steps at a time: it trains to "
+        f"{steps} environment steps for --env-steps 100"
+    ]
+    # a budget on a chunk boundary: nothing said
+    m = resume_sb3(tmp_path / algo, env_steps=steps + chunk)
+    assert m["env_steps"] == steps + chunk and capsys.readouterr().err == ""
+
+
 def test_a_run_that_cannot_be_checkpointed_still_finishes(tmp_path, monkeypatch, capsys):
     from ham.learn import sb3_agents
 

@@ -512,6 +512,27 @@ def _raised_by_the_algorithm(exc: BaseException) -> bool:
     return not any(f.filename.startswith(package) for f in frames)
 
 
+def steps_trained(model, env_steps: int) -> tuple[int, int] | None:
+    """``(steps, chunk)``: SB3 steps the environments ``chunk`` steps at a time between its
+    checks of the budget (PPO a rollout: ``n_steps`` per environment; SAC and CrossQ
+    ``train_freq`` steps per environment), so a run from ``model.num_timesteps`` asked for
+    ``env_steps`` trains ``steps``, the first multiple at or past it. ``None`` where that cannot
+    be told ahead (``train_freq`` in episodes, or 0)."""
+    from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
+    from stable_baselines3.common.type_aliases import TrainFrequencyUnit
+
+    if isinstance(model, OnPolicyAlgorithm):
+        chunk = model.n_steps * model.n_envs
+    elif model.train_freq.unit == TrainFrequencyUnit.STEP:
+        chunk = model.train_freq.frequency * model.n_envs
+    else:
+        return None
+    if chunk < 1:  # train_freq 0: SB3's own check refuses it when training starts
+        return None
+    start = model.num_timesteps
+    return start + -(-(env_steps - start) // chunk) * chunk, chunk
+
+
 def _learn(config: Sb3Config, out: Path, model, eval_env, history: list, seconds: float,
            progress: bool, resumed: bool = False) -> dict:  # fmt: skip
     from stable_baselines3.common.callbacks import BaseCallback
@@ -523,7 +544,13 @@ def _learn(config: Sb3Config, out: Path, model, eval_env, history: list, seconds
     # a resumed run redoes the steps after its checkpoint (its evaluations up to and including
     # num_timesteps are kept): the events of those steps are purged
     writer = SummaryWriter(str(out / "tb"), purge_step=model.num_timesteps + 1 if resumed else None)
-    bar = tqdm(total=config.env_steps, initial=model.num_timesteps, disable=not progress,
+    trained = steps_trained(model, config.env_steps)
+    if trained is not None and trained[0] != config.env_steps:  # said, not silently rounded
+        print(f"ham sb3: {config.algo} steps its environments {trained[1]:,} steps at a time: "
+              f"it trains to {trained[0]:,} environment steps for --env-steps "
+              f"{config.env_steps:,}", file=sys.stderr, flush=True)  # fmt: skip
+    total = config.env_steps if trained is None else trained[0]
+    bar = tqdm(total=total, initial=model.num_timesteps, disable=not progress,
                unit="step", desc=f"{config.algo} {config.env}", file=sys.stderr)  # fmt: skip
     saved: list[int | None] = [len(history)]  # evaluations in the last checkpoint; None: off
 
