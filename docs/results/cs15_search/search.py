@@ -41,6 +41,12 @@ from ham.learn.train import load_run
 BATCHES, SEED = 100, 12345
 
 
+def shows_object(glimpses: torch.Tensor) -> torch.Tensor:
+    """``(B,)`` whether each glimpse of ``(B, ...)`` shows the object: not all zeros (the
+    background is 0 in this task)."""
+    return glimpses.flatten(1).abs().sum(1) > 0
+
+
 def play(run_dir: str) -> dict:
     """The recorded episodes of one run: glimpses' contact ``(S, E)``, poses ``(S, E, 2)``,
     correct answers after each glance ``(S, E)``."""
@@ -52,7 +58,7 @@ def play(run_dir: str) -> dict:
     def recording(objects, q):
         pressure = glance(objects, q)
         # where the glimpse is (the first one's is ap_gym's reset's: its q is not used)
-        recorded.append((env.observed_location.clone(), pressure.flatten(1).abs().sum(1) > 0))
+        recorded.append((env.observed_location.clone(), shows_object(pressure)))
         return pressure
 
     env.glance = recording
@@ -102,9 +108,9 @@ def fixed_second(run_dir: str, grid: int = 11, bins: int = 5) -> dict:
             m, w, h = [], [], []
             for b in range(BATCHES):
                 objects = env.balanced_objects(b)
-                m.append(env.glance(objects, zero).flatten(1).abs().sum(1) == 0)
+                m.append(~shows_object(env.glance(objects, zero)))
                 w.append(env.observed_location.clone())
-                h.append(env.glance(objects, q).flatten(1).abs().sum(1) > 0)
+                h.append(shows_object(env.glance(objects, q)))
             hits.append(torch.cat(h).numpy())
             if miss is None:
                 miss, where = torch.cat(m).numpy(), torch.cat(w).numpy()
