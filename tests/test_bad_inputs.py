@@ -486,6 +486,7 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     # --cache-dir keeps a preset's table: anywhere else it would be ignored
     # a training option that the chosen learner, core or setting does not read
     ("train-hybrid-gae-lambda", ["train", "--out", "r", "--gae-lambda", "0.9"], "gae_lambda = 0.9 with learner 'hybrid'"),
+    ("train-hybrid-info-reward", ["train", "--out", "r", "--info-reward", "hit"], "info_reward = 'hit' with learner 'hybrid'"),
     ("train-info-beta", ["train", "--out", "r", "--learner", "info", "--beta", "0.7"], "beta = 0.7 with learner 'info'"),
     ("train-info-replay-size", ["train", "--out", "r", "--learner", "info", "--replay-size", "10"], "replay_size = 10 with learner 'info'"),
     ("train-clip-one-epoch", ["train", "--out", "r", "--learner", "info", "--clip", "0.1"], "clip = 0.1 where nothing reads it"),

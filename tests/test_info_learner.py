@@ -11,7 +11,7 @@ import torch
 from torch.nn import functional as F
 
 from ham.errors import HamError
-from ham.learn.info_loss import advantages, info_loss, information_gain
+from ham.learn.info_loss import advantages, hit_gain, info_loss, information_gain
 from ham.learn.train import TrainConfig, load_run, resume, train
 from ham.model.agent import HamConfig, HapticAttentionModel
 
@@ -57,6 +57,52 @@ def test_information_gain_telescopes_to_log_k_minus_the_last_cross_entropy():
     returns = gain.flip(0).cumsum(0).flip(0)
     before = torch.cat([torch.full((1, b), math.log(k), dtype=torch.float64), ce[:-1]])
     assert torch.allclose(returns, before - ce[-1])
+
+
+def test_hit_gain_is_the_change_of_the_0_1_score_and_telescopes_to_the_paper_s_reward():
+    from ham.learn.hybrid_loss import reward
+
+    g = torch.Generator().manual_seed(1)
+    s, b, k = 4, 50, 3
+    logits = torch.randn(s, b, k, generator=g)
+    objects = torch.randint(0, k, (b,), generator=g)
+    hits = hit_gain(logits, objects)
+    score = torch.stack([reward(logits[i], objects) for i in range(s)])  # c_s, by the paper
+    assert torch.equal(hits[0], score[0] - 1 / k)
+    assert torch.equal(hits[1:], score[1:] - score[:-1])
+    assert set(hits[1:].unique().tolist()) == {-1.0, 0.0, 1.0}  # rises, stays and falls
+    # with gamma = 1 the return of glance s is c_S - c_{s-1}
+    returns = hits.flip(0).cumsum(0).flip(0)
+    before = torch.cat([torch.full((1, b), 1 / k), score[:-1]])
+    assert torch.allclose(returns, score[-1] - before)
+
+
+def test_the_hit_reward_changes_only_the_policy_s_and_critic_s_targets(env):
+    _, episode = _episode(env, glances=4)
+    gain = info_loss(episode, gamma=1.0)
+    hit = info_loss(episode, gamma=1.0, reward_kind="hit")
+    assert torch.equal(gain.classification, hit.classification)
+    assert torch.equal(hit.gain, hit_gain(episode.logits, episode.objects))
+    values = episode.values().detach()
+    ret = advantages(hit.gain[1:], values, 1.0, 1.0)[1]
+    assert torch.allclose(((ret - episode.values()) ** 2).sum(0).mean(), hit.critic)
+    assert not torch.allclose(gain.critic, hit.critic)
+    with pytest.raises(HamError, match="info_reward = 'score'; accepted: gain, hit"):
+        info_loss(episode, reward_kind="score")
+
+
+@pytest.mark.parametrize("epochs", [1, 2])
+def test_a_run_trains_on_the_hit_reward_and_other_learners_refuse_it(tmp_path, epochs):
+    with pytest.raises(HamError, match="info_reward = 'hit' with learner 'hybrid'"):
+        TrainConfig(info_reward="hit")
+    with pytest.raises(HamError, match="info_reward"):
+        tiny(info_reward="score")
+    metrics = train(tiny(info_reward="hit", epochs=epochs), tmp_path / "hit", progress=False)
+    gained = train(tiny(epochs=epochs), tmp_path / "gain", progress=False)
+    # the policy trains on another reward: its mean poses part
+    assert [r["mu_mean"] for r in metrics["history"]] != [r["mu_mean"] for r in gained["history"]]
+    saved = json.loads((tmp_path / "hit" / "config.json").read_text())
+    assert saved["info_reward"] == "hit"
 
 
 @pytest.mark.parametrize("gamma", [1.0, 0.9, 0.5])

@@ -41,6 +41,10 @@ from ham.model.agent import Episode
 
 #: Where the move cost acts (``TrainConfig.move_cost_on``; :func:`info_loss`).
 MOVE_COSTS: tuple[str, ...] = ("mean", "reward", "both")
+#: What a glance earns (``TrainConfig.info_reward``; :func:`glance_reward`): ``gain``, the
+#: information it gains (the default, ap_gym's reward); ``hit``, the change of the 0/1 score of
+#: the arg-max answer (the paper's reward, spread over the glances).
+INFO_REWARDS: tuple[str, ...] = ("gain", "hit")
 
 
 class GainLoss:
@@ -62,7 +66,8 @@ class GainLoss:
 
     @property
     def reward(self) -> torch.Tensor:
-        """The information an episode gained, ``log K - CE_S`` ``(B,)``."""
+        """What an episode earned ``(B,)``: the information it gained, ``log K - CE_S`` (or with
+        ``info_reward = "hit"`` its final 0/1 score less a uniform guess's, ``c_S - 1/K``)."""
         return self.gain.sum(0)
 
 
@@ -84,6 +89,28 @@ def information_gain(logits: torch.Tensor, objects: torch.Tensor) -> torch.Tenso
     ce = glance_cross_entropy(logits.detach(), objects)
     before = torch.cat([ce.new_full((1, b), math.log(k)), ce[:-1]])
     return before - ce
+
+
+def hit_gain(logits: torch.Tensor, objects: torch.Tensor) -> torch.Tensor:
+    """``r_s = c_s - c_{s-1}`` per glance ``(S, B)``: ``c_s = 1`` if the arg-max class after
+    glance ``s`` is the true object (the paper's reward, :func:`ham.learn.hybrid_loss.reward`),
+    else 0, and ``c_0 = 1/K`` (a uniform guess's expected score, as ``CE_0 = log K``). With
+    ``gamma = 1`` a glance's return telescopes to ``c_S - c_{s-1}``: the paper's reward at the
+    end, less what was already right before the glance."""
+    _, b, k = logits.shape
+    hit = (logits.detach().argmax(-1) == objects).to(logits.dtype)
+    before = torch.cat([hit.new_full((1, b), 1.0 / k), hit[:-1]])
+    return hit - before
+
+
+def glance_reward(logits: torch.Tensor, objects: torch.Tensor, kind: str = "gain") -> torch.Tensor:
+    """What each glance earns ``(S, B)`` (detached): :func:`information_gain` (``kind="gain"``)
+    or :func:`hit_gain` (``"hit"``); :data:`INFO_REWARDS`."""
+    if kind == "gain":
+        return information_gain(logits, objects)
+    if kind == "hit":
+        return hit_gain(logits, objects)
+    raise HamError(f"info_reward = {kind!r}; accepted: {', '.join(INFO_REWARDS)}")
 
 
 def advantages(rewards: torch.Tensor, values: torch.Tensor, gamma: float, lam: float) -> tuple:
@@ -118,6 +145,7 @@ def info_loss(
     normalize_advantage: bool = False,
     move_cost: float = 0.0,
     move_cost_on: str = "mean",
+    reward_kind: str = "gain",
 ) -> InfoLoss:
     """The information learner's loss of ``episode`` (see the module's docstring); the
     defaults are :class:`ham.learn.train.TrainConfig`'s (docs/learners.md: why).
@@ -126,7 +154,9 @@ def info_loss(
     trajectories), where ``move_cost_on`` says (:data:`MOVE_COSTS`): ``mean`` (default): the
     loss gains :func:`mean_travel_penalty`; ``reward`` (the first version): the reward of glance
     ``s >= 2`` is its information gain minus ``move_cost`` times the distance ``||q_s -
-    q_{s-1}||`` the pad travelled to it (normalized pose units); ``both``: the two at once."""
+    q_{s-1}||`` the pad travelled to it (normalized pose units); ``both``: the two at once.
+    ``reward_kind`` is what a glance earns (:func:`glance_reward`): the information it gains
+    (``gain``) or the change of the 0/1 score (``hit``)."""
     for name, v, low, high in (("gamma", gamma, 0, 1), ("gae_lambda", gae_lambda, 0, 1)):
         if not (math.isfinite(v) and low <= v <= high):
             raise HamError(f"{name} = {v!r}; accepted: {low} <= {name} <= {high}")
@@ -135,7 +165,7 @@ def info_loss(
     classification = (
         F.cross_entropy(episode.logits.reshape(s * b, k), objects.repeat(s), reduction="mean") * s
     )  # a sum over glances, a mean over the batch
-    gain = information_gain(episode.logits, objects)
+    gain = glance_reward(episode.logits, objects, reward_kind)
     zero = episode.logits.new_zeros(())
     policy = episode.policy
     if policy is None or not policy.trainable:
@@ -195,10 +225,14 @@ class InfoTargets:
 
 
 def info_targets(
-    episode: Episode, gamma: float = 0.5, gae_lambda: float = 1.0, move_cost: float = 0.0
+    episode: Episode,
+    gamma: float = 0.5,
+    gae_lambda: float = 1.0,
+    move_cost: float = 0.0,
+    reward_kind: str = "gain",
 ) -> InfoTargets:
     """The played ``episode``'s log-probabilities of its poses, its advantages and the critic's
-    targets (GAE on the information reward, as :func:`info_loss`), all detached."""
+    targets (GAE on the reward ``reward_kind``, as :func:`info_loss`), all detached."""
     for name, v in (("gamma", gamma), ("gae_lambda", gae_lambda)):
         if not (math.isfinite(v) and 0 <= v <= 1):
             raise HamError(f"{name} = {v!r}; accepted: 0 <= {name} <= 1")
@@ -208,7 +242,7 @@ def info_targets(
     if policy is None or not policy.trainable:
         return InfoTargets(None, None, None)
     with torch.no_grad():
-        gain = information_gain(episode.logits, episode.objects)
+        gain = glance_reward(episode.logits, episode.objects, reward_kind)
         reward = _reward(episode, gain, move_cost)
         adv, ret = advantages(reward[episode.chosen], episode.values(), gamma, gae_lambda)
         log_p = policy.log_prob(episode.locations[episode.chosen])
@@ -216,7 +250,11 @@ def info_targets(
 
 
 def clipped_info_loss(
-    episode: Episode, targets: InfoTargets, clip: float = 0.2, entropy_coef: float = 0.0
+    episode: Episode,
+    targets: InfoTargets,
+    clip: float = 0.2,
+    entropy_coef: float = 0.0,
+    reward_kind: str = "gain",
 ) -> InfoLoss:
     """The information learner's loss for one more pass over a batch already played (the
     network replayed on its recorded glances, :meth:`HapticAttentionModel.replay`): the
@@ -231,7 +269,7 @@ def clipped_info_loss(
     classification = (
         F.cross_entropy(episode.logits.reshape(s * b, k), objects.repeat(s), reduction="mean") * s
     )
-    gain = information_gain(episode.logits, objects)
+    gain = glance_reward(episode.logits, objects, reward_kind)
     zero = episode.logits.new_zeros(())
     policy = episode.policy
     if targets.advantage is None or policy is None or not policy.trainable:

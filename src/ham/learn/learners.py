@@ -44,6 +44,7 @@ LEARNER_OPTIONS: dict[str, tuple[str, ...]] = {
     "glance_reduction": ("hybrid",),
     "gamma": ("info", "sac"),
     "gae_lambda": ("info",),
+    "info_reward": ("info",),
     "entropy_coef": ("info",),
     "normalize_advantage": ("info",),
     "replay_size": ("sac",),

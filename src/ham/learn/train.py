@@ -57,6 +57,7 @@ from ham.learn.hybrid_loss import (
     hybrid_loss,
 )
 from ham.learn.info_loss import (
+    INFO_REWARDS,
     MOVE_COSTS,
     InfoLoss,
     clipped_info_loss,
@@ -147,6 +148,10 @@ class TrainConfig:
         gamma: discount of the information reward over the glances (info learner; 0.5: a
             glance is credited mostly with what it and the next few gain, docs/learners.md).
         gae_lambda: GAE lambda of the info learner's advantages (1: Monte-Carlo returns).
+        info_reward: what a glance earns the info learner's policy: ``gain`` (the information
+            it gains, ``CE_{s-1} - CE_s``) or ``hit`` (the change of the 0/1 score of the
+            arg-max answer, ``c_s - c_{s-1}``: the paper's reward spread over the glances;
+            :func:`ham.learn.info_loss.glance_reward`).
         entropy_coef: weight of the policy's entropy bonus (info learner; 0).
         move_cost: the info learner's cost per unit of distance between consecutive poses
             (normalized units; 0: moving is free, the paper); evaluations report the path.
@@ -243,6 +248,7 @@ class TrainConfig:
     optimizer: str = field(default="sgd", metadata={"choices": OPTIMIZERS})
     gamma: float = 0.5
     gae_lambda: float = 1.0
+    info_reward: str = field(default="gain", metadata={"choices": INFO_REWARDS})
     entropy_coef: float = 0.0
     move_cost: float = 0.0
     move_cost_on: str = field(default="mean", metadata={"choices": MOVE_COSTS})
@@ -1125,6 +1131,7 @@ def train_step(run: Run) -> HybridLoss | InfoLoss | SacLoss:
             normalize_advantage=c.normalize_advantage,
             move_cost=c.move_cost,
             move_cost_on=c.move_cost_on,
+            reward_kind=c.info_reward,
         )
         if episode.stop_logits is not None:
             loss.total = (
@@ -1196,13 +1203,13 @@ def train_step_epochs(run: Run) -> InfoLoss:
     with torch.no_grad():
         played = run.agent(recorder, objects, run.policy_generator)
     on_reward = c.move_cost if c.move_cost_on in ("reward", "both") else 0.0
-    targets = info_targets(played, c.gamma, c.gae_lambda, on_reward)
+    targets = info_targets(played, c.gamma, c.gae_lambda, on_reward, c.info_reward)
     pressures, where = torch.stack(recorder.pressures), torch.stack(recorder.where)
     heights = torch.stack(recorder.heights) if recorder.heights else None
     policy_epochs = c.epochs if c.policy_epochs is None else c.policy_epochs
     for epoch in range(c.epochs):
         episode = run.agent.replay(pressures, where, heights, played)
-        loss = clipped_info_loss(episode, targets, c.clip, c.entropy_coef)
+        loss = clipped_info_loss(episode, targets, c.clip, c.entropy_coef, c.info_reward)
         if c.move_cost > 0 and c.move_cost_on in ("mean", "both"):
             loss.total = loss.total + mean_travel_penalty(episode, c.move_cost)
         if epoch >= policy_epochs:  # the classifier and the critic only
