@@ -37,6 +37,7 @@ from torch.nn import functional as F
 
 from ham.errors import HamError
 from ham.learn.hybrid_loss import glance_cross_entropy
+from ham.learn.hybrid_loss import reward as paper_reward
 from ham.model.agent import Episode
 
 #: Where the move cost acts (``TrainConfig.move_cost_on``; :func:`info_loss`).
@@ -98,7 +99,7 @@ def hit_gain(logits: torch.Tensor, objects: torch.Tensor) -> torch.Tensor:
     ``gamma = 1`` a glance's return telescopes to ``c_S - c_{s-1}``: the paper's reward at the
     end, less what was already right before the glance."""
     _, b, k = logits.shape
-    hit = (logits.detach().argmax(-1) == objects).to(logits.dtype)
+    hit = paper_reward(logits.detach(), objects[None])  # (S, B)
     before = torch.cat([hit.new_full((1, b), 1.0 / k), hit[:-1]])
     return hit - before
 
@@ -114,7 +115,7 @@ def glance_reward(logits: torch.Tensor, objects: torch.Tensor, kind: str = "gain
 
 
 def advantages(rewards: torch.Tensor, values: torch.Tensor, gamma: float, lam: float) -> tuple:
-    """GAE over the policy's glances: ``rewards`` ``(S', B)`` their information gains,
+    """GAE over the policy's glances: ``rewards`` ``(S', B)`` what they earned,
     ``values`` ``(S', B)`` ``V`` of the states that chose them. Returns ``(advantage, return)``."""
     n = rewards.shape[0]
     adv = torch.zeros_like(rewards)
