@@ -222,7 +222,8 @@ def plot(moves: dict[str, list[np.ndarray]], path: Path, episodes: int = 150) ->
     import matplotlib.pyplot as plt
 
     labels = list(moves)
-    fig, axes = plt.subplots(1, len(labels), figsize=(3.0 * len(labels), 3.3), squeeze=False)
+    width = max(3.0 * len(labels), 4.2)  # the title's second line fits one panel's figure
+    fig, axes = plt.subplots(1, len(labels), figsize=(width, 3.3), squeeze=False)
     for ax, label in zip(axes[0], labels, strict=True):
         m = moves[label][0][:episodes]
         ax.quiver(m[:, 0], m[:, 1], m[:, 2] - m[:, 0], m[:, 3] - m[:, 1], angles="xy",
@@ -234,8 +235,10 @@ def plot(moves: dict[str, list[np.ndarray]], path: Path, episodes: int = 150) ->
         ax.set_aspect("equal")
         ax.set_xlabel("x")
     axes[0][0].set_ylabel("y")
+    # one or two panels are narrower than the title: two lines
+    sep = " " if len(labels) > 2 else "\n"
     fig.suptitle(
-        "CircleSquare-s15-nograd: glance 1 (dot) missed the object -> glance 2", fontsize=10
+        f"CircleSquare-s15-nograd:{sep}glance 1 (dot) missed the object -> glance 2", fontsize=10
     )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
