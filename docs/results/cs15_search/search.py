@@ -47,11 +47,9 @@ def shows_object(glimpses: torch.Tensor) -> torch.Tensor:
     return glimpses.flatten(1).abs().sum(1) > 0
 
 
-def play(run_dir: str) -> dict:
-    """The recorded episodes of one run: glimpses' contact ``(S, E)``, poses ``(S, E, 2)``,
-    correct answers after each glance ``(S, E)``."""
-    run = load_run(run_dir)
-    env, agent = run.env, run.agent
+def record_glimpses(env) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """Wrap ``env.glance``: each glimpse from now on appends where it was ``(B, 2)`` and whether
+    it shows the object ``(B,)`` to the list returned."""
     recorded: list[tuple[torch.Tensor, torch.Tensor]] = []
     glance = env.glance
 
@@ -62,6 +60,15 @@ def play(run_dir: str) -> dict:
         return pressure
 
     env.glance = recording
+    return recorded
+
+
+def play(run_dir: str) -> dict:
+    """The recorded episodes of one run: glimpses' contact ``(S, E)``, poses ``(S, E, 2)``,
+    correct answers after each glance ``(S, E)``."""
+    run = load_run(run_dir)
+    env, agent = run.env, run.agent
+    recorded = record_glimpses(env)
     generator = torch.Generator(device=env.device)
     generator.manual_seed(SEED)
     agent.eval()

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from search import BATCHES, SEED, mean_of, shows_object
+from search import BATCHES, SEED, mean_of, record_glimpses
 
 from ham.learn.train import load_run
 
@@ -74,16 +74,7 @@ def measure(run_dir: str) -> dict:
         return dist
 
     agent.next_distribution = recording
-    glance = env.glance
-    felt: list[tuple[torch.Tensor, torch.Tensor]] = []
-
-    def feeling(objects, q):
-        pressure = glance(objects, q)
-        # where the glimpse is (the first one's is ap_gym's reset's: its q is not used)
-        felt.append((env.observed_location.clone(), shows_object(pressure)))
-        return pressure
-
-    env.glance = feeling
+    felt = record_glimpses(env)
     generator = torch.Generator(device=env.device)
     generator.manual_seed(SEED)
     agent.eval()
