@@ -188,6 +188,21 @@ def mean_of(cells: list[dict]) -> dict:
     return float(np.mean(cells))
 
 
+def summary(script: str, argv: list[str], runs: dict[str, list[tuple[str, dict]]]) -> dict:
+    """What OUT.json holds: the task, the command that made it, and per label each run's
+    measures and their mean over the label's runs."""
+    return {
+        "env": "ap_gym:CircleSquare-s15-nograd-v0",
+        "batches": BATCHES,
+        "seed": SEED,
+        "command": f"PYTHONPATH=src python docs/results/cs15_search/{script} " + " ".join(argv),
+        "labels": {
+            label: {"mean": mean_of([m for _, m in cells]), "runs": dict(cells)}
+            for label, cells in runs.items()
+        },
+    }
+
+
 def main(argv: list[str]) -> None:
     if len(argv) < 2 or not argv[0].endswith(".json") or any("=" not in a for a in argv[1:]):
         sys.exit(__doc__)
@@ -205,16 +220,7 @@ def main(argv: list[str]) -> None:
         missed = ~played["hit"][0]
         moves[label].append(np.concatenate([played["poses"][0], played["poses"][1]], 1)[missed])
         print(label, run_dir, json.dumps(runs[label][-1][1]["after_miss"]["glance_2"]))
-    result = {
-        "env": "ap_gym:CircleSquare-s15-nograd-v0",
-        "batches": BATCHES,
-        "seed": SEED,
-        "command": "PYTHONPATH=src python docs/results/cs15_search/search.py " + " ".join(argv),
-        "labels": {
-            label: {"mean": mean_of([m for _, m in cells]), "runs": dict(cells)}
-            for label, cells in runs.items()
-        },
-    }
+    result = summary("search.py", argv, runs)
     out.write_text(json.dumps(result, indent=1) + "\n")
     if moves:
         plot(moves, out.with_suffix(".png"))

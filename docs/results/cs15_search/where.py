@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from search import BATCHES, SEED, mean_of, record_glimpses
+from search import BATCHES, SEED, record_glimpses, summary
 
 from ham.learn.train import load_run
 
@@ -129,16 +129,7 @@ def main(argv: list[str]) -> None:
         label, run_dir = spec.split("=", 1)
         runs[label].append((run_dir, measure(run_dir)))
         print(label, run_dir, json.dumps(runs[label][-1][1]))
-    result = {
-        "env": "ap_gym:CircleSquare-s15-nograd-v0",
-        "batches": BATCHES,
-        "seed": SEED,
-        "command": "PYTHONPATH=src python docs/results/cs15_search/where.py " + " ".join(argv),
-        "labels": {
-            label: {"mean": mean_of([m for _, m in cells]), "runs": dict(cells)}
-            for label, cells in runs.items()
-        },
-    }
+    result = summary("where.py", argv, runs)
     out = Path(argv[0])
     out.write_text(json.dumps(result, indent=1) + "\n")
     plot(result["labels"], out.with_suffix(".png"))
