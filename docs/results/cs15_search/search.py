@@ -149,6 +149,13 @@ def fixed_second(run_dir: str, grid: int = 11, bins: int = 5) -> dict:
     }
 
 
+def away_from(first: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """The module doc's ``away``: where ``poses`` ``(..., E, 2)`` lie along the direction from
+    the first glimpses ``(E, 2)`` through the image's centre (0 at the centre)."""
+    direction = -first / np.linalg.norm(first, axis=-1, keepdims=True).clip(1e-9)
+    return (poses * direction).sum(-1)
+
+
 def measures(played: dict) -> dict:
     """The module doc's measures, per glance ``s >= 2`` and branch of the first glimpse."""
     hit, poses, correct = played["hit"], played["poses"], played["correct"]
@@ -156,8 +163,7 @@ def measures(played: dict) -> dict:
     found = np.logical_or.accumulate(hit, axis=0)
     step = np.linalg.norm(np.diff(poses, axis=0), axis=-1)  # (S - 1, E)
     first = poses[0]
-    away_from_first = -first / np.linalg.norm(first, axis=-1, keepdims=True).clip(1e-9)
-    away = (poses * away_from_first).sum(-1)  # (S, E)
+    away = away_from(first, poses)  # (S, E)
     out = {
         "steps": played["steps"],
         "episodes": int(hit.shape[1]),

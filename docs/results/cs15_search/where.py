@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from search import BATCHES, SEED, record_glimpses, summary
+from search import BATCHES, SEED, away_from, record_glimpses, summary
 
 from ham.learn.train import load_run
 
@@ -106,7 +106,6 @@ def measure(run_dir: str) -> dict:
     tau_np, mu_np, half_np = tau.numpy(), mu.numpy(), half.numpy()
     wm, tm, mm, hm = w[miss], tau_np[miss], mu_np[miss], half_np[miss]
     quad = np.c_[wm, wm**2, wm[:, :1] * wm[:, 1:]]
-    away_from_first = -wm / np.linalg.norm(wm, axis=-1, keepdims=True).clip(1e-9)
     return {
         "steps": run.step,
         "misses": int(miss.sum()),
@@ -117,7 +116,7 @@ def measure(run_dir: str) -> dict:
         "gain": float(gain),
         "mu_spread": spread(mm),
         "mu_from_w": r2_cross_fitted(quad, mm, hm),
-        "away": float((mm * away_from_first).sum(-1).mean()),
+        "away": float(away_from(wm, mm).mean()),
     }
 
 
