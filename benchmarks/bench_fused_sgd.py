@@ -7,12 +7,16 @@
    where the vector loop covers them it rounds otherwise, so over a whole stack of runs a run's
    2-element bias rounded by its place in the stack (docs/batched.md, "A run's numbers and its
    batch-mates").
-2. Cost: one update of ``--runs`` runs of the paper's model (10 glances), CPU time per update
+2. Places: a stack of ``--stack`` runs (3: a grid cell's seeds) of tensors of 1, 2, 4 (the
+   baseline's, a location head's and the classifier's biases) and 100 elements per run, updated
+   whole; per run, in how many draws its part differs from its update alone: which runs' numbers
+   the whole-stack update moved, and which it left as they are now.
+3. Cost: one update of ``--runs`` runs of the paper's model (10 glances), CPU time per update
    (median of 15 repeats of 20, one thread), the three ways interleaved in one process: every
    stacked tensor whole (before), every tensor run by run, and the tensors whose per-run size is
    not a multiple of ``ham.learn.batched._WHOLE_VECTORS`` (64) run by run (the trainer, now).
 
-    PYTHONPATH=src python benchmarks/bench_fused_sgd.py [--runs 10] [--trials 2000]
+    PYTHONPATH=src python benchmarks/bench_fused_sgd.py [--runs 10] [--trials 2000] [--stack 3]
 """
 
 from __future__ import annotations
@@ -47,6 +51,21 @@ def rounding(trials: int, lengths: tuple[int, ...]) -> dict[int, int]:
     return differ
 
 
+def places(trials: int, runs: int, sizes: tuple[int, ...]) -> dict[int, list[int]]:
+    differ = {n: [0] * runs for n in sizes}
+    for n in sizes:
+        for _ in range(trials):
+            p, g, b = torch.randn(runs, n), torch.randn(runs, n), torch.randn(runs, n)
+            whole_p, whole_b = p.clone(), b.clone()
+            torch._fused_sgd_([whole_p.view(-1)], [g.view(-1)], [whole_b.view(-1)], **SGD)
+            for r in range(runs):
+                alone_p, alone_b = p[r].clone(), b[r].clone()
+                torch._fused_sgd_([alone_p], [g[r].clone()], [alone_b], **SGD)
+                same = torch.equal(alone_p, whole_p[r]) and torch.equal(alone_b, whole_b[r])
+                differ[n][r] += not same
+    return differ
+
+
 def cost(runs: int) -> dict[str, float]:
     shapes = [p.shape for p in HapticAttentionModel(HamConfig(glances=10)).parameters()]
     ps, gs, bs = ([torch.randn(runs, *s) for s in shapes] for _ in range(3))
@@ -71,6 +90,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--runs", type=int, default=10)
     p.add_argument("--trials", type=int, default=2000)
+    p.add_argument("--stack", type=int, default=3)
     args = p.parse_args()
     torch.set_num_threads(1)
     torch.manual_seed(0)
@@ -80,6 +100,10 @@ def main() -> None:
           "2-element update when the tensor holds")  # fmt: skip
     for n in lengths:
         print(f"  {n:5d} elements: {differ[n]:5d} draws")
+    print(f"a stack of {args.stack} runs updated whole, {args.trials} draws: a run's part differs "
+          "from its update alone, per run (first to last)")  # fmt: skip
+    for n, per_run in places(args.trials, args.stack, (1, 2, 4, 100)).items():
+        print(f"  {n:5d} elements a run: {per_run}")
     times = cost(args.runs)
     base = times["whole stacks"]
     print(f"one update of {args.runs} runs (paper's model, 10 glances), ms of CPU, median of 15:")
