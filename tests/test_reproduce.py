@@ -111,6 +111,67 @@ def test_a_copy_inside_another_checkout_names_no_commit(tmp_path):
     assert done.stdout.strip() == "unknown (no git checkout, or no git)"
 
 
+_COMMIT_DURING_A_RUN = """
+import json, subprocess, sys
+from pathlib import Path
+import ham.learn.train as t
+from ham.model.agent import HamConfig
+
+repo, table, out = Path(sys.argv[1]), sys.argv[2], sys.argv[3]
+git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-C", str(repo)]
+evaluate_run = t.evaluate_run
+
+
+def committing(*args, **kwargs):  # someone commits to the checkout while the run goes on
+    note = repo / "NOTE"
+    note.write_text(note.read_text() + "x" if note.exists() else "x")
+    subprocess.run([*git, "add", "NOTE"], check=True)
+    subprocess.run([*git, "commit", "-q", "-m", "later"], check=True)
+    return evaluate_run(*args, **kwargs)
+
+
+t.evaluate_run = committing
+config = t.TrainConfig(model=HamConfig(glances=2), steps=2, batch_size=8, eval_every=1,
+                       eval_batches=1, table=table)
+t.train(config, out, progress=False)
+print(json.loads((Path(out) / "timing.json").read_text())["environment"]["commit"])
+"""
+
+
+def test_a_run_names_the_commit_it_started_with(tmp_path, small_table):
+    """A commit made while a run goes on (a long run, a developer at work) is not named for the
+    run: its timing.json names the code it started with, not the checkout's HEAD at its end."""
+    import shutil
+    import sys
+
+    if _git("--version") is None:
+        pytest.skip("no git here")
+    repo = tmp_path / "repo"
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-C", str(repo)]
+    shutil.copytree(Path(__file__).parents[1] / "src" / "ham", repo / "src" / "ham",
+                    ignore=shutil.ignore_patterns("__pycache__"))  # fmt: skip
+    subprocess.run([*git, "init", "-q"], check=True)
+    subprocess.run([*git, "add", "src"], check=True)
+    subprocess.run([*git, "commit", "-q", "-m", "the code"], check=True)
+    started = subprocess.run([*git, "rev-parse", "--short=12", "HEAD"], capture_output=True,
+                             text=True, check=True).stdout.strip()  # fmt: skip
+    env = {**os.environ, "PYTHONPATH": str(repo / "src")}
+    args = [
+        sys.executable,
+        "-c",
+        _COMMIT_DURING_A_RUN,
+        str(repo),
+        small_table,
+        str(tmp_path / "run"),
+    ]
+    done = subprocess.run(args, capture_output=True, text=True, env=env)
+    assert done.returncode == 0, done.stderr
+    head = subprocess.run([*git, "rev-parse", "--short=12", "HEAD"], capture_output=True,
+                          text=True, check=True).stdout.strip()  # fmt: skip
+    assert head != started  # commits were made during the run
+    assert done.stdout.strip() == started
+
+
 def test_figures_of_runs_they_do_not_show_are_not_drawn(tmp_path, ham_cli):
     """The figures show the full model and random locations: with --variants mlp there is
     nothing to draw, so no empty picture is written (matplotlib warned of an empty legend on

@@ -42,7 +42,7 @@ from ham.experiments.runs import (
     read_metrics,
     run_dir,
 )
-from ham.world.devices import environment_record
+from ham.world.devices import environment_record, source_commit
 from ham.world.drawing import save_figure
 from ham.world.files import check_output_dir, write_json, write_text
 
@@ -81,6 +81,7 @@ def run_grid(
 
     if executor not in EXECUTORS:
         raise HamError(f"executor {executor!r}; accepted: {', '.join(EXECUTORS)}")
+    source_commit()  # the code the grid starts with, named in results.json at the end
     batched = batched or BatchedOptions()
     check_batched_options(executor, batched)
     check_ray_address(executor, ray_address)

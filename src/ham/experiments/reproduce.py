@@ -46,7 +46,7 @@ from ham.experiments.runs import (
     run_dir,
     stopped_at,
 )
-from ham.world.devices import environment_record
+from ham.world.devices import environment_record, source_commit
 from ham.world.files import write_json, write_text
 
 if TYPE_CHECKING:
@@ -398,6 +398,7 @@ def reproduce(
     from ham.world.objects import resolve_set
     from ham.world.table import build_table
 
+    source_commit()  # the code the reproduction starts with, named in summary.json at the end
     if target not in TARGETS:
         raise HamError(f"target {target!r}; accepted: {', '.join(TARGETS)}")
     if profile_name not in PROFILES:

@@ -70,7 +70,7 @@ from ham.learn.train import (
 from ham.model.agent import Episode
 from ham.model.location_net import truncated_normal, uniform_locations
 from ham.model.policy import TruncatedGaussian, Uniform
-from ham.world.devices import environment_record
+from ham.world.devices import environment_record, source_commit
 from ham.world.files import atomic_write, folder_lock, write_json
 from ham.world.source import check_model_fits, make_source
 
@@ -301,6 +301,7 @@ class BatchedRuns:
         cuda_graph: bool = False,
     ) -> None:
         self.runs, self.outs = list(runs), [Path(o) for o in outs]
+        source_commit()  # the code these runs start with, named in their timing.json at the end
         self.stop_at_perfect = stop_at_perfect
         self.results: dict[int, dict | str] = {}  # run index -> metrics, or the error line
         self.stopped: dict[int, int] = dict(stopped or {})  # run index -> the step it stopped

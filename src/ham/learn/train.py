@@ -72,7 +72,7 @@ from ham.learn.probe import PROBE_SCORES, probe_due, probe_glances, probe_round,
 from ham.learn.stopping import STOP_LEARNERS, stop_loss
 from ham.model.agent import HamConfig, HapticAttentionModel, count_parameters
 from ham.world.config import WorldConfig
-from ham.world.devices import check_device, environment_record
+from ham.world.devices import check_device, environment_record, source_commit
 from ham.world.files import atomic_write, check_output_dir, folder_lock, write_json
 from ham.world.sensor import NORMALIZATIONS
 from ham.world.source import ObjectPoseConfig, check_model_fits, make_source, world_pose_dims
@@ -1306,6 +1306,7 @@ def train_loop(run: Run, out: Path, progress: bool) -> dict:
     from torch.utils.tensorboard import SummaryWriter
 
     c, env, optimizer = run.config, run.env, run.optimizer
+    source_commit()  # the code this run starts with, named in its timing.json at the end
     writer = SummaryWriter(str(out / "tb"), purge_step=run.step if run.step else None)
     loss_sum = torch.zeros((), device=env.device)
     reward_sum = torch.zeros((), device=env.device)

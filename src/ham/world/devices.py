@@ -70,10 +70,14 @@ def _first_cpu_lines() -> dict[str, str]:
     return lines
 
 
+@functools.cache
 def source_commit() -> str | None:
     """The git commit of the ``ham`` source this process runs (``+dirty`` when tracked files
     differ from it), or ``None`` where this file is not a checkout's tracked file (an installed
-    wheel, also one inside a checkout's venv): which code made a result, beside its numbers."""
+    wheel, also one inside a checkout's venv): which code made a result, beside its numbers.
+
+    Asked once a process: runs, grids and reproductions ask it when they start (the code they
+    loaded), so a commit made while a long run goes on is not named for it at its end."""
     import subprocess
 
     here = Path(__file__).resolve().parent
