@@ -153,8 +153,8 @@ def test_a_run_names_the_commit_it_started_with(tmp_path, small_table):
     subprocess.run([*git, "init", "-q"], check=True)
     subprocess.run([*git, "add", "src"], check=True)
     subprocess.run([*git, "commit", "-q", "-m", "the code"], check=True)
-    started = subprocess.run([*git, "rev-parse", "--short=12", "HEAD"], capture_output=True,
-                             text=True, check=True).stdout.strip()  # fmt: skip
+    started = _git("-C", str(repo), "rev-parse", "--short=12", "HEAD")
+    assert started
     env = {**os.environ, "PYTHONPATH": str(repo / "src")}
     args = [
         sys.executable,
@@ -166,9 +166,7 @@ def test_a_run_names_the_commit_it_started_with(tmp_path, small_table):
     ]
     done = subprocess.run(args, capture_output=True, text=True, env=env)
     assert done.returncode == 0, done.stderr
-    head = subprocess.run([*git, "rev-parse", "--short=12", "HEAD"], capture_output=True,
-                          text=True, check=True).stdout.strip()  # fmt: skip
-    assert head != started  # commits were made during the run
+    assert _git("-C", str(repo), "rev-parse", "--short=12", "HEAD") != started  # commits made
     assert done.stdout.strip() == started
 
 
