@@ -52,11 +52,19 @@ def fx(tmp_path_factory) -> dict[str, Path]:
     from ham.learn.train import TrainConfig, train
     from ham.model.agent import HamConfig
     from ham.world.config import WorldConfig
+    from ham.world.sensor import SensorConfig
     from ham.world.table import build_table
 
     d = tmp_path_factory.mktemp("bad_inputs_fixtures")
     good = build_table(WorldConfig(), 3, d / "good.h5", progress=False)
     t = {"good": good, "dir": d}
+    # tables a run of the paper's world cannot be transferred to (ham evaluate --transfer-table)
+    for name, world in (
+        ("taxels8", WorldConfig(sensor=SensorConfig(taxels=8))),
+        ("reordered", WorldConfig(objects="box,ramp_up,ramp_down,convex")),
+        ("xyphi", WorldConfig(pose_dims=("x", "y", "phi"))),
+    ):
+        t[name] = build_table(world, 3, d / f"{name}.h5", progress=False)
 
     def attr(key, value):
         def edit(f):
@@ -403,6 +411,14 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("evaluate-no-checkpoint", ["evaluate", "{run_nockpt}"], "checkpoint.pt"),
     ("evaluate-bad-checkpoint", ["evaluate", "{run_badckpt}"], "checkpoint.pt"),
     ("evaluate-nan-table", ["evaluate", "{run_badtable}"], "nan"),
+    ("evaluate-transfer-missing", ["evaluate", "{run}", "--transfer-table", "nosuch.h5"], "--transfer-table 'nosuch.h5' does not exist; accepted: a glance table file"),
+    ("evaluate-transfer-dir", ["evaluate", "{run}", "--transfer-table", "adir"], "--transfer-table 'adir' is a folder; accepted: a glance table file"),
+    ("evaluate-transfer-text", ["evaluate", "{run}", "--transfer-table", "{text}"], "not a complete HDF5 file"),
+    ("evaluate-transfer-nan", ["evaluate", "{run}", "--transfer-table", "{nan}"], "nan"),
+    ("evaluate-transfer-taxels", ["evaluate", "{run}", "--transfer-table", "{taxels8}"], "holds 8 x 8 images but the run reads 16 x 16; accepted: a table of the run's sensor size"),
+    ("evaluate-transfer-objects", ["evaluate", "{run}", "--transfer-table", "{reordered}"], "holds objects box, ramp_up, ramp_down, convex but the run classifies box, ramp_up, convex, ramp_down"),
+    ("evaluate-transfer-pose-dims", ["evaluate", "{run}", "--transfer-table", "{xyphi}"], "is a grid over x,y,phi but the run chooses poses over x,phi"),
+    ("evaluate-transfer-with-objects", ["evaluate", "{run}", "--transfer-table", "{good}", "--objects", "paper"], "--objects 'paper' with --transfer-table"),
     # heatmap
     ("heatmap-out-jpg", ["heatmap", "{run}", "--out", "h.jpg", "--batches", "1"], "'h.jpg'"),
     ("heatmap-out-dir", ["heatmap", "{run}", "--out", "adir", "--batches", "1"], "'adir'"),
@@ -413,6 +429,7 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("heatmap-seed-minus", ["heatmap", "{run}", "--out", "h.png", "--batches", "1", "--seed", "-5"], "-5"),
     ("heatmap-json-dir", ["heatmap", "{run}", "--out", "h.png", "--batches", "1", "--json", "adir"], "'adir'"),
     ("heatmap-json-txt", ["heatmap", "{run}", "--out", "h.png", "--batches", "1", "--json", "h.txt"], "'h.txt'"),
+    ("heatmap-transfer-taxels", ["heatmap", "{run}", "--out", "h.png", "--batches", "1", "--transfer-table", "{taxels8}"], "8 x 8 images"),
     # reproduce (checked before any table or run is made)
     ("reproduce-workers-0", ["reproduce", "table1", "--out", "rp", "--workers", "0"], "workers = 0"),
     ("reproduce-workers-minus", ["reproduce", "table1", "--out", "rp", "--workers", "-2"], "-2"),
@@ -543,6 +560,7 @@ SUBPROCESS = [
     "verify-noobjects",
     "train-device-cpu-abc",
     "evaluate-seed-minus",
+    "evaluate-transfer-objects",
     "reproduce-workers-0",
     "heatmap-json-dir",
     "envs-check-table-nan",
@@ -696,6 +714,17 @@ def _load_run(name, **kw):
     return call
 
 
+def _transfer(table):
+    """``load_run`` of the fixtures' run onto fixture table ``table``."""
+
+    def call(fx):
+        from ham.learn.train import load_run
+
+        load_run(fx["run"], transfer_table=str(fx[table]))
+
+    return call
+
+
 def _object(kind, *args, **kw):
     def call(fx):
         from ham.world.objects import HapticObject
@@ -832,6 +861,8 @@ PY_CASES = [
     ("load-run-device", _load_run("run", device="cpu:abc"), "'cpu:abc'"),
     ("load-run-device-99", _load_run("run", device="cuda:99"), "'cuda:99'"),
     ("load-run-badckpt", _load_run("run_badckpt"), "checkpoint.pt"),
+    ("load-run-transfer-missing", _load_run("run", transfer_table="nosuch.h5"), "'nosuch.h5' does not exist"),
+    ("load-run-transfer-pose-dims", _transfer("xyphi"), "is a grid over x,y,phi"),
     ("object-polyline-one-point", _object("from_polyline", "p", [(0.0, 0.0)]), "'p'"),
     ("object-polyline-nan", _object("from_polyline", "p", [(-0.04, 0.0), (0.04, float("nan"))]), "finite"),
     ("object-polyline-backwards", _object("from_polyline", "p", [(0.04, 0.0), (-0.04, 0.01)]), "non-decreasing"),

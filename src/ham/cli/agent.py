@@ -83,6 +83,10 @@ def add_commands(subparsers) -> None:
     p.add_argument("--table", metavar="FILE",
                    help="the run's glance table at a new path (accepted only with the sha256 "
                    "the run's checkpoint kept)")  # fmt: skip
+    p.add_argument("--transfer-table", metavar="FILE",
+                   help="the agent on the glances of another table of the same objects and pose "
+                   "dims (another simulator, read-out, sensor or grid): how what the run learned "
+                   "transfers; prints how that world differs from the run's")  # fmt: skip
     p.add_argument("--confusion", metavar="PNG",
                    help="also plot the confusion matrix after the last glance")  # fmt: skip
     p.add_argument("--swap-last-pose", action="store_true",
@@ -109,6 +113,10 @@ def add_commands(subparsers) -> None:
     p.add_argument("--table", metavar="FILE",
                    help="the run's glance table at a new path (accepted only with the sha256 "
                    "the run's checkpoint kept)")  # fmt: skip
+    p.add_argument("--transfer-table", metavar="FILE",
+                   help="the agent on the glances of another table of the same objects and pose "
+                   "dims (another simulator, read-out, sensor or grid): how what the run learned "
+                   "transfers; prints how that world differs from the run's")  # fmt: skip
     p.set_defaults(func=cmd_heatmap)
 
 
@@ -371,7 +379,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         from ham.world.files import check_output
 
         check_output(args.confusion, (".png",), what="--confusion")
-    run = load_run(args.run, device=args.device, objects=args.objects, table=args.table)
+    run = load_run(
+        args.run,
+        device=args.device,
+        objects=args.objects,
+        table=args.table,
+        transfer_table=args.transfer_table,
+    )
     policy = args.eval_policy or run.config.eval_policy
     try:
         if args.swap_last_pose:  # refused before the evaluation's minutes, not after
@@ -389,6 +403,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     d = {"run": str(args.run), "steps": run.step, "eval_policy": policy, **result.to_dict()}
     if swap is not None:
         d["last_pose_swap"] = swap
+    if run.transfer is not None:
+        d["transfer_table"], d["transfer_differences"] = run.config.table, run.transfer
     if args.confusion:
         from ham.experiments.figures import plot_confusion
 
@@ -404,6 +420,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         f"{args.run}: step {run.step}, {result.episodes} episodes ({result.batches} balanced "
         f"batches), {policy} poses"
     )
+    if run.transfer is not None:
+        print(f"glances from {run.config.table} (its world against the run's: "
+              f"{'; '.join(run.transfer) or 'no difference'})")  # fmt: skip
     # pose spread: the std of the poses over the episodes (within: the same per true object)
     print(
         f"{'glance':>6}  {'accuracy':>8}  {'accumulated':>11}  {'pose spread':>11}  {'within':>6}"
@@ -453,17 +472,26 @@ def cmd_heatmap(args: argparse.Namespace) -> int:
     check_output(args.out, (".png",))
     if args.json:
         check_output(args.json, (".json",), what="--json")
-    run = load_run(args.run, device=args.device, objects=args.objects, table=args.table)
+    run = load_run(
+        args.run,
+        device=args.device,
+        objects=args.objects,
+        table=args.table,
+        transfer_table=args.transfer_table,
+    )
     policy = args.eval_policy or run.config.eval_policy
     data = heatmap_data(
         run.agent, run.env, args.batches, args.bins, seed=args.seed, policy=policy, progress=True
     )
     data["step"] = run.step
+    if run.transfer is not None:
+        data["transfer_table"], data["transfer_differences"] = run.config.table, run.transfer
     out = plot_heatmap(data, args.out)
     if args.json:
         text = json.dumps(data) + "\n"
         write_text(args.json, text, what="heat map data")
-    print(f"wrote {out} (accuracy {data['accuracy']:.4f} over {args.batches} batches)")
+    where = "" if run.transfer is None else f" on the glances of {run.config.table}"
+    print(f"wrote {out} (accuracy {data['accuracy']:.4f} over {args.batches} batches{where})")
     return 0
 
 

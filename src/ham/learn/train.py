@@ -71,7 +71,7 @@ from ham.learn.off_policy import SacLoss, SacState, sac_update
 from ham.learn.probe import PROBE_SCORES, probe_due, probe_glances, probe_round, probe_schedule
 from ham.learn.stopping import STOP_LEARNERS, stop_loss
 from ham.model.agent import HamConfig, HapticAttentionModel, count_parameters
-from ham.world.config import WorldConfig
+from ham.world.config import WorldConfig, world_differences
 from ham.world.devices import check_device, environment_record, source_commit
 from ham.world.files import atomic_write, check_output_dir, folder_lock, write_json
 from ham.world.sensor import NORMALIZATIONS
@@ -637,6 +637,9 @@ class Run:
     #: the sha256 of the glance table's pressures (``None`` without a table): a checkpoint
     #: keeps it, so that a run is never continued or evaluated on another table at its path
     table_checksum: str | None = None
+    #: a run loaded onto another world's glances (:func:`load_run`'s ``transfer_table``): how
+    #: that table's world differs from the one the run trained in (``None``: its own world)
+    transfer: list[str] | None = None
 
     @classmethod
     def create(cls, config: TrainConfig, env: HapticEnv | ApGymGlanceEnv | None = None) -> Run:
@@ -930,19 +933,31 @@ def load_run(
     device: str | None = None,
     objects: str | None = None,
     table: str | None = None,
+    transfer_table: str | None = None,
 ) -> Run:
     """The run in directory ``out`` at its latest checkpoint (for evaluation and heat maps).
 
     ``objects``: evaluate on other objects of the same number, class ``i`` the ``i``-th (e.g.
     ``composite:test``, the held-out instances of a run trained on ``composite:train``); the
     run's world otherwise (online runs only). ``table``: the run's glance table at a new path
-    (:func:`locate_table`)."""
+    (:func:`locate_table`). ``transfer_table``: the agent on the glances of another table of
+    the same objects and pose dims (another simulator, read-out, sensor or grid: how what it
+    learned transfers), its own normalization applied; ``Run.transfer`` lists how that world
+    differs from the run's own."""
     out = Path(out)
     config = read_run_config(out)
     state = load_checkpoint(out)  # read once: its table sha256 locates a moved table
     config = locate_table(out, config, state.get("table_checksum"), table)
     if device is not None:
         config = replace(config, device=device)
+    if objects is not None and transfer_table is not None:
+        raise HamError(
+            f"--objects {objects!r} with --transfer-table {transfer_table!r}; accepted: one of "
+            "them (a transfer table holds its own objects)"
+        )
+    transfer = None
+    if transfer_table is not None:
+        config, transfer = _transferred(config, transfer_table)
     if objects is not None:
         if config.table is not None or config.env is not None:
             raise HamError(
@@ -959,8 +974,53 @@ def load_run(
             )
         config = replace(config, world=world)
     run = Run.create(config)
+    if transfer is not None:  # another table on purpose: its sha256 is not the run's
+        run.table_checksum, run.transfer = None, transfer
     run.load_state_dict(state)
     return run
+
+
+def _transferred(config: TrainConfig, table: str) -> tuple[TrainConfig, list[str]]:
+    """``config`` reading the glances of ``table`` (:func:`load_run`'s ``transfer_table``), and
+    how that table's world differs from the run's own (its table's, or its online world)."""
+    from ham.world.table import table_info
+
+    if config.env is not None:
+        raise HamError(
+            f"--transfer-table {table!r} with a run on ap_gym env {config.env.env!r}; accepted: "
+            "a run in the haptic world (a glance table or online glances)"
+        )
+    if not Path(table).is_file():
+        what = "is a folder" if Path(table).is_dir() else "does not exist"
+        raise HamError(f"--transfer-table {table!r} {what}; accepted: a glance table file")
+    other = table_info(table)
+    if config.table is not None:
+        own = table_info(config.table)
+        world, objects, grid = own.world, own.objects, list(own.grid_shape)
+    else:
+        world, grid = config.world.to_dict(), "online"
+        objects = [o.name for o in config.world.resolve_objects()]
+    if other.objects != objects:
+        raise HamError(
+            f"--transfer-table {table!r} holds objects {', '.join(other.objects)} but the run "
+            f"classifies {', '.join(objects)}; accepted: a table of the same objects in that order"
+        )
+    if other.pressure_dim != config.model.pressure_dim:
+        side = math.isqrt(config.model.pressure_dim)
+        raise HamError(
+            f"--transfer-table {table!r} holds {other.taxels} x {other.taxels} images but the "
+            f"run reads {side} x {side}; accepted: a table of the run's sensor size"
+        )
+    if tuple(other.pose_dims) != tuple(config.model.pose_dims):
+        raise HamError(
+            f"--transfer-table {table!r} is a grid over {','.join(other.pose_dims)} but the run "
+            f"chooses poses over {','.join(config.model.pose_dims)}; accepted: a table over "
+            "the run's pose dims"
+        )
+    differences = world_differences(
+        {**world, "grid": grid}, {**other.world, "grid": list(other.grid_shape)}
+    )
+    return replace(config, table=str(Path(table).resolve())), differences
 
 
 # --------------------------------------------------------------------------- the loop

@@ -172,6 +172,27 @@ class WorldConfig:
         return world
 
 
+def world_differences(a: dict, b: dict) -> list[str]:
+    """How world ``b`` differs from world ``a`` (two :meth:`WorldConfig.to_dict` dicts, e.g. two
+    glance tables' ``world``), one ``"key: A -> B"`` a differing field, nested fields dotted
+    (``sensor.spread_sigma: None -> 0.005``); a field only one has counts as ``None`` in the
+    other (an empty dict has no fields: ``mujoco = {}`` against ``{"readout": "gazebo"}`` is
+    ``mujoco.readout: None -> 'gazebo'``)."""
+
+    def flat(d: dict, prefix: str = "") -> dict:
+        out = {}
+        for k, v in d.items():
+            if isinstance(v, dict):
+                out.update(flat(v, f"{prefix}{k}."))
+            else:
+                out[f"{prefix}{k}"] = v
+        return out
+
+    fa, fb = flat(a), flat(b)
+    return [f"{k}: {fa.get(k)!r} -> {fb.get(k)!r}" for k in sorted(fa.keys() | fb.keys())
+            if fa.get(k) != fb.get(k)]  # fmt: skip
+
+
 def make_simulator(
     config: WorldConfig | None = None, *, device: str = "cpu", **kwargs
 ) -> Simulator:

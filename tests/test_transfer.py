@@ -1,0 +1,115 @@
+"""A trained run on another world's glances (``ham evaluate DIR --transfer-table FILE``,
+``load_run(..., transfer_table=)``): the run's weights, normalization and policy, the glances of
+another table of the same objects and pose dims, and the differences of the two worlds named."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import replace
+
+import pytest
+import torch
+
+from ham.errors import HamError
+from ham.learn.evaluation import evaluate
+from ham.learn.train import TrainConfig, load_run, make_env, train
+from ham.model.agent import HamConfig
+from ham.world.config import WorldConfig, world_differences
+from ham.world.sensor import SensorConfig
+from ham.world.table import build_table
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory):
+    """The run's own table, the same world read out with the Gazebo plugin's spread, the same
+    world on a coarser grid, and a run trained briefly on the first."""
+    d = tmp_path_factory.mktemp("transfer")
+    own = build_table(WorldConfig(), 11, d / "own.h5", progress=False)
+    spread = WorldConfig(sensor=SensorConfig(spread_sigma=0.005))
+    w = {
+        "own": own,
+        "spread": build_table(spread, 11, d / "spread.h5", progress=False),
+        "coarse": build_table(WorldConfig(), 7, d / "coarse.h5", progress=False),
+        "run": d / "run",
+    }
+    config = TrainConfig(model=HamConfig(glances=2), table=str(own), steps=20, batch_size=16,
+                         eval_every=10, eval_batches=2)  # fmt: skip
+    train(config, w["run"], progress=False)
+    return w
+
+
+def _episode_logits(run, seed: int = 3) -> torch.Tensor:
+    objects = run.env.balanced_objects(0)
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        return run.agent.eval()(run.env, objects, g, greedy=True).logits
+
+
+def test_world_differences_name_each_field_that_differs() -> None:
+    a = WorldConfig().to_dict()
+    b = WorldConfig(sensor=SensorConfig(spread_sigma=0.005), simulator="mujoco").to_dict()
+    assert world_differences(a, a) == []
+    assert world_differences(a, b) == ["sensor.spread_sigma: None -> 0.005",
+                                       "simulator: 'fast' -> 'mujoco'"]  # fmt: skip
+    assert world_differences({"grid": [3, 3]}, {}) == ["grid: [3, 3] -> None"]
+    gazebo = WorldConfig(simulator="mujoco", mujoco={"readout": "gazebo"}).to_dict()
+    assert world_differences(a, gazebo) == ["mujoco.readout: None -> 'gazebo'",
+                                            "simulator: 'fast' -> 'mujoco'"]  # fmt: skip
+
+
+def test_the_runs_own_glances_from_a_copy_give_its_own_evaluation(world, tmp_path) -> None:
+    copy = shutil.copy(world["own"], tmp_path / "copy.h5")
+    own, moved = load_run(world["run"]), load_run(world["run"], transfer_table=str(copy))
+    assert own.transfer is None and moved.transfer == []
+    assert moved.step == own.step == 20
+    a = evaluate(own.agent, own.env, batches=3, seed=7)
+    b = evaluate(moved.agent, moved.env, batches=3, seed=7)
+    assert a == b
+
+
+def test_another_read_out_is_evaluated_with_the_runs_weights_and_normalization(world) -> None:
+    own = load_run(world["run"])
+    run = load_run(world["run"], transfer_table=str(world["spread"]))
+    assert run.transfer == ["sensor.spread_sigma: None -> 0.005"]
+    assert run.config.normalization == own.config.normalization
+    # the same as the run's agent on an environment made from the other table by hand
+    by_hand = make_env(replace(own.config, table=str(world["spread"])))
+    assert evaluate(run.agent, run.env, 3, seed=7) == evaluate(own.agent, by_hand, 3, seed=7)
+    # and not the run's own glances
+    assert not torch.equal(_episode_logits(run), _episode_logits(own))
+
+
+def test_a_coarser_grid_is_named_and_the_checkpoint_still_guards_its_own_table(world) -> None:
+    run = load_run(world["run"], transfer_table=str(world["coarse"]))
+    assert run.transfer == ["grid: [11, 11] -> [7, 7]"]
+    assert evaluate(run.agent, run.env, 2, seed=1).episodes == 2 * 16
+    with pytest.raises(HamError, match="is not the run's table"):
+        load_run(world["run"], table=str(world["coarse"]))  # --table: the run's own, moved
+
+
+def test_an_online_run_on_a_table(world, tmp_path) -> None:
+    config = TrainConfig(model=HamConfig(glances=2), table=None, steps=2, batch_size=8,
+                         eval_every=2, eval_batches=1)  # fmt: skip
+    train(config, tmp_path / "online", progress=False)
+    run = load_run(tmp_path / "online", transfer_table=str(world["own"]))
+    assert run.transfer == ["grid: 'online' -> [11, 11]"]
+    assert 0.0 <= evaluate(run.agent, run.env, 2, seed=1).accuracy <= 1.0
+
+
+def test_the_cli_prints_and_records_the_transfer(world, ham_cli, tmp_path) -> None:
+    r = ham_cli("evaluate", str(world["run"]), "--batches", "2", "--json",
+                "--transfer-table", str(world["spread"]))  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    assert d["transfer_table"] == str(world["spread"].resolve())
+    assert d["transfer_differences"] == ["sensor.spread_sigma: None -> 0.005"]
+    r = ham_cli("evaluate", str(world["run"]), "--batches", "2",
+                "--transfer-table", str(world["spread"]))  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "(its world against the run's: sensor.spread_sigma: None -> 0.005)" in r.stdout
+    png = tmp_path / "h.png"
+    r = ham_cli("heatmap", str(world["run"]), "--out", str(png), "--batches", "2",
+                "--transfer-table", str(world["spread"]))  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert f"on the glances of {world['spread'].resolve()}" in r.stdout and png.is_file()
