@@ -632,6 +632,32 @@ class HapticAttentionModel(nn.Module):
         pressure, where, height = self.glance(env, objects, q)
         return self.step(pressure, where, state, height)
 
+    def initial_pose(
+        self,
+        batch: int,
+        device: torch.device | str,
+        generator: torch.Generator | None,
+        greedy: bool = False,
+    ) -> tuple[torch.Tensor, LocationDistribution | None, torch.Tensor | None]:
+        """The first pose ``q_1`` ``(batch, k)`` of an episode, with the distribution and the
+        baseline it was chosen with (``None`` but for a chosen first glance): the policy's
+        (:meth:`first_glance`), the first-pose search's (``probe``: not the policy's; glances
+        2..S are) or uniform (the paper)."""
+        if self.chooses_first_glance:
+            dist, baseline = self.first_glance(batch, device, generator, greedy)
+            return self._act(dist, generator, greedy, batch), dist, baseline
+        if self.config.first_glance == "probe":
+            return self.first_probe.first_poses(batch, generator, device), None, None
+        return uniform_locations(batch, generator, device, len(self.config.pose_dims)), None, None
+
+    def stop_logit(self, tau: torch.Tensor, logits: torch.Tensor) -> torch.Tensor:
+        """The learned stop's logit ``(B,)`` after a glance that left the core at ``tau`` and
+        the classifier at ``logits``; it reads detached inputs (``stop_input``: the core's
+        output or the classifier's confidence), so the stop's loss trains only its head."""
+        if self.config.stop_input == "core":
+            return self.stop_head(tau.detach()).squeeze(-1)
+        return self.stop_head(logits)
+
     def forward(
         self,
         env,
@@ -648,16 +674,9 @@ class HapticAttentionModel(nn.Module):
         actions)."""
         batch = objects.shape[0]
         locations, logits, baselines, dists, stops = [], [], [], [], []
-        first_baseline = None
-        if self.chooses_first_glance:
-            dist, first_baseline = self.first_glance(batch, objects.device, generator, greedy)
-            q = self._act(dist, generator, greedy, batch)
+        q, dist, first_baseline = self.initial_pose(batch, objects.device, generator, greedy)
+        if dist is not None:
             dists.append(dist)
-        elif self.config.first_glance == "probe":  # not the policy's: glances 2..S are
-            q = self.first_probe.first_poses(batch, generator, objects.device)
-        else:
-            # the paper: random
-            q = uniform_locations(batch, generator, objects.device, len(self.config.pose_dims))
         state = self.core.initial_state(batch, q)
         heads_state = self.initial_heads_state(batch, q)
         for s in range(self.config.glances):
@@ -668,11 +687,8 @@ class HapticAttentionModel(nn.Module):
             locations.append(q)
             logits.append(logit)
             baselines.append(baseline)
-            if self.config.stop:  # reads detached inputs: the stop's loss trains only its head
-                if self.config.stop_input == "core":
-                    stops.append(self.stop_head(tau.detach()).squeeze(-1))
-                else:
-                    stops.append(self.stop_head(logits[-1]))
+            if self.config.stop:
+                stops.append(self.stop_logit(tau, logits[-1]))
             if s == self.config.glances - 1:
                 break
             dist = self.next_distribution(tau_policy, q, logits[-1], glance=s + 1, position=where)

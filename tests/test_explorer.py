@@ -1,0 +1,160 @@
+"""The Explorer: a trained HAM driven one glance at a time by glances handed in from outside
+gives the very episodes the agent's own loop plays (evaluation's), for every way the first pose
+is chosen, with the contact height and with a learned stop."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from ham.errors import HamError
+from ham.learn.environment import HapticEnv
+from ham.learn.explorer import Explorer
+from ham.learn.train import TrainConfig, load_run, train
+from ham.model.agent import HamConfig, HapticAttentionModel
+from ham.world.config import WorldConfig
+from ham.world.source import make_source
+from ham.world.table import build_table
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    d = tmp_path_factory.mktemp("explorer")
+    table = build_table(WorldConfig(), 11, d / "t.h5", progress=False)
+    config = TrainConfig(model=HamConfig(glances=3), table=str(table), steps=30, batch_size=16,
+                         eval_every=15, eval_batches=2)  # fmt: skip
+    train(config, d / "run", progress=False)
+    return d / "run"
+
+
+def _played(agent, env, objects, seed, greedy):
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        return agent.eval()(env, objects, g, greedy=greedy)
+
+
+def _explored(explorer, env, objects, height=False):
+    """One episode per object, each glance's raw image (and height) from ``env``'s source."""
+    poses, q = [], explorer.reset()
+    while q is not None:
+        poses.append(q)
+        pressure, h = env.source.glance(objects, q, None)
+        q = explorer.observe(pressure, h if height else None)
+    return torch.stack(poses)
+
+
+@pytest.mark.parametrize("policy", ["mean", "sample"])
+def test_a_trained_run_explores_as_it_plays(trained, policy):
+    run = load_run(trained)
+    objects = run.env.balanced_objects(0)
+    episode = _played(run.agent, run.env, objects, seed=5, greedy=policy == "mean")
+    explorer = Explorer.from_run(trained, episodes=len(objects), policy=policy, seed=5)
+    assert explorer.normalization == run.config.normalization and explorer.objects == run.objects
+    poses = _explored(explorer, run.env, objects)
+    assert torch.equal(poses, episode.locations)
+    assert torch.equal(explorer.probabilities, torch.softmax(episode.logits[-1], -1))
+    assert torch.equal(explorer.prediction, episode.logits[-1].argmax(-1))
+    assert explorer.object_names == [run.objects[i] for i in explorer.prediction.tolist()]
+    assert explorer.done and explorer.glances == 3
+    # a second episode draws on: poses of its own, the same seed the same again
+    again = Explorer.from_run(trained, episodes=len(objects), policy=policy, seed=5)
+    _explored(again, run.env, objects)
+    assert torch.equal(_explored(again, run.env, objects), _explored(explorer, run.env, objects))
+    assert not torch.equal(_explored(again, run.env, objects)[0], poses[0])
+
+
+@pytest.mark.parametrize(
+    "model",
+    [
+        HamConfig(glances=3, first_glance="learned"),
+        HamConfig(glances=3, height_input=True),
+        HamConfig(glances=3, stop=True),
+        HamConfig(glances=2, stop=True, stop_input="core", stay_gate=True),
+        HamConfig(glances=4, policy="grid"),
+    ],
+    ids=["learned-first", "height", "stop", "stop-core-gate", "grid"],
+)
+def test_every_kind_of_episode_explores_as_it_plays(trained, model):
+    table = load_run(trained).config.table
+    env = HapticEnv(make_source(table, WorldConfig())[0], batch_size=8)
+    torch.manual_seed(2)
+    agent = HapticAttentionModel(model)
+    objects = env.balanced_objects(1)
+    episode = _played(agent, env, objects, seed=9, greedy=False)
+    explorer = Explorer(agent, episodes=8, policy="sample", seed=9)
+    assert torch.equal(_explored(explorer, env, objects, height=model.height_input),
+                       episode.locations)  # fmt: skip
+    assert torch.equal(explorer.probabilities, torch.softmax(episode.logits[-1], -1))
+    if model.stop:
+        assert torch.equal(explorer.stop_probability, torch.sigmoid(episode.stop_logits[-1]))
+    else:
+        assert explorer.stop_probability is None
+
+
+def test_a_pose_other_than_asked_is_read_as_the_pose(trained):
+    """A robot that missed its pose says where it was: the location network reads that pose."""
+    explorer = Explorer.from_run(trained, seed=1)
+    q = explorer.reset()
+    image = torch.zeros(16, 16)
+    image[4:6, :] = 1000.0
+    asked = explorer.observe(image)
+    explorer.reset()
+    missed = explorer.observe(image, pose=(q[0] * 0.5).tolist())
+    assert not torch.equal(asked, missed)
+
+
+def test_bad_glances_are_refused_in_one_line(trained):
+    explorer = Explorer.from_run(trained, episodes=2)
+    with pytest.raises(HamError, match="no glance read yet"):
+        explorer.prediction  # noqa: B018
+    with pytest.raises(HamError, match=r"observe after 0 of 3 glances; accepted: reset\(\) first"):
+        explorer.observe(torch.zeros(2, 16, 16))
+    explorer.reset()
+    cases = [
+        (torch.zeros(16, 16), {}, r"pressure of shape \(16, 16\); accepted: \(2, 16, 16\)"),
+        (torch.full((2, 16, 16), float("nan")), {}, "accepted: finite numbers"),
+        (-torch.ones(2, 16, 16), {}, r"accepted: pressures >= 0 \(Pa\)"),
+        ("text", {}, "accepted: numbers"),
+        (torch.zeros(2, 16, 16), {"height": [0.04, 0.04]}, "does not read it"),
+        (torch.zeros(2, 16, 16), {"pose": [[2.0, 0.0], [0.0, 0.0]]}, r"poses in \[-1, 1\]"),
+    ]
+    for pressure, kw, message in cases:
+        with pytest.raises(HamError, match=message) as e:
+            explorer.observe(pressure, **kw)
+        assert "\n" not in str(e.value)
+    for _ in range(3):
+        explorer.observe(torch.zeros(2, 16, 16))
+    with pytest.raises(HamError, match="observe after 3 of 3 glances"):
+        explorer.observe(torch.zeros(2, 16, 16))
+    height = Explorer(HapticAttentionModel(HamConfig(height_input=True)))
+    height.reset()
+    with pytest.raises(HamError, match="reads the contact height"):
+        height.observe(torch.zeros(16, 16))
+    for kw, message in [
+        ({"agent": "model"}, "agent = 'model'; accepted: a HapticAttentionModel"),
+        ({"normalization": "l3"}, "normalization 'l3'"),
+        ({"policy": "greedy"}, "policy 'greedy'; accepted: mean, sample"),
+        ({"episodes": 0}, "episodes = 0; accepted: an integer 1"),
+        ({"seed": -1}, "seed = -1"),
+        ({"objects": ["a"]}, "1 names for 4 classes"),
+    ]:
+        args = {"agent": HapticAttentionModel(HamConfig()), **kw}
+        with pytest.raises(HamError, match=message):
+            Explorer(**args)
+
+
+def test_the_mujoco_example_drives_a_run_with_live_glances(trained):
+    """docs/examples/explore_mujoco.py: MuJoCo as the robot, the real engine, one glance at a
+    time."""
+    script = Path(__file__).resolve().parents[1] / "docs" / "examples" / "explore_mujoco.py"
+    r = subprocess.run([sys.executable, str(script), str(trained), "--episodes", "8"],
+                       capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    m = re.fullmatch(r"8 episodes, 3 MuJoCo glances each \(taxels read-out\): accuracy (\S+)\n",
+                     r.stdout)  # fmt: skip
+    assert m and 0.0 <= float(m[1]) <= 1.0
