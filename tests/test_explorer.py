@@ -72,12 +72,13 @@ def test_a_trained_run_explores_as_it_plays(trained, policy):
     "model",
     [
         HamConfig(glances=3, first_glance="learned"),
+        HamConfig(glances=3, first_glance="probe"),
         HamConfig(glances=3, height_input=True),
         HamConfig(glances=3, stop=True),
         HamConfig(glances=2, stop=True, stop_input="core", stay_gate=True),
         HamConfig(glances=4, policy="grid"),
     ],
-    ids=["learned-first", "height", "stop", "stop-core-gate", "grid"],
+    ids=["learned-first", "probe-first", "height", "stop", "stop-core-gate", "grid"],
 )
 def test_every_kind_of_episode_explores_as_it_plays(trained, model):
     table = load_run(trained).config.table
