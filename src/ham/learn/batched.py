@@ -133,6 +133,11 @@ def check_batchable(config: TrainConfig) -> None:
             f"env {config.env.env!r} cannot be batched; accepted: the haptic world "
             "(train it with ham train or --executor local)"
         )
+    if config.init_from is not None:
+        raise HamError(
+            f"init_from {config.init_from!r} cannot be batched; accepted: the seed's initial "
+            "weights (train it with ham train or --executor local)"
+        )
     if config.model.core not in ("lstm", "mlp"):
         raise HamError(
             f"core {config.model.core!r} cannot be batched; accepted: lstm, mlp "

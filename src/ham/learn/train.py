@@ -214,6 +214,10 @@ class TrainConfig:
             the number of pose dims, SAC's choice).
         critic_trains_core: the sac critic's loss also trains the tactile network and the core
             (off: only the classification does; the critic reads the core output detached).
+        init_from: a run folder whose latest weights a fresh run starts from instead of its
+            seed's initial ones (fine-tuning: a model trained in one world adapted to another;
+            :func:`start_from`): the same model, the number of glances aside; the optimizer,
+            the generators and the step count start afresh. ``None``: the seed's weights.
     """
 
     model: HamConfig = field(default_factory=HamConfig)
@@ -275,6 +279,7 @@ class TrainConfig:
     init_alpha: float = 0.1
     target_entropy: float | None = None
     critic_trains_core: bool = False
+    init_from: str | None = None
 
     def __post_init__(self) -> None:
         check_types(self)
@@ -1030,6 +1035,8 @@ def train(config: TrainConfig, out: str | os.PathLike, *, progress: bool = True)
     out = check_output_dir(out)
     _check_no_run(out)
     run = Run.create(config)  # first: a bad table, device or config leaves no run directory
+    if config.init_from is not None:
+        start_from(run, config.init_from)
     created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -1047,6 +1054,32 @@ def train(config: TrainConfig, out: str | os.PathLike, *, progress: bool = True)
                 raise
     finally:
         run.close()
+
+
+def start_from(run: Run, source: str) -> None:
+    """``run``'s model set to the latest weights of the run in folder ``source``
+    (:attr:`TrainConfig.init_from`): the two models alike in every field but ``glances``; only
+    the model's weights are taken (a sac learner's critics start afresh)."""
+    folder = Path(source)
+    if not (folder / CONFIG_FILE).is_file():
+        what = "does not exist" if not folder.exists() else "holds no ham train run"
+        raise HamError(f"init_from {source!r} {what}; accepted: a folder of ham train")
+    theirs = read_run_config(folder).model.to_dict()
+    ours = run.config.model.to_dict()
+    differ = [f"{k} {theirs.get(k)!r} (here {ours.get(k)!r})" for k in sorted(ours.keys() | theirs.keys())
+              if k != "glances" and ours.get(k) != theirs.get(k)]  # fmt: skip
+    if differ:
+        raise HamError(
+            f"init_from {source!r} is another model: its {'; '.join(differ)}; accepted: a run "
+            "of the same model (the number of glances may differ)"
+        )
+    try:
+        run.agent.load_state_dict(load_checkpoint(folder)["model"])
+    except (KeyError, RuntimeError) as exc:
+        first = str(exc).strip().splitlines()[0]
+        raise HamError(
+            f"init_from {source!r}: its weights do not fit this model ({first})"
+        ) from None
 
 
 def _check_no_run(out: Path) -> None:
