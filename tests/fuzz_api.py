@@ -62,12 +62,26 @@ def _flat_surface(x, y):
     return np.full_like(x, 0.02, dtype=np.float64)
 
 
+def _observe(run) -> Callable:
+    """``Explorer.observe`` on a fresh episode of ``run``'s agent (each call its first glance)."""
+
+    def observe(pressure, height=None, pose=None, **unknown):
+        from ham.learn.explorer import Explorer
+
+        explorer = Explorer(run.agent)
+        explorer.reset()
+        return explorer.observe(pressure, height, pose, **unknown)
+
+    return observe
+
+
 def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
     """name -> (function, its valid keyword arguments); builds the table and run they read."""
     from ham.experiments.grid_run import run_grid
     from ham.experiments.reproduce import reproduce
     from ham.learn.ap_adapter import ApGymConfig, ApGymGlanceEnv
     from ham.learn.evaluation import evaluate, heatmap_data
+    from ham.learn.explorer import Explorer
     from ham.learn.learners import register_learner
     from ham.learn.sb3_agents import Sb3Config, resume_sb3, train_sb3
     from ham.learn.train import TrainConfig, fit_to_ap_gym, load_run, resume, train
@@ -84,7 +98,8 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
     run_out = tmp / "run"
     (tmp / "g.toml").write_text('name = "g"\n[base]\nsteps = 2\nbatch_size = 4\n[axes]\n'
                                 '"model.glances" = [1, 2]\n')  # fmt: skip
-    needs_run = {"evaluate", "heatmap_data", "load_run", "resume"}
+    needs_run = {"evaluate", "heatmap_data", "load_run", "resume", "Explorer",
+                 "Explorer.from_run", "Explorer.observe"}  # fmt: skip
     run = None
     if not only or needs_run & set(only):
         train(config, run_out, progress=False)
@@ -98,6 +113,9 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
         train_sb3(sb3, sb3_out)
     return {
         "evaluate": (evaluate, {**agent_env, "batches": 1}),
+        "Explorer": (Explorer, {**agent_env, "episodes": 2}),
+        "Explorer.from_run": (Explorer.from_run, {"run": run_out}),
+        "Explorer.observe": (_observe(run), {"pressure": np.zeros((16, 16))}),
         "heatmap_data": (heatmap_data, {**agent_env, "batches": 1, "bins": 3}),
         "build_table": (
             build_table,

@@ -124,6 +124,7 @@ class Explorer:
         return q.clone()
 
     @torch.no_grad()
+    @checked_arguments
     def observe(
         self,
         pressure: torch.Tensor | np.ndarray,
