@@ -1,10 +1,13 @@
 """A trained run on another world's glances (``ham evaluate DIR --transfer-table FILE``,
 ``load_run(..., transfer_table=)``): the run's weights, normalization and policy, the glances of
-another table of the same objects and pose dims, and the differences of the two worlds named."""
+another table of the same objects and pose dims, and the differences of the two worlds named;
+and the read-out's domain randomization (``TrainConfig.spread_augment``) that the transfer
+measurements led to."""
 
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from dataclasses import replace
 
@@ -12,11 +15,13 @@ import pytest
 import torch
 
 from ham.errors import HamError
+from ham.learn.environment import HapticEnv
 from ham.learn.evaluation import evaluate
-from ham.learn.train import TrainConfig, load_run, make_env, train
+from ham.learn.train import TrainConfig, load_run, make_env, resume, train
 from ham.model.agent import HamConfig
 from ham.world.config import WorldConfig, world_differences
-from ham.world.sensor import SensorConfig
+from ham.world.sensor import SensorConfig, gaussian_spread, gaussian_spread_rows, normalize
+from ham.world.source import make_source
 from ham.world.table import build_table
 
 
@@ -113,3 +118,69 @@ def test_the_cli_prints_and_records_the_transfer(world, ham_cli, tmp_path) -> No
                 "--transfer-table", str(world["spread"]))  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert f"on the glances of {world['spread'].resolve()}" in r.stdout and png.is_file()
+
+
+# ------------------------------------------------------------------ domain randomization
+def test_a_spread_of_its_own_per_image():
+    torch.manual_seed(0)
+    images = torch.rand(5, 16, 16) * 1000
+    same = gaussian_spread_rows(images, torch.full((5,), 1.0), 1.0)
+    assert torch.allclose(same, gaussian_spread(images, 1.0), atol=1e-3, rtol=1e-6)
+    sigmas = torch.tensor([0.0, 0.5, 1.0, 0.0, 0.25])
+    each = gaussian_spread_rows(images, sigmas, 1.0)
+    assert torch.equal(each[0], images[0]) and torch.equal(each[3], images[3])  # sigma 0
+    for i in (1, 2, 4):
+        wide = gaussian_spread_rows(images[i : i + 1], sigmas[i : i + 1], 1.0)
+        assert torch.allclose(each[i], wide[0], atol=1e-3)
+        assert not torch.allclose(each[i], images[i])
+
+
+def test_spread_augment_spreads_training_glances_only(world):
+    source, table_world = make_source(str(world["own"]), WorldConfig())
+    sigma = 0.005 / table_world.sensor.pitch
+    plain = HapticEnv(source, batch_size=8, seed=3)
+    augmented = HapticEnv(source, batch_size=8, seed=3, augment_sigma=sigma)
+    q = torch.zeros(8, 2)
+    ids = augmented.sample_objects()
+    assert augmented._sigmas.shape == (8,) and float(augmented._sigmas.max()) <= sigma
+    raw, _ = source.glance(ids, q, None)
+    by_hand = normalize(gaussian_spread_rows(raw, augmented._sigmas, sigma), "l2")
+    assert torch.equal(augmented.glance(ids, q), by_hand)
+    assert not torch.equal(by_hand, normalize(raw, "l2"))
+    # evaluation batches: the world's own glances
+    ids = augmented.balanced_objects(0)
+    assert torch.equal(augmented.glance(ids, q), plain.glance(plain.balanced_objects(0), q))
+
+
+def test_a_run_with_spread_augment_resumes_bit_identically(world, tmp_path):
+    config = TrainConfig(model=HamConfig(glances=2), table=str(world["own"]), steps=16,
+                         batch_size=8, eval_every=8, eval_batches=2, spread_augment=0.005)  # fmt: skip
+    whole = train(config, tmp_path / "whole", progress=False)
+    train(replace(config, steps=8), tmp_path / "parts", progress=False)
+    assert resume(tmp_path / "parts", steps=16, progress=False)["history"] == whole["history"]
+    plain = train(replace(config, spread_augment=0.0), tmp_path / "plain", progress=False)
+    assert plain["history"] != whole["history"]
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"spread_augment": -0.001}, "spread_augment = -0.001; accepted: a number 0..0.05 (m)"),
+        ({"spread_augment": float("nan")}, "spread_augment = nan"),
+        ({"spread_augment": 0.5}, "spread_augment = 0.5"),
+        ({"spread_augment": True}, "spread_augment = True"),
+    ],
+)
+def test_spread_augment_refuses_bad_values(changes, message):
+    with pytest.raises(HamError, match=re.escape(message)):
+        TrainConfig(**changes)
+
+
+def test_spread_augment_is_refused_on_ap_gym_and_by_the_batched_trainer(world):
+    from ham.learn.ap_adapter import ApGymConfig
+    from ham.learn.batched import check_batchable
+
+    with pytest.raises(HamError, match="with env 'ap_gym:CircleSquare-v0'"):
+        TrainConfig(env=ApGymConfig("ap_gym:CircleSquare-v0"), spread_augment=0.005)
+    with pytest.raises(HamError, match="spread_augment = 0.005 cannot be batched"):
+        check_batchable(TrainConfig(table=str(world["own"]), spread_augment=0.005))

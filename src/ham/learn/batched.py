@@ -133,6 +133,11 @@ def check_batchable(config: TrainConfig) -> None:
             f"env {config.env.env!r} cannot be batched; accepted: the haptic world "
             "(train it with ham train or --executor local)"
         )
+    if config.spread_augment > 0:
+        raise HamError(
+            f"spread_augment = {config.spread_augment!r} cannot be batched; accepted: 0 "
+            "(train it with ham train or --executor local)"
+        )
     if config.init_from is not None:
         raise HamError(
             f"init_from {config.init_from!r} cannot be batched; accepted: the seed's initial "

@@ -14,10 +14,12 @@ Glances come from a :class:`ham.world.source.GlanceSource`. Evaluation uses bala
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from ham.errors import HamError
-from ham.world.sensor import NORMALIZATIONS, normalize
+from ham.world.sensor import NORMALIZATIONS, gaussian_spread_rows, normalize
 from ham.world.source import GlanceSource, ObjectPoseConfig
 
 # keeps the evaluation batches' noise seeds apart from their object-pose seeds
@@ -49,6 +51,10 @@ class HapticEnv:
             the noise from the object generator (so checkpoints hold it), evaluation batch
             ``i`` from a generator of its own seed, glance after glance: the same evaluation
             episodes at every evaluation, and evaluating leaves the training stream as it was.
+        augment_sigma: domain randomization of the read-out (beyond the paper): each training
+            episode's images spread by a Gaussian of a sigma drawn uniformly in ``[0,
+            augment_sigma]`` cells (drawn from the object generator with the batch); evaluation
+            batches are the world's own glances. 0: off.
     """
 
     def __init__(
@@ -60,6 +66,7 @@ class HapticEnv:
         device: str | torch.device = "cpu",
         object_pose: ObjectPoseConfig | None = None,
         pose_noise: float = 0.0,
+        augment_sigma: float = 0.0,
     ) -> None:
         if not (isinstance(batch_size, int) and batch_size >= 1):
             raise HamError(f"batch_size = {batch_size!r}; accepted: an integer >= 1")
@@ -82,6 +89,11 @@ class HapticEnv:
         self._pose: tuple[torch.Tensor, ...] | None = None  # the current batch's object poses
         self.pose_noise = float(pose_noise)
         self._noise = self.generator  # the current batch's pose-noise generator
+        if not (isinstance(augment_sigma, (int, float)) and math.isfinite(augment_sigma)
+                and augment_sigma >= 0):  # fmt: skip
+            raise HamError(f"augment_sigma = {augment_sigma!r}; accepted: a finite number >= 0")
+        self.augment_sigma = float(augment_sigma)
+        self._sigmas: torch.Tensor | None = None  # the current training batch's spreads
 
     @property
     def objects(self) -> list:
@@ -97,6 +109,9 @@ class HapticEnv:
         if self.object_pose is not None:
             self._pose = self.object_pose.sample(len(ids), self.generator, self.device)
         self._noise = self.generator
+        if self.augment_sigma > 0:
+            u = torch.rand(len(ids), generator=self.generator, device=self.device)
+            self._sigmas = u * self.augment_sigma
         return ids
 
     def balanced_objects(self, batch_index: int = 0) -> torch.Tensor:
@@ -106,6 +121,7 @@ class HapticEnv:
         same evaluation batches at every evaluation."""
         start = batch_index * self.batch_size
         ids = torch.arange(start, start + self.batch_size, device=self.device) % self.n_objects
+        self._sigmas = None  # evaluation: the world's own glances
         if self.object_pose is not None:
             g = self._eval_generator(batch_index)
             self._pose = self.object_pose.sample(len(ids), g, self.device)
@@ -150,7 +166,15 @@ class HapticEnv:
             )
         at = q if exact else self.executed(q)
         pressure, height = self.source.glance(object_ids, at, pose)
-        pressure = normalize(pressure.to(self.device, torch.float32), self.normalization)
+        pressure = pressure.to(self.device, torch.float32)
+        if self._sigmas is not None:
+            if self._sigmas.shape[0] != object_ids.shape[0]:
+                raise HamError(
+                    f"{object_ids.shape[0]} objects but the batch drew {self._sigmas.shape[0]} "
+                    "spreads; accepted: the ids of the last sample_objects/balanced_objects batch"
+                )
+            pressure = gaussian_spread_rows(pressure, self._sigmas, self.augment_sigma)
+        pressure = normalize(pressure, self.normalization)
         return pressure, height.to(self.device, torch.float32)
 
     def glance(

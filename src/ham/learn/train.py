@@ -214,6 +214,11 @@ class TrainConfig:
             the number of pose dims, SAC's choice).
         critic_trains_core: the sac critic's loss also trains the tactile network and the core
             (off: only the classification does; the critic reads the core output detached).
+        spread_augment: domain randomization of the read-out (beyond the paper; the haptic
+            world): each training episode's images spread by a Gaussian of a sigma drawn
+            uniformly in ``[0, spread_augment]`` m (the Gazebo plugin's spread is 0.005), before
+            normalization; evaluation reads the world's own glances
+            (:class:`ham.learn.environment.HapticEnv`, docs/results/transfer.md). 0: off.
         init_from: a run folder whose latest weights a fresh run starts from instead of its
             seed's initial ones (fine-tuning: a model trained in one world adapted to another;
             :func:`start_from`): the same model, the number of glances aside; the optimizer,
@@ -279,6 +284,7 @@ class TrainConfig:
     init_alpha: float = 0.1
     target_entropy: float | None = None
     critic_trains_core: bool = False
+    spread_augment: float = 0.0
     init_from: str | None = None
 
     def __post_init__(self) -> None:
@@ -375,6 +381,14 @@ class TrainConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= top:
                 raise HamError(f"{name} = {v!r}; accepted: a number 0..{top:.6g}")
+        v = self.spread_augment
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= 0.05:
+            raise HamError(f"spread_augment = {v!r}; accepted: a number 0..0.05 (m)")
+        if v > 0 and self.env is not None:
+            raise HamError(
+                f"spread_augment = {v!r} with env {self.env.env!r}; accepted: a spread of the "
+                "haptic world's images (a table or online glances)"
+            )
         check_pose_noise(self.pose_noise)
         if self.pose_noise > 0 and self.env is not None:
             raise HamError(
@@ -788,7 +802,7 @@ def make_env(config: TrainConfig, device: torch.device | str = "cpu") -> HapticE
         return make_ap_env(
             config.env, config.batch_size, seed, eval_seed, config.normalization, device
         )
-    source, _ = make_source(config.table, config.world, device)
+    source, world = make_source(config.table, config.world, device)
     # The model's input and classes come from the source (taxels^2, its objects): refuse a
     # mismatch here, not as a shape error deep in the first step.
     check_model_fits(config.model.pressure_dim, config.model.n_objects, source)
@@ -806,6 +820,7 @@ def make_env(config: TrainConfig, device: torch.device | str = "cpu") -> HapticE
         device,
         object_pose=config.object_pose,
         pose_noise=config.pose_noise,
+        augment_sigma=config.spread_augment / world.sensor.pitch,
     )
 
 

@@ -224,6 +224,24 @@ def gaussian_spread(pressure: torch.Tensor, sigma_taxels: float) -> torch.Tensor
     return img.squeeze(1)
 
 
+def gaussian_spread_rows(
+    pressure: torch.Tensor, sigma_taxels: torch.Tensor, max_sigma: float
+) -> torch.Tensor:
+    """:func:`gaussian_spread` with a sigma of its own for each image: ``pressure (B, N, N)``,
+    ``sigma_taxels (B,)`` in cells, at most ``max_sigma`` (the kernels' reach; a sigma of 0
+    leaves its image as it is)."""
+    radius = max(1, int(math.ceil(3 * max_sigma)))
+    xs = torch.arange(-radius, radius + 1, dtype=pressure.dtype, device=pressure.device)
+    s = sigma_taxels.to(pressure.dtype).clamp_min(1e-6).unsqueeze(1)  # 1e-6: a delta kernel
+    k = torch.exp(-0.5 * (xs / s) ** 2)
+    k = k / k.sum(-1, keepdim=True)
+    b = pressure.shape[0]
+    img = pressure.unsqueeze(0)  # (1, B, H, W): each image a channel with its own kernel
+    img = torch.nn.functional.conv2d(img, k.view(b, 1, -1, 1), padding=(radius, 0), groups=b)
+    img = torch.nn.functional.conv2d(img, k.view(b, 1, 1, -1), padding=(0, radius), groups=b)
+    return img.squeeze(0)
+
+
 def quantize(pressure: torch.Tensor, bits: int, full_scale: float) -> torch.Tensor:
     """Quantize to ``2**bits`` levels over ``[0, full_scale]`` Pa; the top level saturates like the ADC."""
     top = 2**bits - 1
