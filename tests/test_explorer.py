@@ -159,3 +159,13 @@ def test_the_mujoco_example_drives_a_run_with_live_glances(trained):
     m = re.fullmatch(r"8 episodes, 3 MuJoCo glances each \(taxels read-out\): accuracy (\S+)\n",
                      r.stdout)  # fmt: skip
     assert m and 0.0 <= float(m[1]) <= 1.0
+
+
+def test_a_run_on_ap_gym_is_refused_before_its_world_loads(tmp_path):
+    from ham.learn.ap_adapter import ApGymConfig
+    from ham.world.files import write_json
+
+    config = TrainConfig(env=ApGymConfig("ap_gym:CircleSquare-s15-nograd-v0"))
+    write_json(tmp_path / "config.json", config.to_dict())  # no checkpoint: never read
+    with pytest.raises(HamError, match="trained on ap_gym env 'ap_gym:CircleSquare-s15-nograd-v0'"):
+        Explorer.from_run(tmp_path)

@@ -99,15 +99,16 @@ class Explorer:
     ) -> Explorer:
         """The agent of run folder ``run`` (its latest checkpoint), with the run's normalization,
         objects and evaluation policy (``policy`` overrides it)."""
-        from ham.learn.train import load_run
+        from ham.learn.train import load_run, read_run_config
 
+        env = read_run_config(Path(run)).env  # refused before its world is loaded
+        if env is not None:
+            raise HamError(
+                f"run {str(run)!r} trained on ap_gym env {env.env!r}; accepted: a run in the "
+                "haptic world (an ap_gym glimpse is prepared by its adapter)"
+            )
         loaded = load_run(Path(run), device=device)
         loaded.close()
-        if loaded.config.env is not None:
-            raise HamError(
-                f"run {str(run)!r} trained on ap_gym env {loaded.config.env.env!r}; accepted: a "
-                "run in the haptic world (an ap_gym glimpse is prepared by its adapter)"
-            )
         return cls(loaded.agent, loaded.config.normalization, episodes=episodes,
                    policy=policy or loaded.config.eval_policy, seed=seed,
                    objects=list(loaded.objects))  # fmt: skip
@@ -156,7 +157,7 @@ class Explorer:
             self._pose = None
             return None
         dist = a.next_distribution(tau_policy, self._pose, logits, self.glances, where)
-        self._pose = a._act(dist, self.generator, self.greedy, self.episodes)
+        self._pose = a.act(dist, self.generator, self.greedy, self.episodes)
         return self._pose.clone()
 
     # ------------------------------------------------------------------ what it knows

@@ -1081,8 +1081,9 @@ def start_from(run: Run, source: str) -> None:
         raise HamError(f"init_from {source!r} {what}; accepted: a folder of ham train")
     theirs = read_run_config(folder).model.to_dict()
     ours = run.config.model.to_dict()
-    differ = [f"{k} {theirs.get(k)!r} (here {ours.get(k)!r})" for k in sorted(ours.keys() | theirs.keys())
-              if k != "glances" and ours.get(k) != theirs.get(k)]  # fmt: skip
+    keys = sorted((ours.keys() | theirs.keys()) - {"glances"})
+    differ = [f"{k} {theirs.get(k)!r} (here {ours.get(k)!r})" for k in keys
+              if ours.get(k) != theirs.get(k)]  # fmt: skip
     if differ:
         raise HamError(
             f"init_from {source!r} is another model: its {'; '.join(differ)}; accepted: a run "

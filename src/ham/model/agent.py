@@ -601,7 +601,7 @@ class HapticAttentionModel(nn.Module):
             check_tau(self.config.core, tau, pressure.shape[0], self.config.hidden_units, g)
         return tau, state
 
-    def _act(self, dist: LocationDistribution, generator, greedy: bool, batch: int):
+    def act(self, dist: LocationDistribution, generator, greedy: bool, batch: int) -> torch.Tensor:
         """The pose ``dist`` acts on (:meth:`LocationDistribution.act`), checked for a policy of
         the user's own."""
         q = dist.act(generator, greedy)
@@ -645,7 +645,7 @@ class HapticAttentionModel(nn.Module):
         2..S are) or uniform (the paper)."""
         if self.chooses_first_glance:
             dist, baseline = self.first_glance(batch, device, generator, greedy)
-            return self._act(dist, generator, greedy, batch), dist, baseline
+            return self.act(dist, generator, greedy, batch), dist, baseline
         if self.config.first_glance == "probe":
             return self.first_probe.first_poses(batch, generator, device), None, None
         return uniform_locations(batch, generator, device, len(self.config.pose_dims)), None, None
@@ -692,7 +692,7 @@ class HapticAttentionModel(nn.Module):
             if s == self.config.glances - 1:
                 break
             dist = self.next_distribution(tau_policy, q, logits[-1], glance=s + 1, position=where)
-            q = self._act(dist, generator, greedy, batch)
+            q = self.act(dist, generator, greedy, batch)
             dists.append(dist)
         return Episode(
             objects=objects,
