@@ -3,7 +3,7 @@ hand them in: here MuJoCo stands in for the robot (ham.learn.explorer.Explorer).
 
     python docs/examples/explore_mujoco.py RUN_DIR [--episodes 64] [--seed 0] [--sensor taxels|gazebo]
 
-RUN_DIR: a run of the paper's objects (e.g. `make demo`'s runs/demo/run). Each episode's object
+RUN_DIR: a run of the paper's objects (e.g. `make demo`'s runs/demo/ham). Each episode's object
 is drawn at random and kept from the agent; each glance is MuJoCo's: the pad moved to the pose
 the agent asks for and pressed to 2 N, its raw image (Pa) handed to the explorer, which answers
 with the next pose. Prints the accuracy after the last glance.

@@ -5,7 +5,7 @@ The agent's own loop (:meth:`ham.model.agent.HapticAttentionModel.forward`) asks
 for each glance. A robot does not fit that loop: it moves, presses, reads its pad and then asks
 where to go next. :class:`Explorer` turns the loop inside out::
 
-    explorer = Explorer.from_run("runs/demo/run")
+    explorer = Explorer.from_run("runs/demo/ham")  # make demo's run
     q = explorer.reset()                       # the first pose, normalized: q in [-1, 1]^k
     while q is not None:
         image = my_pad_glance(q)               # (16, 16) pressures (Pa) at pose q
