@@ -90,11 +90,20 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
     from ham.world.config import WorldConfig
     from ham.world.objects import HapticObject, register
     from ham.world.simulators import register_simulator
-    from ham.world.table import GlanceTable, build_table, import_authors, table_info, verify_table
+    from ham.world.table import (
+        GlanceTable,
+        build_table,
+        import_authors,
+        import_recorded,
+        table_info,
+        verify_table,
+    )
 
     table = tmp / "t3.h5"
     build_table(WorldConfig(), 3, table, progress=False)
     config = TrainConfig(steps=2, batch_size=4, eval_every=2, eval_batches=1, table=str(table))
+    recorded = tmp / "rec.npz"
+    np.savez(recorded, box=np.zeros((3, 3, 16, 16)), cup=np.ones((3, 3, 16, 16)))
     run_out = tmp / "run"
     (tmp / "g.toml").write_text('name = "g"\n[base]\nsteps = 2\nbatch_size = 4\n[axes]\n'
                                 '"model.glances" = [1, 2]\n')  # fmt: skip
@@ -125,6 +134,7 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
         "table_info": (table_info, {"path": table}),
         "verify_table": (verify_table, {"path": table}),
         "import_authors": (import_authors, {"src": tmp / "none.h5", "out": "imp.h5"}),
+        "import_recorded": (import_recorded, {"src": recorded, "out": "rec.h5"}),
         "load_run": (load_run, {"out": run_out}),
         "train": (train, {"config": config, "out": "fresh", "progress": False}),
         "resume": (resume, {"out": run_out, "progress": False}),

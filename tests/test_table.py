@@ -1,6 +1,8 @@
-"""Glance tables: build, round trip, nearest lookup, resume, authors' import, bad files."""
+"""Glance tables: build, round trip, nearest lookup, resume, authors' import, recorded glances,
+bad files."""
 
 import json
+import re
 
 import h5py
 import numpy as np
@@ -15,6 +17,7 @@ from ham.world.table import (
     build_table,
     grid_values,
     import_authors,
+    import_recorded,
     table_info,
     verify_table,
 )
@@ -219,3 +222,77 @@ def test_a_table_another_process_is_building_is_named(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.h5.partial"]
     with h5py.File(tmp_path / "t.h5.partial", "r") as f:
         assert f.attrs["mark"] == 1
+
+
+# ------------------------------------------------------------------ recorded glances
+def _recorded(table_path, tmp_path, heights=True):
+    """table_path's images (and its heights) written as recorded glances (.npz)."""
+    t = GlanceTable.load(table_path)
+    arrays = {n: t.pressure[i].numpy() for i, n in enumerate(t.objects)}
+    if heights:
+        with h5py.File(table_path) as f:
+            arrays |= {f"{n}.height": f[f"objects/{n}/z"][...] for n in t.objects}
+    np.savez(tmp_path / "rec.npz", **arrays)
+    return tmp_path / "rec.npz"
+
+
+def test_recorded_glances_become_a_table(table_path, tmp_path):
+    out = import_recorded(_recorded(table_path, tmp_path), tmp_path / "rec.h5")
+    info = verify_table(out)
+    assert info.source == "recorded:rec.npz" and info.simulator["simulator"] == "recorded"
+    assert info.objects == table_info(table_path).objects and info.grid == GRID
+    ours, theirs = GlanceTable.load(table_path), GlanceTable.load(out)
+    assert torch.equal(ours.pressure, theirs.pressure)
+    with h5py.File(table_path) as a, h5py.File(out) as b:
+        assert np.array_equal(a["objects/ramp_up/z"][...], b["objects/ramp_up/z"][...])
+        assert np.isnan(b["objects/ramp_up/force"][...]).all()  # unknown
+    without = import_recorded(_recorded(table_path, tmp_path, heights=False), tmp_path / "n.h5")
+    with h5py.File(without) as b:
+        assert np.isnan(b["objects/box/z"][...]).all()
+
+
+def test_a_recorded_table_of_its_own_objects_and_pad_trains(tmp_path):
+    from ham.learn.train import TrainConfig, train
+    from ham.model.agent import HamConfig
+
+    rng = np.random.default_rng(0)
+    images = {"cup": rng.random((3, 3, 8, 8)) * 100, "ball": rng.random((3, 3, 8, 8)) * 100}
+    np.savez(tmp_path / "mine.npz", **images)
+    out = import_recorded(tmp_path / "mine.npz", tmp_path / "mine.h5")
+    info = table_info(out)
+    assert info.objects == ["cup", "ball"] and info.taxels == 8 and info.grid == 3
+    model = HamConfig(glances=2, n_objects=2, pressure_dim=64)
+    config = TrainConfig(model=model, table=str(out), steps=2, batch_size=4, eval_every=2,
+                         eval_batches=1)  # fmt: skip
+    assert train(config, tmp_path / "run", progress=False)["steps"] == 2
+
+
+@pytest.mark.parametrize(
+    ("arrays", "message"),
+    [
+        ({}, "holds no object's images"),
+        ({"box": np.zeros((3, 3, 16))}, "box has shape (3, 3, 16); accepted: (G, G, N, N)"),
+        ({"box": np.zeros((3, 4, 16, 16))}, "box has shape (3, 4, 16, 16)"),
+        ({"box": np.zeros((1, 1, 16, 16))}, "G >= 2"),
+        ({"box": np.full((3, 3, 4, 4), -1.0)}, "holds -1.0 at index (0, 0, 0, 0)"),
+        ({"box": np.full((3, 3, 4, 4), np.nan)}, "holds nan"),
+        ({"box": np.zeros((3, 3, 4, 4), np.complex64)}, "holds complex64 values"),
+        ({"a": np.zeros((3, 3, 4, 4)), "b": np.zeros((2, 2, 4, 4))}, "differ in shape"),
+        ({"a": np.zeros((3, 3, 4, 4)), "b.height": np.zeros((3, 3))}, "b.height belongs to no"),
+        ({"a": np.zeros((3, 3, 4, 4)), "a.height": np.zeros(3)}, "a.height has shape (3,)"),
+        ({"a": np.zeros((3, 3, 4, 4)), "a.height": np.full((3, 3), np.inf)}, "finite heights"),
+    ],
+)
+def test_bad_recorded_glances_are_refused_in_one_line(tmp_path, arrays, message):
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(HamError, match=re.escape(message)) as e:
+        import_recorded(tmp_path / "bad.npz", tmp_path / "out.h5")
+    assert "\n" not in str(e.value) and not (tmp_path / "out.h5").exists()
+
+
+def test_a_file_that_is_no_npz_is_refused(tmp_path):
+    (tmp_path / "x.npz").write_text("not a zip\n")
+    with pytest.raises(HamError, match="is not an .npz file"):
+        import_recorded(tmp_path / "x.npz", tmp_path / "out.h5")
+    with pytest.raises(HamError, match="cannot read recorded glances .*No such file"):
+        import_recorded(tmp_path / "nosuch.npz", tmp_path / "out.h5")

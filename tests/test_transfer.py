@@ -11,6 +11,7 @@ import re
 import shutil
 from dataclasses import replace
 
+import numpy as np
 import pytest
 import torch
 
@@ -184,3 +185,16 @@ def test_spread_augment_is_refused_on_ap_gym_and_by_the_batched_trainer(world):
         TrainConfig(env=ApGymConfig("ap_gym:CircleSquare-v0"), spread_augment=0.005)
     with pytest.raises(HamError, match="spread_augment = 0.005 cannot be batched"):
         check_batchable(TrainConfig(table=str(world["own"]), spread_augment=0.005))
+
+
+def test_recorded_glances_of_the_same_images_give_the_same_evaluation(world, tmp_path):
+    """The run's own images, exported as recorded glances and imported (ham table
+    import-recorded): only the simulator differs, and the evaluation is the run's own."""
+    from ham.world.table import GlanceTable, import_recorded
+
+    t = GlanceTable.load(world["own"])
+    np.savez(tmp_path / "rec.npz", **{n: t.pressure[i].numpy() for i, n in enumerate(t.objects)})
+    recorded = import_recorded(tmp_path / "rec.npz", tmp_path / "rec.h5")
+    own, run = load_run(world["run"]), load_run(world["run"], transfer_table=str(recorded))
+    assert run.transfer == ["simulator: 'fast' -> 'recorded'"]
+    assert evaluate(run.agent, run.env, 3, seed=7) == evaluate(own.agent, own.env, 3, seed=7)

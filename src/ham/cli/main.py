@@ -347,6 +347,15 @@ def cmd_table_import(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_table_import_recorded(args: argparse.Namespace) -> int:
+    from ham.world.table import import_recorded
+
+    check_output(args.out, HDF5)
+    out = import_recorded(args.file, args.out, command=command_line(args))
+    print(f"wrote {out}")
+    return 0
+
+
 # --------------------------------------------------------------------------- demo
 def cmd_demo(args: argparse.Namespace) -> int:
     from ham.experiments.demo import run_demo
@@ -485,6 +494,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="HDF5 table to write, .h5 or .hdf5")
     p.add_argument("--axes", default="x,phi", help="order of their first two axes: x,phi or phi,x")
     p.set_defaults(func=cmd_table_import)
+    p = tsub.add_parser("import-recorded",
+                        help="recorded glances (a real pad's, another simulator's) as a table: an "
+                        ".npz of one (G, G, N, N) array per object over the paper's (x, phi) grid")  # fmt: skip
+    p.add_argument("file", help=".npz: an array per object, named by it, in class order "
+                   "(NAME.height: its contact heights, m, optional)")  # fmt: skip
+    p.add_argument("--out", required=True, help="HDF5 table to write, .h5 or .hdf5")
+    p.set_defaults(func=cmd_table_import_recorded)
 
     p = sub.add_parser("demo", help="the main job on built-in defaults (what `make demo` runs)")
     p.add_argument("--out", default="runs/demo", help="output folder (default runs/demo)")

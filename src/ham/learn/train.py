@@ -1016,7 +1016,7 @@ def _transferred(config: TrainConfig, table: str) -> tuple[TrainConfig, list[str
     other = table_info(table)
     if config.table is not None:
         own = table_info(config.table)
-        world, objects, grid = own.world, own.objects, list(own.grid_shape)
+        world, objects, grid = _as_built(own), own.objects, list(own.grid_shape)
     else:
         world, grid = config.world.to_dict(), "online"
         objects = [o.name for o in config.world.resolve_objects()]
@@ -1038,9 +1038,16 @@ def _transferred(config: TrainConfig, table: str) -> tuple[TrainConfig, list[str
             "the run's pose dims"
         )
     differences = world_differences(
-        {**world, "grid": grid}, {**other.world, "grid": list(other.grid_shape)}
+        {**world, "grid": grid}, {**_as_built(other), "grid": list(other.grid_shape)}
     )
     return replace(config, table=str(Path(table).resolve())), differences
+
+
+def _as_built(info) -> dict:
+    """A table's world with the simulator that made its glances: a table imported from the
+    authors' data set or from recorded glances names it there, not in its world."""
+    made = info.simulator.get("simulator") if isinstance(info.simulator, dict) else None
+    return {**info.world, "simulator": made or info.world.get("simulator")}
 
 
 # --------------------------------------------------------------------------- the loop

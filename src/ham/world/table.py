@@ -54,6 +54,7 @@ import os
 import shlex
 import sys
 import time
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -960,35 +961,109 @@ def import_authors(
         f"ham.world.table.import_authors({str(src)!r}, {str(out)!r}, axes={axes!r})"
     )
 
+    simulator = {"simulator": "gazebo (authors' data set)", "axes": axes}
+
     def write(tmp: Path) -> None:
         with h5py.File(tmp, "w") as g:
-            _write_authors(g, src, arrays, grid, axes, world, command)
+            _write_images(g, list(AUTHORS_OBJECTS), arrays, grid, world, simulator,
+                          f"authors:{Path(src).name}", command)  # fmt: skip
 
     return atomic_write(out, write, what="glance table")
 
 
-def _write_authors(g, src, arrays, grid, axes, world, command) -> None:
-    """The authors' arrays as a ham table in the open HDF5 file ``g``."""
+@checked_arguments
+def import_recorded(
+    src: str | os.PathLike, out: str | os.PathLike, *, command: str | None = None
+) -> Path:
+    """A table from recorded glances: a real pad's, or another simulator's. ``src`` is a NumPy
+    ``.npz`` file with one array per object, named by it, in class order: ``(G, G, N, N)``, the
+    ``N x N`` image at each point of a ``G x G`` grid of the paper's poses, ``q_x`` along the
+    first axis and ``q_phi`` along the second, each from -1 to 1 (:func:`grid_values`), pressures
+    >= 0 (any unit: the normalization makes them scale-free). An array ``NAME.height`` ``(G, G)``
+    (m) beside an object's gives its contact heights; force is unknown (NaN). Then ``ham train
+    --table``, ``--init-from`` (fine-tuning on it) and ``ham evaluate --transfer-table`` take it."""
+    out = check_output(out, (".h5", ".hdf5"), what="glance table")
+    accepted = "accepted: an .npz file of one (G, G, N, N) array per object"
+    if Path(src).is_dir():
+        raise HamError(f"recorded glances {str(src)!r} is a folder; {accepted}")
+    if Path(src).is_file() and not zipfile.is_zipfile(src):  # np.load would read it as a pickle
+        raise HamError(f"recorded glances {str(src)!r} is not an .npz file (a zip of arrays); "
+                       f"{accepted}")  # fmt: skip
+    try:
+        with np.load(src, allow_pickle=False) as f:
+            stored = {k: f[k] for k in f.files}
+    except (OSError, ValueError, EOFError) as exc:  # zipfile.BadZipFile is an OSError
+        raise HamError(f"cannot read recorded glances {str(src)!r}: {exc}; {accepted}") from None
+    names = [k for k in stored if not k.endswith(".height")]
+    if not names:
+        raise HamError(f"{str(src)!r} holds no object's images; accepted: one (G, G, N, N) "
+                       "array per object, named by it")  # fmt: skip
+    arrays, heights = [], []
+    for name in names:
+        a = stored[name]
+        if a.ndim != 4 or a.shape[0] != a.shape[1] or a.shape[2] != a.shape[3] or a.shape[0] < 2:
+            raise HamError(f"{str(src)!r}: {name} has shape {a.shape}; accepted: (G, G, N, N), "
+                           "G >= 2 grid points per axis, N x N taxels")  # fmt: skip
+        if a.dtype.kind not in "biuf":
+            raise HamError(f"{str(src)!r}: {name} holds {a.dtype} values; accepted: real "
+                           "pressures")  # fmt: skip
+        arrays.append(np.ascontiguousarray(a, dtype=np.float32))
+        _check_pressure(str(src), name, arrays[-1])
+        h = stored.get(f"{name}.height")
+        if h is not None:
+            if h.shape != a.shape[:2] or h.dtype.kind not in "biuf" or not np.isfinite(h).all():
+                raise HamError(f"{str(src)!r}: {name}.height has shape {h.shape} ({h.dtype}); "
+                               f"accepted: finite heights (m) of shape {a.shape[:2]}")  # fmt: skip
+            h = np.asarray(h, dtype=np.float32)
+        heights.append(h)
+    stray = [k for k in stored if k.endswith(".height") and k.removesuffix(".height") not in names]
+    if stray:
+        raise HamError(f"{str(src)!r}: {stray[0]} belongs to no object's images; accepted: "
+                       "NAME.height beside an array NAME")  # fmt: skip
+    if any(a.shape != arrays[0].shape for a in arrays):
+        shapes = ", ".join(f"{n} {a.shape}" for n, a in zip(names, arrays, strict=True))
+        raise HamError(f"{str(src)!r}: the objects' arrays differ in shape ({shapes}); "
+                       "accepted: one grid and one pad for all")  # fmt: skip
+    grid, taxels = arrays[0].shape[0], arrays[0].shape[2]
+    _check_grid(grid)
+    world = WorldConfig(sensor=SensorConfig(taxels=taxels))
+    command = command or _python_command(
+        f"ham.world.table.import_recorded({str(src)!r}, {str(out)!r})"
+    )
+    simulator = {"simulator": "recorded", "file": Path(src).name}
+
+    def write(tmp: Path) -> None:
+        with h5py.File(tmp, "w") as g:
+            _write_images(g, names, arrays, grid, world, simulator,
+                          f"recorded:{Path(src).name}", command, heights)  # fmt: skip
+
+    return atomic_write(out, write, what="glance table")
+
+
+def _write_images(g, names, arrays, grid, world, simulator, source, command, heights=None) -> None:
+    """Images over the paper's ``grid x grid`` poses as a ham table in the open HDF5 file ``g``
+    (the authors' data set, recorded glances); force unknown (NaN), heights where given."""
     g.attrs.update(
         format=FORMAT,
         format_version=FORMAT_VERSION,
         grid=grid,
         q_range=json.dumps([-1.0, 1.0]),
-        objects=json.dumps(list(AUTHORS_OBJECTS)),
+        objects=json.dumps(list(names)),
         world=json.dumps(world.to_dict(), sort_keys=True),
         sensor=json.dumps(world.sensor.to_dict(), sort_keys=True),
         geometry=json.dumps({}),
-        simulator=json.dumps({"simulator": "gazebo (authors' data set)", "axes": axes}),
+        simulator=json.dumps(simulator),
         ham_version=ham.__version__,
-        source=f"authors:{Path(src).name}",
+        source=source,
         command=command,
         created=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     )
-    for name, a in zip(AUTHORS_OBJECTS, arrays, strict=True):
+    for i, (name, a) in enumerate(zip(names, arrays, strict=True)):
+        h = None if heights is None else heights[i]
         grp = g.create_group(f"objects/{name}")
         grp.create_dataset("pressure", data=a)
         grp.create_dataset("force", data=np.full((grid, grid), np.nan, np.float32))
-        grp.create_dataset("z", data=np.full((grid, grid), np.nan, np.float32))
+        grp.create_dataset("z", data=np.full((grid, grid), np.nan, np.float32) if h is None else h)
         grp.create_dataset("contact", data=a.reshape(grid, grid, -1).max(-1) > 0)
-    g.attrs["checksum"] = _checksum(g, list(AUTHORS_OBJECTS))
-    g.attrs["record_checksum"] = _record_checksum(g, list(AUTHORS_OBJECTS))
+    g.attrs["checksum"] = _checksum(g, list(names))
+    g.attrs["record_checksum"] = _record_checksum(g, list(names))
