@@ -371,21 +371,23 @@ def _print_summary(metrics: dict, out: Path) -> None:
     )
 
 
+def _load(args: argparse.Namespace):
+    """The run of ``evaluate``/``heatmap``: DIR with its --device, --objects, --table and
+    --transfer-table."""
+    from ham.learn.train import load_run
+
+    return load_run(args.run, device=args.device, objects=args.objects, table=args.table,
+                    transfer_table=args.transfer_table)  # fmt: skip
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from ham.learn.evaluation import check_swappable, evaluate, last_pose_swap
-    from ham.learn.train import load_run
 
     if args.confusion:  # refused before the evaluation runs, not after
         from ham.world.files import check_output
 
         check_output(args.confusion, (".png",), what="--confusion")
-    run = load_run(
-        args.run,
-        device=args.device,
-        objects=args.objects,
-        table=args.table,
-        transfer_table=args.transfer_table,
-    )
+    run = _load(args)
     policy = args.eval_policy or run.config.eval_policy
     try:
         if args.swap_last_pose:  # refused before the evaluation's minutes, not after
@@ -466,19 +468,12 @@ def _print_confusion(confusion: list, per_object: list, objects: list[str]) -> N
 def cmd_heatmap(args: argparse.Namespace) -> int:
     from ham.experiments.figures import plot_heatmap
     from ham.learn.evaluation import heatmap_data
-    from ham.learn.train import load_run
     from ham.world.files import check_output, write_text
 
     check_output(args.out, (".png",))
     if args.json:
         check_output(args.json, (".json",), what="--json")
-    run = load_run(
-        args.run,
-        device=args.device,
-        objects=args.objects,
-        table=args.table,
-        transfer_table=args.transfer_table,
-    )
+    run = _load(args)
     policy = args.eval_policy or run.config.eval_policy
     data = heatmap_data(
         run.agent, run.env, args.batches, args.bins, seed=args.seed, policy=policy, progress=True
