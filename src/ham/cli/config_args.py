@@ -115,7 +115,9 @@ def add_config_options(
             kwargs["action"] = argparse.BooleanOptionalAction
         else:
             kwargs["type"] = {int: _integer, float: _finite}.get(kind, str)
-            kwargs["metavar"] = "{" + ",".join(choices) + "}" if choices else kind.__name__.upper()
+            kwargs["metavar"] = f.metadata.get("metavar") or (
+                "{" + ",".join(choices) + "}" if choices else kind.__name__.upper()
+            )
             # a registry (a dict: cores, policies) grows with --plugin after parsing: the
             # config checks those values, once the plugin has registered its names
             if choices and not isinstance(choices, dict):

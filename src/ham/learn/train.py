@@ -284,8 +284,8 @@ class TrainConfig:
     init_alpha: float = 0.1
     target_entropy: float | None = None
     critic_trains_core: bool = False
-    spread_augment: float = 0.0
-    init_from: str | None = None
+    spread_augment: float = field(default=0.0, metadata={"metavar": "M"})
+    init_from: str | None = field(default=None, metadata={"metavar": "DIR"})
 
     def __post_init__(self) -> None:
         check_types(self)
