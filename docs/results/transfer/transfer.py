@@ -53,6 +53,7 @@ def main(argv: list[str] | None = None) -> int:
             m = NAME.match(d.name)
             if m and (d / "checkpoint.pt").is_file():
                 runs[d] = (m["world"], m["policy"], int(m["seed"]))
+    glances = {read_run_config(d).model.glances for d in runs}
     tables = {}
     for d, (world, _, _) in runs.items():
         if world in WORLDS:
@@ -123,7 +124,8 @@ def main(argv: list[str] | None = None) -> int:
         ax.set_xlabel("evaluated on the glances of")
         ax.set_ylabel("trained on")
         n = rows[worlds[0]][worlds[0]]["n"]
-        ax.set_title(f"{policy} locations, 2 glances (mean of {n} seeds)")
+        g = "/".join(map(str, sorted(glances)))
+        ax.set_title(f"{policy} locations, {g} glances (mean of {n} seeds)")
     fig.tight_layout()
     png = args.out.with_suffix(".png")
     fig.savefig(png, dpi=110)
