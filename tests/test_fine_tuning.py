@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from ham.errors import HamError
-from ham.learn.batched import check_batchable
+from ham.learn.batched import check_batchable, train_batched
 from ham.learn.evaluation import evaluate
 from ham.learn.train import TrainConfig, load_run, resume, train
 from ham.model.agent import HamConfig
@@ -80,9 +80,34 @@ def test_another_number_of_glances_and_other_models(source, tmp_path):
         assert not (tmp_path / "other").exists()
 
 
-def test_the_batched_trainer_refuses_it(source):
-    with pytest.raises(HamError, match="init_from '.*' cannot be batched"):
-        check_batchable(replace(source["config"], init_from=str(source["run"])))
+def test_fine_tuned_runs_train_batched_as_single_runs(source, tmp_path):
+    """In a batched group, beside a run from its seed's weights: each its single run's numbers
+    (to float tolerance), and a resumed group does not start from the source again."""
+    from tests.test_batched import assert_same_runs, train_both
+
+    ft = dict(table=source["other"], steps=6, eval_every=2, batch_size=8, eval_batches=2)
+    configs = [
+        replace(source["config"], seed=s, **ft, init_from=str(source["run"])) for s in (0, 1)
+    ]
+    configs.append(replace(source["config"], seed=2, **ft))
+    check_batchable(configs[0])  # no refusal
+    train_both(tmp_path, configs)
+    assert_same_runs(tmp_path, configs)
+    assert metrics_of(tmp_path / "b0")["history"][0] != metrics_of(tmp_path / "b2")["history"][0]
+    # stopped at step 4 and resumed: the uninterrupted group's numbers (from its checkpoints,
+    # not the source's weights again)
+    outs = [tmp_path / f"r{c.seed}" for c in configs]
+    train_batched([replace(c, steps=4) for c in configs], outs)
+    train_batched(configs, outs)
+    for c in configs:
+        assert (
+            metrics_of(tmp_path / f"r{c.seed}")["history"]
+            == (metrics_of(tmp_path / f"b{c.seed}")["history"])
+        )
+
+
+def metrics_of(out) -> dict:
+    return json.loads((out / "metrics.json").read_text())
 
 
 def test_the_cli_fine_tunes(source, tmp_path, ham_cli):

@@ -65,6 +65,7 @@ from ham.learn.train import (
     log_evaluation,
     overflowed,
     read_run_config,
+    start_from,
     stream_seed,
 )
 from ham.model.agent import Episode
@@ -84,14 +85,14 @@ _PARTS = ("classification", "reinforce", "baseline_loss")  # TensorBoard, as tra
 # rate (its schedule, its location network's scale) and momentum (Nesterov or not), has its own
 # loss (beta, the reductions over the batch, the glances classified and rewarded, the returns'
 # discount), normalizes its glances its own way, and is evaluated and logged on its own cadence,
-# batches and policy; and of the model, whether its core's state is detached between glances
-# (model.truncate_bptt). Everything else (the model, the world, the optimizer, the batch) is one
+# batches and policy, and may start from another run's weights (init_from); and of the model,
+# whether its core's state is detached between glances (model.truncate_bptt). Everything else (the model, the world, the optimizer, the batch) is one
 # for the group.
 PER_RUN = ("seed", "steps", "lr", "lr_decay", "lr_step", "lr_min", "momentum", "nesterov",
            "policy_lr_scale", "beta", "classification_reduction", "reinforce_reduction",
            "classification_glances", "reward_glances", "reward_discount", "glance_reduction",
            "normalization", "eval_every", "eval_batches", "eval_policy", "log_every",
-           "pose_noise")  # fmt: skip
+           "pose_noise", "init_from")  # fmt: skip
 
 
 def shape_key(config: TrainConfig, glances: bool = True) -> str:
@@ -137,11 +138,6 @@ def check_batchable(config: TrainConfig) -> None:
         raise HamError(
             f"spread_augment = {config.spread_augment!r} cannot be batched; accepted: 0 "
             "(train it with ham train or --executor local)"
-        )
-    if config.init_from is not None:
-        raise HamError(
-            f"init_from {config.init_from!r} cannot be batched; accepted: the seed's initial "
-            "weights (train it with ham train or --executor local)"
         )
     if config.model.core not in ("lstm", "mlp"):
         raise HamError(
@@ -1231,6 +1227,9 @@ def _train_batched(
             resumed.append(k)
     runs = _open_runs(configs, outs)
     try:
+        for k, c in enumerate(configs):  # a fresh run's start, as train() makes it
+            if k not in resumed and c.init_from is not None:
+                start_from(runs[k], c.init_from)
         for k in resumed:
             runs[k].load_state_dict(load_checkpoint(outs[k]))
             if runs[k].step > configs[k].steps:
