@@ -148,6 +148,8 @@ def test_spread_augment_spreads_training_glances_only(world):
     by_hand = normalize(gaussian_spread_rows(raw, augmented._sigmas, sigma), "l2")
     assert torch.equal(augmented.glance(ids, q), by_hand)
     assert not torch.equal(by_hand, normalize(raw, "l2"))
+    with pytest.raises(HamError, match="4 objects but the batch drew 8 spreads"):
+        augmented.glance(ids[:4], q[:4])  # not the batch the spreads were drawn for
     # evaluation batches: the world's own glances
     ids = augmented.balanced_objects(0)
     assert torch.equal(augmented.glance(ids, q), plain.glance(plain.balanced_objects(0), q))

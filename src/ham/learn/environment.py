@@ -19,7 +19,7 @@ import math
 import torch
 
 from ham.errors import HamError
-from ham.world.sensor import NORMALIZATIONS, gaussian_spread_rows, normalize
+from ham.world.sensor import check_normalization, gaussian_spread_rows, normalize
 from ham.world.source import GlanceSource, ObjectPoseConfig
 
 # keeps the evaluation batches' noise seeds apart from their object-pose seeds
@@ -70,10 +70,7 @@ class HapticEnv:
     ) -> None:
         if not (isinstance(batch_size, int) and batch_size >= 1):
             raise HamError(f"batch_size = {batch_size!r}; accepted: an integer >= 1")
-        if normalization not in NORMALIZATIONS:
-            raise HamError(
-                f"normalization {normalization!r}; accepted: {', '.join(NORMALIZATIONS)}"
-            )
+        check_normalization(normalization)
         check_pose_noise(pose_noise)
         self.source = source
         self.pose_dims = tuple(getattr(source, "pose_dims", ("x", "phi")))
@@ -159,20 +156,17 @@ class HapticEnv:
         the poses ``q`` ``(B, k)`` in ``[-1, 1]`` (columns: the world's pose dims), made at
         :meth:`executed` poses (``exact``: at ``q`` itself, poses already executed)."""
         pose = self._pose
-        if pose is not None and pose[0].shape[0] != object_ids.shape[0]:
-            raise HamError(
-                f"{object_ids.shape[0]} objects but the batch drew {pose[0].shape[0]} object "
-                "poses; accepted: the ids of the last sample_objects/balanced_objects batch"
-            )
+        for what, drawn in (("object poses", None if pose is None else pose[0]),
+                            ("spreads", self._sigmas)):  # fmt: skip
+            if drawn is not None and drawn.shape[0] != object_ids.shape[0]:
+                raise HamError(
+                    f"{object_ids.shape[0]} objects but the batch drew {drawn.shape[0]} {what}; "
+                    "accepted: the ids of the last sample_objects/balanced_objects batch"
+                )
         at = q if exact else self.executed(q)
         pressure, height = self.source.glance(object_ids, at, pose)
         pressure = pressure.to(self.device, torch.float32)
         if self._sigmas is not None:
-            if self._sigmas.shape[0] != object_ids.shape[0]:
-                raise HamError(
-                    f"{object_ids.shape[0]} objects but the batch drew {self._sigmas.shape[0]} "
-                    "spreads; accepted: the ids of the last sample_objects/balanced_objects batch"
-                )
             pressure = gaussian_spread_rows(pressure, self._sigmas, self.augment_sigma)
         pressure = normalize(pressure, self.normalization)
         return pressure, height.to(self.device, torch.float32)

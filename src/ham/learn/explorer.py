@@ -31,7 +31,7 @@ import torch
 from ham.errors import HamError, brief, check_integer, checked_arguments
 from ham.learn.evaluation import EVAL_POLICIES
 from ham.model.agent import HapticAttentionModel
-from ham.world.sensor import NORMALIZATIONS, normalize
+from ham.world.sensor import check_normalization, normalize
 
 
 class Explorer:
@@ -60,10 +60,7 @@ class Explorer:
     ) -> None:
         if not isinstance(agent, HapticAttentionModel):
             raise HamError(f"agent = {brief(agent)}; accepted: a HapticAttentionModel")
-        if normalization not in NORMALIZATIONS:
-            raise HamError(
-                f"normalization {normalization!r}; accepted: {', '.join(NORMALIZATIONS)}"
-            )
+        check_normalization(normalization)
         if policy not in EVAL_POLICIES:
             raise HamError(f"policy {policy!r}; accepted: {', '.join(EVAL_POLICIES)}")
         self.episodes = check_integer("episodes", episodes, 1)

@@ -249,14 +249,20 @@ def quantize(pressure: torch.Tensor, bits: int, full_scale: float) -> torch.Tens
     return levels * (full_scale / top)
 
 
+def check_normalization(kind: object) -> str:
+    """``kind``, one of :data:`NORMALIZATIONS`, or a :class:`HamError` naming it."""
+    if kind not in NORMALIZATIONS:
+        raise HamError(f"normalization {kind!r}; accepted: {', '.join(NORMALIZATIONS)}")
+    return kind
+
+
 def normalize(pressure: torch.Tensor | np.ndarray, kind: str = "l2") -> torch.Tensor | np.ndarray:
     """Flatten each image to N^2 values and scale it to unit norm (the paper: L2; authors' code: L1).
 
     An all-zero image (no contact) stays all zero: never NaN.
     Works on torch tensors and NumPy arrays of shape (..., N, N); returns (..., N^2) (256).
     """
-    if kind not in NORMALIZATIONS:
-        raise HamError(f"normalization {kind!r}; accepted: {', '.join(NORMALIZATIONS)}")
+    check_normalization(kind)
     if isinstance(pressure, np.ndarray):
         return normalize(torch.from_numpy(np.ascontiguousarray(pressure)), kind).numpy()
     flat = pressure.reshape(*pressure.shape[:-2], -1)
