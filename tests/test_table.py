@@ -271,8 +271,8 @@ def test_a_recorded_table_of_its_own_objects_and_pad_trains(tmp_path):
     ("arrays", "message"),
     [
         ({}, "holds no object's images"),
-        ({"box": np.zeros((3, 3, 16))}, "box has shape (3, 3, 16); accepted: (G, G, N, N)"),
-        ({"box": np.zeros((3, 4, 16, 16))}, "box has shape (3, 4, 16, 16)"),
+        ({"box": np.zeros((3, 3, 16))}, "box has shape (3, 3, 16); accepted: (G_x, G_phi, N, N)"),
+        ({"box": np.zeros((3, 3, 16, 8))}, "box has shape (3, 3, 16, 8)"),
         ({"box": np.zeros((1, 1, 16, 16))}, "G >= 2"),
         ({"box": np.full((3, 3, 4, 4), -1.0)}, "holds -1.0 at index (0, 0, 0, 0)"),
         ({"box": np.full((3, 3, 4, 4), np.nan)}, "holds nan"),
@@ -287,6 +287,93 @@ def test_bad_recorded_glances_are_refused_in_one_line(tmp_path, arrays, message)
     np.savez(tmp_path / "bad.npz", **arrays)
     with pytest.raises(HamError, match=re.escape(message)) as e:
         import_recorded(tmp_path / "bad.npz", tmp_path / "out.h5")
+    assert "\n" not in str(e.value) and not (tmp_path / "out.h5").exists()
+
+
+FOUR_D = ("x", "y", "phi", "phi_y")
+
+
+@pytest.fixture(scope="module")
+def grid_table(tmp_path_factory):
+    """A format-2 table of the next world: height fields over (x, y, phi, phi_y), 3 x 4 x 3 x 2."""
+    world = WorldConfig(objects="curvature2d", pose_dims=FOUR_D)
+    return build_table(world, "3,4,3,2", tmp_path_factory.mktemp("g") / "c4.h5", progress=False)
+
+
+def _recorded_grid(table_path, out):
+    """A format-2 table's images and heights as recorded glances over its grid's axes."""
+    t = GlanceTable.load(table_path)
+    arrays = {n: t.pressure[i].numpy() for i, n in enumerate(t.objects)}
+    np.savez(out, **arrays, **{f"{n}.height": t.height[i].numpy() for i, n in enumerate(t.objects)})
+    return out
+
+
+@pytest.mark.parametrize("compression", [None, "none"])
+def test_recorded_glances_over_any_pose_grid(grid_table, tmp_path, compression):
+    src = _recorded_grid(grid_table, tmp_path / "rec.npz")
+    out = import_recorded(src, tmp_path / "rec.h5", pose_dims="x,y,phi,phi_y",
+                          compression=compression)  # fmt: skip
+    info = verify_table(out)
+    assert info.format_version == 2 and info.pose_dims == FOUR_D and info.grid_shape == (3, 4, 3, 2)
+    assert info.simulator["simulator"] == "recorded" and "pose_dims='x,y,phi,phi_y'" in info.command
+    ours, theirs = GlanceTable.load(grid_table), GlanceTable.load(out)
+    assert torch.equal(ours.pressure, theirs.pressure) and torch.equal(ours.height, theirs.height)
+    with h5py.File(grid_table) as a, h5py.File(out) as b:
+        for key in ("contact",):  # the same layout as a built table
+            assert np.array_equal(a[f"objects/dome/{key}"][...], b[f"objects/dome/{key}"][...])
+        assert np.isnan(b["objects/dome/force"][...]).all()  # unknown
+        ds = b["objects/dome/pressure"]
+        assert ds.shape == (72, 16, 16)
+        assert ds.compression == (None if compression == "none" else "gzip")
+    # a table over the stored grid looks up the same glances, streamed from disk too
+    streamed = GlanceTable.load(out, lookup="stream")
+    q = torch.tensor([[grid_values(3)[1], grid_values(4)[2], grid_values(3)[0], 1.0]])
+    assert torch.equal(streamed.lookup_pose([4], q), ours.lookup_pose([4], q))
+    streamed._stream.close()
+
+
+def test_recorded_glances_on_a_grid_that_is_not_square_are_format_2(tmp_path):
+    rng = np.random.default_rng(0)
+    np.savez(tmp_path / "r.npz", cup=rng.random((5, 3, 4, 4)), ball=rng.random((5, 3, 4, 4)))
+    info = verify_table(import_recorded(tmp_path / "r.npz", tmp_path / "r.h5"))
+    assert info.format_version == 2 and info.grid_shape == (5, 3) and info.pose_dims == ("x", "phi")
+    one = verify_table(import_recorded(tmp_path / "r.npz", tmp_path / "y.h5", pose_dims=("x", "y")))
+    assert one.pose_dims == ("x", "y") and one.grid_shape == (5, 3)
+
+
+@pytest.mark.parametrize(
+    ("arrays", "options", "message"),
+    [
+        (
+            {"a": np.zeros((3, 3, 4, 4))},
+            {"pose_dims": "x,y,phi,phi_y"},
+            "a has shape (3, 3, 4, 4); accepted: (G_x, G_y, G_phi, G_phi_y, N, N) for pose dims "
+            "x,y,phi,phi_y",
+        ),
+        ({"a": np.zeros((3, 3, 1, 4, 4))}, {"pose_dims": "x,y,phi"}, "G >= 2 grid points"),
+        ({"a": np.zeros((3, 3, 4, 4))}, {"pose_dims": "x,z"}, "unknown pose dimension 'z'"),
+        ({"a": np.zeros((3, 3, 4, 4))}, {"pose_dims": "phi,x"}, "in that order"),
+        (
+            {"a": np.zeros((3, 3, 4, 4))},
+            {"compression": "zip"},
+            "compression = 'zip'; accepted: gzip, lzf, none",
+        ),
+        (
+            {"a": np.zeros((3, 3, 4, 4))},
+            {"compression": "lzf"},
+            "compression = 'lzf' for the paper's (x, phi) table",
+        ),
+        (
+            {"a": np.zeros((3, 2, 2, 4, 4)), "a.height": np.zeros((3, 2))},
+            {"pose_dims": "x,y,phi"},
+            "a.height has shape (3, 2) (float64); accepted: finite heights (m) of shape (3, 2, 2)",
+        ),
+    ],
+)
+def test_bad_recorded_grids_are_refused_in_one_line(tmp_path, arrays, options, message):
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(HamError, match=re.escape(message)) as e:
+        import_recorded(tmp_path / "bad.npz", tmp_path / "out.h5", **options)
     assert "\n" not in str(e.value) and not (tmp_path / "out.h5").exists()
 
 

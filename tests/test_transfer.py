@@ -200,3 +200,36 @@ def test_recorded_glances_of_the_same_images_give_the_same_evaluation(world, tmp
     own, run = load_run(world["run"]), load_run(world["run"], transfer_table=str(recorded))
     assert run.transfer == ["simulator: 'fast' -> 'recorded'"]
     assert evaluate(run.agent, run.env, 3, seed=7) == evaluate(own.agent, own.env, 3, seed=7)
+
+
+def test_recorded_glances_over_the_next_worlds_poses_give_the_same_evaluation(tmp_path):
+    """A run of the next world (height fields, poses x, y, phi, phi_y) on its table's images and
+    heights, exported as recorded glances and imported over the same axes: the recorded table
+    names no object set, so only the simulator differs, and the evaluation is the run's own."""
+    from ham.learn.train import model_for_source
+    from ham.world.table import GlanceTable, import_recorded
+
+    world = WorldConfig(objects="curvature2d", pose_dims=("x", "y", "phi", "phi_y"))
+    own = build_table(world, "3,3,3,3", tmp_path / "c4.h5", progress=False)
+    model = model_for_source(HamConfig(glances=2, height_input=True), str(own), WorldConfig())
+    config = TrainConfig(model=model, table=str(own), steps=4, batch_size=8, eval_every=2,
+                         eval_batches=1)  # fmt: skip
+    train(config, tmp_path / "run", progress=False)
+    t = GlanceTable.load(own)
+    arrays = {n: t.pressure[i].numpy() for i, n in enumerate(t.objects)}
+    heights = {f"{n}.height": t.height[i].numpy() for i, n in enumerate(t.objects)}
+    np.savez(tmp_path / "rec.npz", **arrays, **heights)
+    recorded = import_recorded(tmp_path / "rec.npz", tmp_path / "rec.h5",
+                               pose_dims="x,y,phi,phi_y")  # fmt: skip
+    mine, run = load_run(tmp_path / "run"), load_run(tmp_path / "run", transfer_table=str(recorded))
+    assert run.transfer == ["simulator: 'fast' -> 'recorded'"]
+    assert evaluate(run.agent, run.env, 3, seed=7) == evaluate(mine.agent, mine.env, 3, seed=7)
+    # recorded without their heights: a model that reads the height cannot run on them
+    np.savez(tmp_path / "flat.npz", **arrays)
+    bare = import_recorded(tmp_path / "flat.npz", tmp_path / "flat.h5", pose_dims="x,y,phi,phi_y")
+    with pytest.raises(HamError, match=f"glance table '{bare}' does not know every glance's"):
+        load_run(tmp_path / "run", transfer_table=str(bare))
+    from ham.learn.planners import Partitions
+
+    with pytest.raises(HamError, match="height = True on a table that does not know every"):
+        Partitions.from_table(GlanceTable.load(bare), height=True)

@@ -351,7 +351,8 @@ def cmd_table_import_recorded(args: argparse.Namespace) -> int:
     from ham.world.table import import_recorded
 
     check_output(args.out, HDF5)
-    out = import_recorded(args.file, args.out, command=command_line(args))
+    out = import_recorded(args.file, args.out, pose_dims=args.pose_dims,
+                          compression=args.compression, command=command_line(args))  # fmt: skip
     print(f"wrote {out}")
     return 0
 
@@ -496,10 +497,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_table_import)
     p = tsub.add_parser("import-recorded",
                         help="recorded glances (a real pad's, another simulator's) as a table: an "
-                        ".npz of one (G, G, N, N) array per object over the paper's (x, phi) grid")  # fmt: skip
+                        ".npz of one (G_x, G_phi, N, N) array per object over the paper's (x, phi) "
+                        "grid, or over --pose-dims")  # fmt: skip
     p.add_argument("file", help=".npz: an array per object, named by it, in class order "
                    "(NAME.height: its contact heights, m, optional)")  # fmt: skip
     p.add_argument("--out", required=True, help="HDF5 table to write, .h5 or .hdf5")
+    p.add_argument("--pose-dims", default="x,phi", metavar="DIMS",
+                   help="the arrays' grid axes, in order: a subset of x,y,phi,phi_y (default x,phi; "
+                   "e.g. x,y,phi,phi_y: arrays (G_x, G_y, G_phi, G_phi_y, N, N))")  # fmt: skip
+    p.add_argument("--compression", default=None, choices=("gzip", "lzf", "none"),
+                   help="of a table over other pose dims than x,phi or a grid that is not "
+                   "square (format 2; default gzip)")  # fmt: skip
     p.set_defaults(func=cmd_table_import_recorded)
 
     p = sub.add_parser("demo", help="the main job on built-in defaults (what `make demo` runs)")

@@ -856,6 +856,14 @@ def _check_env(model: HamConfig, env) -> None:
             "the model takes the contact height (height_input) but the environment gives none; "
             "accepted: the haptic world (glances carry h)"
         )
+    table = getattr(getattr(env, "source", None), "table", None)
+    if model.height_input and table is not None and not torch.isfinite(table.height).all():
+        raise HamError(
+            f"the model takes the contact height (height_input) but glance table "
+            f"{table.info.path!r} does not know every glance's (NaN: imported without heights); "
+            "accepted: a table with heights (recorded glances: NAME.height beside each object's "
+            "images), or a model without height_input"
+        )
     dims = tuple(getattr(env, "pose_dims", ("x", "phi")))
     if len(dims) != len(model.pose_dims):
         raise HamError(
@@ -1037,8 +1045,11 @@ def _transferred(config: TrainConfig, table: str) -> tuple[TrainConfig, list[str
             f"chooses poses over {','.join(config.model.pose_dims)}; accepted: a table over "
             "the run's pose dims"
         )
+    theirs = _as_built(other)
+    if theirs["simulator"] == "recorded":  # recorded glances name no object set: their names do
+        theirs |= {k: world.get(k) for k in ("objects", "objects_file")}
     differences = world_differences(
-        {**world, "grid": grid}, {**_as_built(other), "grid": list(other.grid_shape)}
+        {**world, "grid": grid}, {**theirs, "grid": list(other.grid_shape)}
     )
     return replace(config, table=str(Path(table).resolve())), differences
 

@@ -67,6 +67,7 @@ import ham
 from ham.errors import HamError, checked_arguments
 from ham.world.config import WorldConfig, make_simulator
 from ham.world.files import atomic_write, check_output
+from ham.world.glance import check_pose_dims
 from ham.world.objects import load_objects
 from ham.world.poses import result_height, simulate, world_pose_dims
 from ham.world.sensor import MAX_PRESSURE, SensorConfig
@@ -973,17 +974,30 @@ def import_authors(
 
 @checked_arguments
 def import_recorded(
-    src: str | os.PathLike, out: str | os.PathLike, *, command: str | None = None
+    src: str | os.PathLike,
+    out: str | os.PathLike,
+    *,
+    pose_dims: str | tuple[str, ...] = PAPER_POSE_DIMS,
+    compression: str | None = None,
+    command: str | None = None,
 ) -> Path:
     """A table from recorded glances: a real pad's, or another simulator's. ``src`` is a NumPy
-    ``.npz`` file with one array per object, named by it, in class order: ``(G, G, N, N)``, the
-    ``N x N`` image at each point of a ``G x G`` grid of the paper's poses, ``q_x`` along the
-    first axis and ``q_phi`` along the second, each from -1 to 1 (:func:`grid_values`), pressures
-    >= 0 (any unit: the normalization makes them scale-free). An array ``NAME.height`` ``(G, G)``
-    (m) beside an object's gives its contact heights; force is unknown (NaN). Then ``ham train
-    --table``, ``--init-from`` (fine-tuning on it) and ``ham evaluate --transfer-table`` take it."""
+    ``.npz`` file with one array per object, named by it, in class order: ``(G_1, .., G_k, N,
+    N)``, the ``N x N`` image at each point of a grid over the ``k`` ``pose_dims`` (default the
+    paper's ``x, phi``; e.g. ``x,y,phi,phi_y`` for the extended glance), each axis from -1 to 1
+    (:func:`grid_values`), pressures >= 0 (any unit: the normalization makes them scale-free).
+    An array ``NAME.height`` ``(G_1, .., G_k)`` (m) beside an object's gives its contact
+    heights; force is unknown (NaN). A square ``(x, phi)`` grid is written in the paper's format
+    1, any other in format 2 (``compression``: gzip by default, lzf or none, as
+    :func:`build_table`). Then ``ham train --table``, ``--init-from`` (fine-tuning on it) and
+    ``ham evaluate --transfer-table`` take it."""
     out = check_output(out, (".h5", ".hdf5"), what="glance table")
-    accepted = "accepted: an .npz file of one (G, G, N, N) array per object"
+    dims = check_pose_dims(pose_dims, "pose_dims")
+    k = len(dims)
+    axes = ", ".join(f"G_{d}" for d in dims)
+    accepted = f"accepted: an .npz file of one ({axes}, N, N) array per object"
+    if compression is not None and compression not in COMPRESSIONS:
+        raise HamError(f"compression = {compression!r}; accepted: {', '.join(COMPRESSIONS)}")
     if Path(src).is_dir():
         raise HamError(f"recorded glances {str(src)!r} is a folder; {accepted}")
     if Path(src).is_file() and not zipfile.is_zipfile(src):  # np.load would read it as a pickle
@@ -991,19 +1005,20 @@ def import_recorded(
                        f"{accepted}")  # fmt: skip
     try:
         with np.load(src, allow_pickle=False) as f:
-            stored = {k: f[k] for k in f.files}
+            stored = {k_: f[k_] for k_ in f.files}
     except (OSError, ValueError, EOFError) as exc:  # zipfile.BadZipFile is an OSError
         raise HamError(f"cannot read recorded glances {str(src)!r}: {exc}; {accepted}") from None
-    names = [k for k in stored if not k.endswith(".height")]
+    names = [n for n in stored if not n.endswith(".height")]
     if not names:
-        raise HamError(f"{str(src)!r} holds no object's images; accepted: one (G, G, N, N) "
+        raise HamError(f"{str(src)!r} holds no object's images; accepted: one ({axes}, N, N) "
                        "array per object, named by it")  # fmt: skip
     arrays, heights = [], []
     for name in names:
         a = stored[name]
-        if a.ndim != 4 or a.shape[0] != a.shape[1] or a.shape[2] != a.shape[3] or a.shape[0] < 2:
-            raise HamError(f"{str(src)!r}: {name} has shape {a.shape}; accepted: (G, G, N, N), "
-                           "G >= 2 grid points per axis, N x N taxels")  # fmt: skip
+        if a.ndim != k + 2 or a.shape[k] != a.shape[k + 1] or min(a.shape[:k]) < 2:
+            raise HamError(f"{str(src)!r}: {name} has shape {a.shape}; accepted: ({axes}, N, N) "
+                           f"for pose dims {','.join(dims)}, G >= 2 grid points per axis, N x N "
+                           "taxels")  # fmt: skip
         if a.dtype.kind not in "biuf":
             raise HamError(f"{str(src)!r}: {name} holds {a.dtype} values; accepted: real "
                            "pressures")  # fmt: skip
@@ -1011,12 +1026,12 @@ def import_recorded(
         _check_pressure(str(src), name, arrays[-1])
         h = stored.get(f"{name}.height")
         if h is not None:
-            if h.shape != a.shape[:2] or h.dtype.kind not in "biuf" or not np.isfinite(h).all():
+            if h.shape != a.shape[:k] or h.dtype.kind not in "biuf" or not np.isfinite(h).all():
                 raise HamError(f"{str(src)!r}: {name}.height has shape {h.shape} ({h.dtype}); "
-                               f"accepted: finite heights (m) of shape {a.shape[:2]}")  # fmt: skip
+                               f"accepted: finite heights (m) of shape {a.shape[:k]}")  # fmt: skip
             h = np.asarray(h, dtype=np.float32)
         heights.append(h)
-    stray = [k for k in stored if k.endswith(".height") and k.removesuffix(".height") not in names]
+    stray = [n for n in stored if n.endswith(".height") and n.removesuffix(".height") not in names]
     if stray:
         raise HamError(f"{str(src)!r}: {stray[0]} belongs to no object's images; accepted: "
                        "NAME.height beside an array NAME")  # fmt: skip
@@ -1024,29 +1039,43 @@ def import_recorded(
         shapes = ", ".join(f"{n} {a.shape}" for n, a in zip(names, arrays, strict=True))
         raise HamError(f"{str(src)!r}: the objects' arrays differ in shape ({shapes}); "
                        "accepted: one grid and one pad for all")  # fmt: skip
-    grid, taxels = arrays[0].shape[0], arrays[0].shape[2]
-    _check_grid(grid)
-    world = WorldConfig(sensor=SensorConfig(taxels=taxels))
-    command = command or _python_command(
-        f"ham.world.table.import_recorded({str(src)!r}, {str(out)!r})"
-    )
+    shape, taxels = grid_shape_for(arrays[0].shape[:k], dims), arrays[0].shape[k]
+    paper = is_paper_layout(dims, shape)
+    if paper and compression is not None:  # said, not silently ignored
+        raise HamError(
+            f"compression = {compression!r} for the paper's (x, phi) table, which is stored "
+            "uncompressed; accepted: a compression for a table over other pose dims (format 2)"
+        )
+    world = WorldConfig(sensor=SensorConfig(taxels=taxels), pose_dims=dims)
+    call = f"ham.world.table.import_recorded({str(src)!r}, {str(out)!r}"
+    if not paper:
+        call += f", pose_dims={','.join(dims)!r}"
+    command = command or _python_command(call + ")")
     simulator = {"simulator": "recorded", "file": Path(src).name}
+    layout = None if paper else (dims, shape, compression or "gzip")
 
     def write(tmp: Path) -> None:
         with h5py.File(tmp, "w") as g:
-            _write_images(g, names, arrays, grid, world, simulator,
-                          f"recorded:{Path(src).name}", command, heights)  # fmt: skip
+            _write_images(g, names, arrays, shape[0], world, simulator,
+                          f"recorded:{Path(src).name}", command, heights, layout)  # fmt: skip
 
     return atomic_write(out, write, what="glance table")
 
 
-def _write_images(g, names, arrays, grid, world, simulator, source, command, heights=None) -> None:
-    """Images over the paper's ``grid x grid`` poses as a ham table in the open HDF5 file ``g``
-    (the authors' data set, recorded glances); force unknown (NaN), heights where given."""
+def _write_images(
+    g, names, arrays, grid, world, simulator, source, command, heights=None, layout=None
+) -> None:
+    """Images over a pose grid as a ham table in the open HDF5 file ``g`` (the authors' data
+    set, recorded glances); force unknown (NaN), heights where given. ``layout``: ``None``, the
+    paper's ``grid x grid`` (format 1), or ``(pose_dims, grid_shape, compression)`` (format 2,
+    the images stored flat over the lattice as :func:`build_table` stores them)."""
+    attrs = dict(format=FORMAT, format_version=FORMAT_VERSION, grid=grid)
+    if layout is not None:
+        dims, shape, compression = layout
+        attrs.update(format_version=FORMAT_VERSION_GRID, grid_shape=json.dumps(list(shape)),
+                     pose_dims=json.dumps(list(dims)), compression=compression)  # fmt: skip
     g.attrs.update(
-        format=FORMAT,
-        format_version=FORMAT_VERSION,
-        grid=grid,
+        **attrs,
         q_range=json.dumps([-1.0, 1.0]),
         objects=json.dumps(list(names)),
         world=json.dumps(world.to_dict(), sort_keys=True),
@@ -1061,9 +1090,23 @@ def _write_images(g, names, arrays, grid, world, simulator, source, command, hei
     for i, (name, a) in enumerate(zip(names, arrays, strict=True)):
         h = None if heights is None else heights[i]
         grp = g.create_group(f"objects/{name}")
-        grp.create_dataset("pressure", data=a)
-        grp.create_dataset("force", data=np.full((grid, grid), np.nan, np.float32))
-        grp.create_dataset("z", data=np.full((grid, grid), np.nan, np.float32) if h is None else h)
-        grp.create_dataset("contact", data=a.reshape(grid, grid, -1).max(-1) > 0)
+        if layout is None:
+            poses, key, opts = (grid, grid), "z", {}
+        else:
+            poses, key = (int(np.prod(shape)),), "height"
+            a = a.reshape(poses[0], *a.shape[-2:])
+            h = None if h is None else h.reshape(poses)
+            comp = None if compression == "none" else compression
+            opts = dict(compression=comp, chunks=True) if comp else {}
+        if opts:
+            n = a.shape[-1]
+            rows = max(1, min(poses[0], 262144 // (4 * n * n)))  # ~256 KB chunks, as built
+            grp.create_dataset("pressure", data=a, chunks=(rows, n, n), compression=comp)
+        else:
+            grp.create_dataset("pressure", data=a)
+        grp.create_dataset("force", data=np.full(poses, np.nan, np.float32), **opts)
+        grp.create_dataset(key, data=np.full(poses, np.nan, np.float32) if h is None else h,
+                           **opts)  # fmt: skip
+        grp.create_dataset("contact", data=a.reshape(*poses, -1).max(-1) > 0, **opts)
     g.attrs["checksum"] = _checksum(g, list(names))
     g.attrs["record_checksum"] = _record_checksum(g, list(names))
