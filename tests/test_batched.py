@@ -509,12 +509,13 @@ class _HostReads(TorchDispatchMode):
 def test_the_device_step_asks_the_host_nothing(tmp_path, monkeypatch):
     # on a glance table (the online simulator iterates to each glance's contact), a group that
     # takes every per-run path: other glance counts (a run past its last glance draws nothing),
-    # normalizations, betas, reductions, rates and BPTT truncations
+    # normalizations, betas, reductions, rates, BPTT truncations and a spread augmentation
     table = str(build_table(WorldConfig(), 5, tmp_path / "t.h5", progress=False))
     configs = [tiny(0, table=table),
                tiny(1, table=table, model=HamConfig(glances=2, truncate_bptt=True)),
                tiny(2, table=table, normalization="l1", beta=0.5, lr=0.01),
-               tiny(3, table=table, classification_reduction="sum", momentum=0.5)]  # fmt: skip
+               tiny(3, table=table, classification_reduction="sum", momentum=0.5),
+               tiny(4, table=table, spread_augment=0.005)]  # fmt: skip
     outs = [tmp_path / f"b{c.seed}" for c in configs]
     group = BatchedRuns(_open_runs(configs, outs), outs)
     group.step()  # the first step makes the group's constants
@@ -523,7 +524,7 @@ def test_the_device_step_asks_the_host_nothing(tmp_path, monkeypatch):
     with _HostReads() as host:
         flags = group._device_step([group.runs[i] for i in group.active])
     assert host.seen + reads == []
-    assert flags.shape == (2, 4) and bool(flags.all())
+    assert flags.shape == (2, 5) and bool(flags.all())
 
 
 @pytest.mark.parametrize("compiled", [False, True], ids=["eager", "compiled-cell"])

@@ -179,14 +179,35 @@ def test_spread_augment_refuses_bad_values(changes, message):
         TrainConfig(**changes)
 
 
-def test_spread_augment_is_refused_on_ap_gym_and_by_the_batched_trainer(world):
+def test_spread_augment_is_refused_on_ap_gym():
     from ham.learn.ap_adapter import ApGymConfig
-    from ham.learn.batched import check_batchable
 
     with pytest.raises(HamError, match="with env 'ap_gym:CircleSquare-v0'"):
         TrainConfig(env=ApGymConfig("ap_gym:CircleSquare-v0"), spread_augment=0.005)
-    with pytest.raises(HamError, match="spread_augment = 0.005 cannot be batched"):
-        check_batchable(TrainConfig(table=str(world["own"]), spread_augment=0.005))
+
+
+def test_batched_runs_with_spread_augment_are_their_single_runs(world, tmp_path):
+    """The batched trainer spreads each run's training images by its own batch's draws (one
+    lookup for all runs, each run's rows read out by its env): a sweep of spreads, one run
+    without, and one of another normalization give their single runs' numbers; its evaluation
+    reads the world's own glances."""
+    from tests.test_batched import assert_same_runs, metrics, train_both
+
+    table = str(world["own"])
+    base = dict(table=table, steps=6, batch_size=8, eval_every=3, eval_batches=2,
+                model=HamConfig(glances=2))  # fmt: skip
+    configs = [TrainConfig(seed=0, spread_augment=0.005, **base),
+               TrainConfig(seed=1, spread_augment=0.01, **base),
+               TrainConfig(seed=2, spread_augment=0.005, normalization="l1", **base),
+               TrainConfig(seed=3, **base)]  # fmt: skip
+    train_both(tmp_path, configs)
+    assert_same_runs(tmp_path, configs)
+    plain = train(TrainConfig(seed=0, **base), tmp_path / "plain", progress=False)
+    assert (
+        plain["history"][-1]["train_loss"] != metrics(tmp_path / "b0")["history"][-1]["train_loss"]
+    )
+    # the first evaluation is before any update: the world's own glances, spread or not
+    assert plain["history"][0] == metrics(tmp_path / "single0")["history"][0]
 
 
 def test_recorded_glances_of_the_same_images_give_the_same_evaluation(world, tmp_path):

@@ -3,14 +3,15 @@
 The paper's grid is hundreds of small runs (LSTM 256, batch 64); one run at a time pays every
 operation's overhead for a few small matrices. Here N runs whose configs differ only in
 :data:`PER_RUN` fields (``seed``, ``steps``, the learning-rate schedule, the momentum, the loss's
-``beta`` and reductions, the normalization, the BPTT truncation, the evaluation and logging
-settings: the seeds of a grid cell, or a sweep of rates; and the glance count, 2 or more, where
-the grouping asks for it: :func:`shape_key`) go through each step together: their
-weights are stacked along a leading run axis, one glance of all N runs is one pass through the
-stacked layers (:class:`ham.learn.stacked_ham.StackedHam`, mirroring :mod:`ham.model` line by line:
-its products, deferred weight gradients and fused LSTM cell are described there), the hybrid loss
-is :func:`torch.vmap` of :func:`ham.learn.hybrid_loss.hybrid_loss`, one backward yields every
-run's gradient (the runs' graphs are disjoint), and one fused SGD call steps all runs
+``beta`` and reductions, the normalization, the pose noise and the read-out's spread
+augmentation, the BPTT truncation, the evaluation and logging settings: the seeds of a grid cell,
+or a sweep of rates; and the glance count, 2 or more, where the grouping asks for it:
+:func:`shape_key`) go through each step together: their weights are stacked along a leading run
+axis, one glance of all N runs is one pass through the stacked layers
+(:class:`ham.learn.stacked_ham.StackedHam`, mirroring :mod:`ham.model` line by line: its products,
+deferred weight gradients and fused LSTM cell are described there), the hybrid loss is
+:func:`torch.vmap` of :func:`ham.learn.hybrid_loss.hybrid_loss`, one backward yields every run's
+gradient (the runs' graphs are disjoint), and one fused SGD call steps all runs
 (docs/batched.md has the measurements). The step's work on the device asks the host nothing
 (:meth:`BatchedRuns._device_step`): one read of the runs' flags is its only sync, and with
 ``cuda_graph`` it is captured once as a CUDA graph and replayed.
@@ -92,7 +93,7 @@ PER_RUN = ("seed", "steps", "lr", "lr_decay", "lr_step", "lr_min", "momentum", "
            "policy_lr_scale", "beta", "classification_reduction", "reinforce_reduction",
            "classification_glances", "reward_glances", "reward_discount", "glance_reduction",
            "normalization", "eval_every", "eval_batches", "eval_policy", "log_every",
-           "pose_noise", "init_from")  # fmt: skip
+           "pose_noise", "init_from", "spread_augment")  # fmt: skip
 
 
 def shape_key(config: TrainConfig, glances: bool = True) -> str:
@@ -132,11 +133,6 @@ def check_batchable(config: TrainConfig) -> None:
     if config.env is not None:
         raise HamError(
             f"env {config.env.env!r} cannot be batched; accepted: the haptic world "
-            "(train it with ham train or --executor local)"
-        )
-    if config.spread_augment > 0:
-        raise HamError(
-            f"spread_augment = {config.spread_augment!r} cannot be batched; accepted: 0 "
             "(train it with ham train or --executor local)"
         )
     if config.model.core not in ("lstm", "mlp"):
@@ -275,20 +271,28 @@ def _executed(runs: list[Run], q: torch.Tensor, glancing: list[bool], noise=None
     ])  # fmt: skip
 
 
-def _pressure(runs: list[Run], flat_objects: torch.Tensor, q: torch.Tensor, const) -> torch.Tensor:
+def _pressure(
+    runs: list[Run], flat_objects: torch.Tensor, q: torch.Tensor, const, spreads=None
+) -> torch.Tensor:
     """The glances ``(N, B, N^2)`` of ``runs`` at executed poses ``q (N, B, 2)``
     (:func:`_executed`) on objects ``flat_objects (N * B,)``, as each run's
-    :meth:`HapticEnv.glance` gives them: one lookup for all runs of one normalization (their
-    envs share the glance source). ``const``: :meth:`BatchedRuns._const`."""
+    :meth:`HapticEnv.glance` gives them: one lookup for all runs (their envs share the glance
+    source), each run's rows read out as its env reads them (:meth:`HapticEnv.read_out`: its
+    normalization and, in training, its batch's spreads: ``spreads``, each run's
+    :attr:`HapticEnv.batch_spreads`). ``const``: :meth:`BatchedRuns._const`."""
     n, rows = q.shape[0], q.shape[1]
-    kinds = _grouped(range(n), lambda k: runs[k].env.normalization)
-    if len(kinds) == 1:
+    spreads = spreads or [None] * n
+    kinds = _grouped(range(n), lambda k: (runs[k].env.normalization, None if spreads[k] is None
+                                          else runs[k].env.augment_sigma))  # fmt: skip
+    if len(kinds) == 1 and spreads[0] is None:
         return runs[0].env.glance(flat_objects, q.reshape(-1, 2), exact=True).view(n, rows, -1)
-    objects, out = flat_objects.view(n, rows), None
+    raw, _ = runs[0].env.source.glance(flat_objects, q.reshape(-1, 2))
+    raw = raw.view(n, rows, *raw.shape[1:])
+    out = None
     for ks in kinds.values():
         idx = const(ks)
-        part = runs[ks[0]].env.glance(objects.index_select(0, idx).reshape(-1),
-                                      q.index_select(0, idx).reshape(-1, 2), exact=True)  # fmt: skip
+        s = None if spreads[ks[0]] is None else torch.cat([spreads[k] for k in ks])
+        part = runs[ks[0]].env.read_out(raw.index_select(0, idx).flatten(0, 1), s)
         part = part.view(len(ks), rows, -1)
         out = part.new_empty(n, rows, part.shape[2]) if out is None else out
         out.index_copy_(0, idx, part)
@@ -518,8 +522,9 @@ class BatchedRuns:
         return self.runs[i].step >= self.runs[i].config.steps
 
     # ------------------------------------------------------------------ one step of all runs
-    def _forward(self, objects: torch.Tensor):
-        """One episode of every active run: objects ``(N, B)`` -> the stacked episode tensors."""
+    def _forward(self, objects: torch.Tensor, spreads: list | None = None):
+        """One episode of every active run: objects ``(N, B)`` (and each run's read-out
+        ``spreads``, :func:`_pressure`) -> the stacked episode tensors."""
         runs = [self.runs[i] for i in self.active]
         n, batch = objects.shape
         own = [r.config.model.glances for r in runs]
@@ -557,7 +562,7 @@ class BatchedRuns:
         for s in range(glances):
             # one lookup of N * B glances: a glance depends only on its object and pose
             at = _executed(runs, q, [s < g for g in own])
-            pressure = _pressure(runs, flat_objects, at, self._const)
+            pressure = _pressure(runs, flat_objects, at, self._const, spreads)
             final = s == glances - 1
             state, lg, b, dist = self._net.glance(self.stacked, pressure, q, state, not final)
             locations.append(q)
@@ -784,8 +789,10 @@ class BatchedRuns:
         made from Python values: the group's constants are made once, :meth:`_const`), so on a
         GPU it could be captured as one graph; each run's own Adam needs the flags first."""
         objects = torch.stack([r.env.sample_objects() for r in runs])
+        spreads = [r.env.batch_spreads for r in runs]  # drawn with the objects (spread_augment)
         self._net.begin(self.stacked)
-        totals, rewards, *parts = self._losses(objects, *self._forward(objects))
+        spreads = None if all(t is None for t in spreads) else spreads
+        totals, rewards, *parts = self._losses(objects, *self._forward(objects, spreads))
         if not self._checked:  # a weight the stacked layers skip would silently never train
             unused = set(self._names) - self._net.used
             if self._template.config.glances == 1:  # no glance is chosen by the policy
@@ -1165,12 +1172,13 @@ def _open_runs(configs: list[TrainConfig], outs: list[Path]) -> list[Run]:
     device = torch.device(c0.device)
     if device.type == "cuda" and not torch.cuda.is_available():
         raise HamError("device 'cuda' requested but CUDA is not available; use --device cpu")
-    source, _ = make_source(c0.table, c0.world, device)
+    source, world = make_source(c0.table, c0.world, device)
     check_model_fits(c0.model.pressure_dim, c0.model.n_objects, source)
     runs: list[Run] = []
     for c in configs:
         env = HapticEnv(source, c.batch_size, c.normalization, stream_seed(c.seed, 0), device,
-                        pose_noise=c.pose_noise)  # fmt: skip
+                        pose_noise=c.pose_noise,
+                        augment_sigma=c.spread_augment / world.sensor.pitch)  # fmt: skip
         runs.append(Run.create(c, env))
     return runs
 

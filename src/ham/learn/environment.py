@@ -165,11 +165,22 @@ class HapticEnv:
                 )
         at = q if exact else self.executed(q)
         pressure, height = self.source.glance(object_ids, at, pose)
+        return self.read_out(pressure, self._sigmas), height.to(self.device, torch.float32)
+
+    @property
+    def batch_spreads(self) -> torch.Tensor | None:
+        """The current training batch's read-out spreads ``(B,)`` in cells (``augment_sigma``),
+        or ``None``: evaluation batches, or no augmentation."""
+        return self._sigmas
+
+    def read_out(self, pressure: torch.Tensor, spreads: torch.Tensor | None = None) -> torch.Tensor:
+        """Raw images ``(B, N, N)`` as the agent reads them, ``(B, N^2)``: each spread by its
+        own sigma of ``spreads`` ``(B,)`` cells (the training batch's domain randomization,
+        :attr:`batch_spreads`; ``None``: as recorded), then normalized."""
         pressure = pressure.to(self.device, torch.float32)
-        if self._sigmas is not None:
-            pressure = gaussian_spread_rows(pressure, self._sigmas, self.augment_sigma)
-        pressure = normalize(pressure, self.normalization)
-        return pressure, height.to(self.device, torch.float32)
+        if spreads is not None:
+            pressure = gaussian_spread_rows(pressure, spreads, self.augment_sigma)
+        return normalize(pressure, self.normalization)
 
     def glance(
         self, object_ids: torch.Tensor, q: torch.Tensor, *, exact: bool = False
