@@ -14,7 +14,7 @@ import torch
 from ham.errors import HamError
 from ham.learn.batched import check_batchable, train_batched
 from ham.learn.evaluation import evaluate
-from ham.learn.train import TrainConfig, load_run, resume, train
+from ham.learn.train import TrainConfig, load_run, resume, stream_seed, train
 from ham.model.agent import HamConfig
 from ham.world.config import WorldConfig
 from ham.world.sensor import SensorConfig
@@ -118,3 +118,33 @@ def test_the_cli_fine_tunes(source, tmp_path, ham_cli):
     assert json.loads((tmp_path / "cli" / "config.json").read_text())["init_from"] == str(
         source["run"]
     )
+
+
+def test_a_grid_fine_tunes_each_seed_from_its_own_source(tmp_path):
+    """``init_from = ".../a-s{seed}"`` in a grid: each seed's run starts from that seed's
+    source run (its first evaluation is the source's agent on the new table); a source that is
+    missing is refused before anything trains."""
+    from ham.experiments.grid_run import run_grid
+
+    tiny = ('name = "{name}"\nseeds = 2\n{world}[table]\ngrid = 7\n[base]\nsteps = {steps}\n'
+            'batch_size = 8\neval_every = 2\neval_batches = 2\nmodel.glances = 2\n{init}')  # fmt: skip
+    (tmp_path / "src.toml").write_text(tiny.format(name="src", steps=4, world="", init=""))
+    run_grid(tmp_path / "src.toml", tmp_path / "src", workers=1, progress=False)
+    ft = tiny.format(name="ft", steps=2, world="[world]\nsensor = { spread_sigma = 0.005 }\n",
+                     init=f'init_from = "{tmp_path}/src/runs/base-s{{seed}}"\n')  # fmt: skip
+    (tmp_path / "ft.toml").write_text(ft)
+    run_grid(tmp_path / "ft.toml", tmp_path / "ft", workers=1, progress=False)
+    for seed in (0, 1):
+        run = tmp_path / "ft" / "runs" / f"base-s{seed}"
+        src = tmp_path / "src" / "runs" / f"base-s{seed}"
+        assert json.loads((run / "config.json").read_text())["init_from"] == str(src)
+        other = json.loads((run / "config.json").read_text())["table"]
+        theirs = load_run(src, transfer_table=other)
+        first = evaluate(theirs.agent, theirs.env, 2, seed=stream_seed(seed, 2))
+        assert metrics_of(run)["history"][0]["accuracy"] == first.accuracy
+    gone = ft.replace("/src/runs/", "/nowhere/").replace('"ft"', '"gone"')
+    (tmp_path / "gone.toml").write_text(gone)
+    with pytest.raises(HamError, match=r"run base-s0 starts from init_from '.*/nowhere/base-s0', "
+                       "which does not exist"):  # fmt: skip
+        run_grid(tmp_path / "gone.toml", tmp_path / "gone", workers=1, progress=False)
+    assert not (tmp_path / "gone").exists()

@@ -477,6 +477,8 @@ class Grid:
                 model[k[len("model.") :]] = v
             else:
                 train[k] = v
+        if isinstance(train.get("init_from"), str):  # fine-tuning a grid: each seed its own run
+            train["init_from"] = train["init_from"].replace("{seed}", str(seed))
         if self.plugin is not None:  # only the runs that use its core, policy or learner keep it
             uses = {f"core {model.get('core')}", f"policy {model.get('policy')}",
                     f"learner {train.get('learner')}"}  # fmt: skip

@@ -111,6 +111,7 @@ def run_grid(
     if note and progress:
         print(note, file=sys.stderr)
     _check_existing_runs(root, jobs)
+    _check_sources(root, jobs)
     with ray_session(executor, ray_address, workers):  # before anything is written
         root.mkdir(parents=True, exist_ok=True)
         with folder_lock(root, what="--out"):  # the same --out run twice at once: refused
@@ -143,6 +144,22 @@ def run_grid(
 def _complete(root: Path, job: GridJob) -> bool:
     out, steps = run_dir(root, job.key), job.config["steps"]
     return is_finished(out, steps) and all(has_evaluation(out, s, steps) for s in job.evaluate)
+
+
+def _check_sources(root: Path, jobs: list[GridJob]) -> None:
+    """Every run still to train that starts from another run (``init_from``) finds it: refused
+    before anything is trained, not run by run."""
+    from ham.learn.train import CONFIG_FILE
+
+    for job in jobs:
+        source = job.config.get("init_from")
+        if source is None or (Path(source) / CONFIG_FILE).is_file() or _complete(root, job):
+            continue
+        what = "does not exist" if not Path(source).exists() else "holds no ham train run"
+        raise HamError(
+            f"run {job.key} starts from init_from {source!r}, which {what}; accepted: a folder "
+            'of ham train for each seed ("{seed}" in init_from names the seed\'s run)'
+        )
 
 
 def _check_existing_runs(root: Path, jobs: list[GridJob]) -> None:
