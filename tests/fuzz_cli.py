@@ -78,10 +78,16 @@ def _fixtures(root: Path) -> dict[str, str]:
         'name = "fuzz"\nseeds = 1\n[table]\ngrid = 5\n[base]\nsteps = 2\n'
         'eval_every = 2\neval_batches = 1\n[axes]\n"model.glances" = [1, 2]\n'
     )
-    return {"TABLE": str(t), "RUN": str(run), "GRID": str(grid)}
+    import numpy as np
+
+    rng = np.random.default_rng(0)  # recorded glances over (x, y, phi, phi_y), 3 x 3 x 2 x 2
+    recorded = root / "rec.npz"
+    np.savez(recorded, cup=rng.random((3, 3, 2, 2, 4, 4)), ball=rng.random((3, 3, 2, 2, 4, 4)),
+             **{"cup.height": rng.random((3, 3, 2, 2)) * 0.01})  # fmt: skip
+    return {"TABLE": str(t), "RUN": str(run), "GRID": str(grid), "RECORDED": str(recorded)}
 
 
-#: valid base commands (shell words); TABLE, RUN, GRID are replaced by the fixtures' paths
+#: valid base commands (shell words); TABLE, RUN, GRID, RECORDED are replaced by the fixtures' paths
 _SHORT = "--glances 2 --steps 2 --eval-every 2 --eval-batches 1 --no-progress --out r"
 BASE: dict[str, list[str]] = {
     name: shlex.split(words)
@@ -116,6 +122,8 @@ BASE: dict[str, list[str]] = {
         "table-show": "table show TABLE --object 0 --n 2 --out s.png",
         "table-info": "table info TABLE",
         "table-verify": "table verify TABLE",
+        "table-import-recorded": "table import-recorded RECORDED --pose-dims x,y,phi,phi_y "
+        "--compression lzf --out i.h5",
         "render": "render --object 0 --x 0 --phi 0 --out r.png --width 64 --height 64",
     }.items()
 }
