@@ -244,6 +244,11 @@ def test_recorded_glances_over_the_next_worlds_poses_give_the_same_evaluation(tm
                                pose_dims="x,y,phi,phi_y")  # fmt: skip
     mine, run = load_run(tmp_path / "run"), load_run(tmp_path / "run", transfer_table=str(recorded))
     assert run.transfer == ["simulator: 'fast' -> 'recorded'"]
+    # the other way: a run trained on the recorded glances, onto a built table; the recorded
+    # world's objects, sensor and mapping are defaults, not differences
+    train(replace(config, table=str(recorded)), tmp_path / "on_recorded", progress=False)
+    back = load_run(tmp_path / "on_recorded", transfer_table=str(own))
+    assert back.transfer == ["simulator: 'recorded' -> 'fast'"]
     assert evaluate(run.agent, run.env, 3, seed=7) == evaluate(mine.agent, mine.env, 3, seed=7)
     # recorded without their heights: a model that reads the height cannot run on them
     np.savez(tmp_path / "flat.npz", **arrays)

@@ -1046,11 +1046,13 @@ def _transferred(config: TrainConfig, table: str) -> tuple[TrainConfig, list[str
             "the run's pose dims"
         )
     theirs = _as_built(other)
-    if theirs["simulator"] == "recorded":  # recorded glances name no object set: their names do
-        theirs |= {k: world.get(k) for k in ("objects", "objects_file")}
     differences = world_differences(
         {**world, "grid": grid}, {**theirs, "grid": list(other.grid_shape)}
     )
+    if "recorded" in (world.get("simulator"), theirs["simulator"]):
+        # recorded glances know their grid and pad, not the objects, sensor or mapping that
+        # made them: the rest of a recorded table's world is defaults, no difference to name
+        differences = [d for d in differences if d.split(":")[0] in ("simulator", "grid")]
     return replace(config, table=str(Path(table).resolve())), differences
 
 
