@@ -89,6 +89,7 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
     from ham.model.policy import register_policy
     from ham.world.config import WorldConfig
     from ham.world.objects import HapticObject, register
+    from ham.world.recorder import record_glances
     from ham.world.simulators import register_simulator
     from ham.world.table import (
         GlanceTable,
@@ -135,6 +136,16 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
         "verify_table": (verify_table, {"path": table}),
         "import_authors": (import_authors, {"src": tmp / "none.h5", "out": "imp.h5"}),
         "import_recorded": (import_recorded, {"src": recorded, "out": "rec.h5"}),
+        "record_glances": (
+            record_glances,
+            {
+                "glance": lambda name, q: np.ones((4, 4)),
+                "objects": ["cup", "ball"],
+                "grid": 3,
+                "out": "glances.npz",
+                "progress": False,
+            },
+        ),  # fmt: skip
         "load_run": (load_run, {"out": run_out}),
         "train": (train, {"config": config, "out": "fresh", "progress": False}),
         "resume": (resume, {"out": run_out, "progress": False}),

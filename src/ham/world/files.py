@@ -23,6 +23,7 @@ SIGNATURES: dict[str, bytes] = {
     ".png": b"\x89PNG\r\n\x1a\n",
     ".h5": b"\x89HDF\r\n\x1a\n",
     ".hdf5": b"\x89HDF\r\n\x1a\n",
+    ".npz": b"PK\x03\x04",  # a zip of arrays
 }
 
 
