@@ -80,7 +80,9 @@ def main(argv: list[str] | None = None) -> int:
         ax.axhline(1 / 12, color="grey", lw=0.8, ls=":")
     axes[0].set_ylabel("accuracy (mean ± s.e.m.)")
     axes[0].legend(fontsize=7, loc="lower right")
-    fig.suptitle("composite:train, poses x, y, 6 glances: trained on (lines), evaluated on (panels)")
+    fig.suptitle(
+        "composite:train, poses x, y, 6 glances: trained on (lines), evaluated on (panels)"
+    )
     fig.tight_layout()
     fig.savefig(args.out.with_suffix(".png"), dpi=110)
     return 0
