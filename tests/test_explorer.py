@@ -161,6 +161,32 @@ def test_the_mujoco_example_drives_a_run_with_live_glances(trained):
     assert m and 0.0 <= float(m[1]) <= 1.0
 
 
+def test_the_sim_to_real_example_records_fine_tunes_and_explores(trained, tmp_path):
+    """docs/examples/sim_to_real.py: MuJoCo as the pad; its glances recorded one at a time are
+    MuJoCo's built table's, the run fine-tuned on them starts from the trained run, and both
+    explore the pad live; a second call reuses what the first made."""
+    import json
+
+    from ham.world.table import GlanceTable
+
+    script = Path(__file__).resolve().parents[1] / "docs" / "examples" / "sim_to_real.py"
+    cmd = [sys.executable, str(script), str(trained), str(tmp_path / "s2r"), "--grid", "3",
+           "--steps", "2", "--episodes", "8", "--sensor", "taxels"]  # fmt: skip
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    pattern = (r"8 live episodes on the pad \(MuJoCo, taxels read-out\): (\S+) trained in "
+               r"simulation, (\S+) fine-tuned on 3 x 3 recorded glances per object \(2 steps\)\n")  # fmt: skip
+    m = re.fullmatch(pattern, r.stdout)
+    assert m and all(0.0 <= float(v) <= 1.0 for v in m.groups())
+    built = build_table(WorldConfig(simulator="mujoco"), 3, tmp_path / "mj3.h5", progress=False)
+    recorded = GlanceTable.load(tmp_path / "s2r" / "recorded.h5")
+    assert torch.equal(recorded.pressure, GlanceTable.load(built).pressure)
+    config = json.loads((tmp_path / "s2r" / "fine_tuned" / "config.json").read_text())
+    assert config["init_from"] == str(trained) and config["steps"] == 2
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0 and again.stdout == r.stdout
+
+
 def test_a_run_on_ap_gym_is_refused_before_its_world_loads(tmp_path):
     from ham.learn.ap_adapter import ApGymConfig
     from ham.world.files import write_json
