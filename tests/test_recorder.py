@@ -68,6 +68,11 @@ def test_an_interrupted_recording_resumes_where_it_stopped(tables, tmp_path):
     # no pose asked twice but the interrupted one, and the table's order: object by object
     assert len(calls) == 4 * 25 + 1 and calls[39] == calls[40]
     assert [c[0] for c in calls[:26]] == [table.objects[0]] * 25 + [table.objects[1]]
+    # finished: the same call again asks the robot nothing and leaves the file as it is
+    before = (tmp_path / "r.npz").read_bytes()
+    record_glances(robot(table, [], fail_at=1), table.objects, 5, tmp_path / "r.npz",
+                   heights=True, progress=False)  # fmt: skip
+    assert (tmp_path / "r.npz").read_bytes() == before
     whole = record_glances(robot(table), table.objects, 5, tmp_path / "w.npz", heights=True,
                            progress=False)  # fmt: skip
     with np.load(tmp_path / "r.npz") as a, np.load(whole) as b:
@@ -152,3 +157,16 @@ def test_bad_arguments_are_refused_in_one_line(tmp_path, monkeypatch, kwargs, me
     with pytest.raises(HamError, match=re.escape(message)) as e:
         record_glances(**args, progress=False)
     assert "\n" not in str(e.value) and not list(tmp_path.iterdir())
+
+
+def test_a_finished_recording_of_another_grid_is_recorded_anew(tables, tmp_path):
+    table, calls = tables["paper"], []
+    record_glances(robot(table, calls), ["box"], 3, tmp_path / "r.npz", heights=True,
+                   progress=False)  # fmt: skip
+    record_glances(robot(table, calls), ["box"], 5, tmp_path / "r.npz", heights=True,
+                   progress=False)  # fmt: skip
+    assert len(calls) == 9 + 25
+    with np.load(tmp_path / "r.npz") as f:
+        assert f["box"].shape == (5, 5, 16, 16) and "__spec__" in f.files
+    imported = GlanceTable.load(import_recorded(tmp_path / "r.npz", tmp_path / "r.h5"))
+    assert imported.objects == ["box"]  # "__spec__" is no object

@@ -1,7 +1,7 @@
 """From simulation to a pad of its own: record a few glances, fine-tune on them, explore live.
 
     python docs/examples/sim_to_real.py SIM_RUN OUT [--grid 11] [--steps 1000] [--episodes 640]
-        [--sensor gazebo|taxels] [--seed 0]
+        [--sensor gazebo|taxels] [--seed 0] [--json]
 
 SIM_RUN: a run trained in simulation on the paper's objects (e.g. `make demo`'s runs/demo/ham).
 The "real" pad is MuJoCo here, with the Gazebo plugin's read-out by default (a few contact
@@ -16,8 +16,8 @@ replace `Pad.glance` with your robot's. The loop, each step a function of ham's:
    SIM_RUN's other settings).
 4. The fine-tuned run explores the pad live, on the same hidden objects.
 
-Prints the accuracy after the last glance before and after; each step's output stays in OUT, and
-a second call reuses it (an interrupted recording resumes).
+Prints the accuracy after the last glance before and after (`--json`: also into OUT/live.json);
+each step's output stays in OUT, and a second call reuses it (an interrupted recording resumes).
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ from ham.errors import HamError
 from ham.learn.explorer import Explorer
 from ham.learn.train import read_run_config, train
 from ham.world.config import WorldConfig, make_simulator
+from ham.world.files import write_json
 from ham.world.poses import simulate, world_pose_dims
 from ham.world.recorder import record_glances
 from ham.world.table import import_recorded
@@ -72,6 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--episodes", type=int, default=640, help="live episodes (default 640)")
     ap.add_argument("--sensor", choices=["gazebo", "taxels"], default="gazebo")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--json", action="store_true", help="also write OUT/live.json")
     args = ap.parse_args(argv)
 
     pad = Pad(args.sensor)
@@ -83,9 +85,8 @@ def main(argv: list[str] | None = None) -> int:
         r = pad.glance(torch.tensor([pad.names.index(name)]), torch.tensor(q).view(1, -1))
         return r.pressure[0].numpy(), float(r.z[0])
 
-    recorded = args.out / "recorded.npz"
-    if not recorded.exists():
-        record_glances(glance, pad.names, args.grid, recorded, heights=True, progress=False)
+    recorded = args.out / "recorded.npz"  # a rerun asks the pad nothing: it is recorded
+    record_glances(glance, pad.names, args.grid, recorded, heights=True, progress=False)
     table = args.out / "recorded.h5"
     if not table.exists():
         import_recorded(recorded, table)
@@ -98,6 +99,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{args.episodes} live episodes on the pad (MuJoCo, {args.sensor} read-out): "
           f"{before:.3f} trained in simulation, {after:.3f} fine-tuned on {args.grid} x "
           f"{args.grid} recorded glances per object ({args.steps} steps)")  # fmt: skip
+    if args.json:
+        write_json(args.out / "live.json", {"before": before, "after": after, **{
+            k: getattr(args, k) for k in ("grid", "steps", "episodes", "sensor", "seed")}})  # fmt: skip
     return 0
 
 

@@ -790,8 +790,8 @@ class BatchedRuns:
         GPU it could be captured as one graph; each run's own Adam needs the flags first."""
         objects = torch.stack([r.env.sample_objects() for r in runs])
         spreads = [r.env.batch_spreads for r in runs]  # drawn with the objects (spread_augment)
-        self._net.begin(self.stacked)
         spreads = None if all(t is None for t in spreads) else spreads
+        self._net.begin(self.stacked)
         totals, rewards, *parts = self._losses(objects, *self._forward(objects, spreads))
         if not self._checked:  # a weight the stacked layers skip would silently never train
             unused = set(self._names) - self._net.used

@@ -62,7 +62,9 @@ def record_glances(
     ``N``), or with ``heights`` a pair ``(image, height)`` (the contact height in m). A bad glance
     stops the recording with one line naming the object and the pose; what was recorded before
     it is kept in ``OUT.partial.npz``, as it is on any error or interrupt, and a call with the same
-    objects, grid and pose dims resumes there (another is refused). Returns ``out``."""
+    objects, grid and pose dims resumes there (another is refused). A finished recording keeps
+    what it recorded (``__spec__``): the same call again returns it without a glance, another
+    records anew over it. Returns ``out``."""
     out = check_output(out, (".npz",), what="recorded glances")
     dims = check_pose_dims(pose_dims, "pose_dims")
     if not callable(glance):
@@ -84,6 +86,8 @@ def record_glances(
         raise HamError(f"heights = {heights!r}; accepted: true or false")
     spec = json.dumps({"objects": names, "grid": list(shape), "pose_dims": list(dims),
                        "heights": heights})  # fmt: skip
+    if _recorded_spec(out) == spec:  # recorded already: a rerun asks the robot nothing
+        return out
     partial = out.with_name(out.name.removesuffix(".npz") + ".partial.npz")
     poses = int(np.prod(shape))
     state = _resume(partial, spec, len(names), poses)
@@ -122,6 +126,7 @@ def record_glances(
     def write(tmp: Path) -> None:
         arrays = {n: state["images"][i].reshape(*shape, *state["images"].shape[2:])
                   for i, n in enumerate(names)}  # fmt: skip
+        arrays[_SPEC] = np.array(spec)  # what was recorded (import_recorded skips "__" names)
         if heights:
             arrays |= {f"{n}.height": state["heights"][i].reshape(shape)
                        for i, n in enumerate(names)}  # fmt: skip
@@ -168,6 +173,17 @@ def _checked(got, name: str, q: np.ndarray, dims, heights: bool, state: dict):
         k, p = state["done"].shape
         state["images"] = np.zeros((k, p, *image.shape), np.float32)
     return image, height
+
+
+def _recorded_spec(out: Path) -> str | None:
+    """The spec a finished recording at ``out`` was made with (``None``: no such file)."""
+    if not out.is_file():
+        return None
+    try:
+        with np.load(out, allow_pickle=False) as f:
+            return str(f[_SPEC]) if _SPEC in f.files else None
+    except (OSError, ValueError, EOFError):
+        return None  # not a recording of ours: written over, as any output file
 
 
 def _resume(partial: Path, spec: str, n_objects: int, poses: int) -> dict:

@@ -987,7 +987,8 @@ def import_recorded(
     paper's ``x, phi``; e.g. ``x,y,phi,phi_y`` for the extended glance), each axis from -1 to 1
     (:func:`grid_values`), pressures >= 0 (any unit: the normalization makes them scale-free).
     An array ``NAME.height`` ``(G_1, .., G_k)`` (m) beside an object's gives its contact
-    heights; force is unknown (NaN). A square ``(x, phi)`` grid is written in the paper's format
+    heights; force is unknown (NaN); names starting with ``__`` are not objects (the recorder's
+    ``__spec__``, :mod:`ham.world.recorder`). A square ``(x, phi)`` grid is written in the paper's format
     1, any other in format 2 (``compression``: gzip by default, lzf or none, as
     :func:`build_table`). Then ``ham train --table``, ``--init-from`` (fine-tuning on it) and
     ``ham evaluate --transfer-table`` take it."""
@@ -1008,7 +1009,7 @@ def import_recorded(
             stored = {k_: f[k_] for k_ in f.files}
     except (OSError, ValueError, EOFError) as exc:  # zipfile.BadZipFile is an OSError
         raise HamError(f"cannot read recorded glances {str(src)!r}: {exc}; {accepted}") from None
-    names = [n for n in stored if not n.endswith(".height")]
+    names = [n for n in stored if not n.endswith(".height") and not n.startswith("__")]
     if not names:
         raise HamError(f"{str(src)!r} holds no object's images; accepted: one ({axes}, N, N) "
                        "array per object, named by it")  # fmt: skip
