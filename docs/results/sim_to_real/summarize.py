@@ -1,0 +1,66 @@
+"""How many recorded glances a pad needs (docs/sim_to_real.md): a table and a figure from the
+runs of docs/examples/sim_to_real.py.
+
+    PYTHONPATH=src python docs/results/sim_to_real/summarize.py OUT.json RUN ...
+
+Each RUN: an OUT folder of `sim_to_real.py SIM_RUN OUT --grid G --seed S --json`, holding its
+`live.json` (live accuracy on the pad before and after fine-tuning). Prints a Markdown table
+(mean ± s.e.m. over the seeds of each grid); OUT.json keeps every run's numbers, OUT.png draws
+the accuracy against the recorded glances per object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from ham.experiments.reproduce import format_mean_sem, mean_sem  # noqa: E402
+from ham.world.files import write_json  # noqa: E402
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("out", type=Path)
+    ap.add_argument("runs", type=Path, nargs="+")
+    args = ap.parse_args(argv)
+    runs = [json.loads((r / "live.json").read_text()) | {"run": r.name} for r in args.runs]
+    grids = sorted({r["grid"] for r in runs})
+    rows = {}
+    print("| recorded glances per object | before (live) | after (live) | seeds (after) |")
+    print("|---|---|---|---|")
+    for g in grids:
+        mine = sorted((r for r in runs if r["grid"] == g), key=lambda r: r["seed"])
+        before, after = mean_sem(r["before"] for r in mine), mean_sem(r["after"] for r in mine)
+        rows[g] = {"before": before, "after": after, "seeds": [r["seed"] for r in mine]}
+        seeds = " / ".join(f"{r['after']:.3f}" for r in mine)
+        print(f"| {g} x {g} ({g * g}) | {format_mean_sem(*before)} | "
+              f"**{format_mean_sem(*after)}** | {seeds} |")  # fmt: skip
+    write_json(args.out, {"command": " ".join(["python", *sys.argv]), "runs": runs,
+                          "by_grid": rows})  # fmt: skip
+    fig, ax = plt.subplots(figsize=(5.5, 3.6))
+    x = [g * g for g in grids]
+    for key, label in (("after", "fine-tuned on them, 1,000 steps"),
+                       ("before", "trained in simulation only")):  # fmt: skip
+        ax.errorbar(x, [rows[g][key][0] for g in grids], yerr=[rows[g][key][1] for g in grids],
+                    marker="o", capsize=3, label=label)  # fmt: skip
+    ax.set_xscale("log")
+    ax.set_xticks(x, [f"{g}x{g}" for g in grids], fontsize=7)
+    ax.set_xlabel("recorded glances per object (grid)")
+    ax.set_ylabel("live accuracy, 2 glances")
+    ax.axhline(0.25, color="grey", lw=0.8, ls=":")
+    ax.set_title("the pad: MuJoCo, Gazebo read-out (3 seeds)", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(args.out.with_suffix(".png"), dpi=110)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
