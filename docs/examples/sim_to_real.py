@@ -1,7 +1,7 @@
 """From simulation to a pad of its own: record a few glances, fine-tune on them, explore live.
 
     python docs/examples/sim_to_real.py SIM_RUN OUT [--grid 11] [--steps 1000] [--episodes 640]
-        [--sensor gazebo|taxels] [--seed 0] [--json]
+        [--sensor gazebo|taxels] [--seed 0] [--pose-noise 0] [--json]
 
 SIM_RUN: a run trained in simulation on the paper's objects (e.g. `make demo`'s runs/demo/ham).
 The "real" pad is MuJoCo here, with the Gazebo plugin's read-out by default (a few contact
@@ -13,7 +13,7 @@ replace `Pad.glance` with your robot's. The loop, each step a function of ham's:
 2. The pad records a `--grid` x `--grid` grid of glances per object (`record_glances`:
    OUT/recorded.npz, resumable), imported as a glance table (`import_recorded`: OUT/recorded.h5).
 3. SIM_RUN fine-tuned on that table (`train` with `init_from`: OUT/fine_tuned, `--steps` steps,
-   SIM_RUN's other settings).
+   `--pose-noise` on each training glance's pose, SIM_RUN's other settings).
 4. The fine-tuned run explores the pad live, on the same hidden objects.
 
 Prints the accuracy after the last glance before and after (`--json`: also into OUT/live.json);
@@ -73,6 +73,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--episodes", type=int, default=640, help="live episodes (default 640)")
     ap.add_argument("--sensor", choices=["gazebo", "taxels"], default="gazebo")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--pose-noise",
+        type=float,
+        default=0.0,
+        help="fine-tuning: Gaussian noise on each glance's pose (normalized units)",
+    )
     ap.add_argument("--json", action="store_true", help="also write OUT/live.json")
     args = ap.parse_args(argv)
 
@@ -93,7 +99,8 @@ def main(argv: list[str] | None = None) -> int:
     tuned = args.out / "fine_tuned"
     if not (tuned / "metrics.json").exists():
         config = replace(read_run_config(args.sim_run), table=str(table.resolve()),
-                         init_from=str(args.sim_run), steps=args.steps)  # fmt: skip
+                         init_from=str(args.sim_run), steps=args.steps,
+                         pose_noise=args.pose_noise)  # fmt: skip
         train(config, tuned, progress=False)
     after = explore(tuned, pad, hidden, args.seed)
     print(f"{args.episodes} live episodes on the pad (MuJoCo, {args.sensor} read-out): "
@@ -101,7 +108,8 @@ def main(argv: list[str] | None = None) -> int:
           f"{args.grid} recorded glances per object ({args.steps} steps)")  # fmt: skip
     if args.json:
         write_json(args.out / "live.json", {"before": before, "after": after, **{
-            k: getattr(args, k) for k in ("grid", "steps", "episodes", "sensor", "seed")}})  # fmt: skip
+            k: getattr(args, k) for k in ("grid", "steps", "episodes", "sensor", "seed",
+                                          "pose_noise")}})  # fmt: skip
     return 0
 
 
