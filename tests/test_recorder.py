@@ -170,3 +170,17 @@ def test_a_finished_recording_of_another_grid_is_recorded_anew(tables, tmp_path)
         assert f["box"].shape == (5, 5, 16, 16) and "__spec__" in f.files
     imported = GlanceTable.load(import_recorded(tmp_path / "r.npz", tmp_path / "r.h5"))
     assert imported.objects == ["box"]  # "__spec__" is no object
+
+
+def test_a_partial_recording_changed_since_it_was_saved_is_refused(tables, tmp_path):
+    table = tables["paper"]
+    with pytest.raises(KeyboardInterrupt):
+        record_glances(robot(table, [], fail_at=5), ["box", "convex"], 3, tmp_path / "r.npz",
+                       save_every=1, heights=True, progress=False)  # fmt: skip
+    with np.load(tmp_path / "r.partial.npz") as f:
+        kept = {k: f[k] for k in f.files if k != "convex"}
+    np.savez(tmp_path / "r.partial.npz", **kept)
+    with pytest.raises(HamError, match=r"the partial recording '.*r.partial.npz' is incomplete "
+                       r"\('convex'\); delete it to start over"):  # fmt: skip
+        record_glances(robot(table), ["box", "convex"], 3, tmp_path / "r.npz", heights=True,
+                       progress=False)  # fmt: skip

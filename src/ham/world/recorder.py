@@ -201,14 +201,18 @@ def _resume(partial: Path, spec: str, n_objects: int, poses: int) -> dict:
     if str(stored.get(_SPEC)) != spec:
         raise HamError(f"{str(partial)!r} is a partial recording of other objects, grid or pose "
                        "dims; accepted: the same call to resume it, or delete it to start over")  # fmt: skip
-    state["done"] = stored[_DONE].astype(bool)
     names = json.loads(spec)["objects"]
-    state["images"] = np.stack([stored[n] for n in names]).reshape(n_objects, poses,
-                                                                   *stored[names[0]].shape[-2:])  # fmt: skip
-    state["taxels"] = state["images"].shape[-1]
-    if json.loads(spec)["heights"]:
-        state["heights"] = np.stack([stored[f"{n}.height"] for n in names]).reshape(n_objects,
-                                                                                    poses)  # fmt: skip
+    try:
+        done = stored[_DONE].astype(bool).reshape(n_objects, poses)
+        images = np.stack([stored[n] for n in names])
+        images = images.reshape(n_objects, poses, *images.shape[-2:]).astype(np.float32)
+        if json.loads(spec)["heights"]:
+            stack = np.stack([stored[f"{n}.height"] for n in names])
+            state["heights"] = stack.reshape(n_objects, poses).astype(np.float32)
+    except (KeyError, ValueError) as exc:  # a file changed since it was saved
+        raise HamError(f"the partial recording {str(partial)!r} is incomplete ({exc}); delete it "
+                       "to start over") from None  # fmt: skip
+    state.update(done=done, images=images, taxels=images.shape[-1])
     return state
 
 
