@@ -63,6 +63,8 @@ def test_an_interrupted_recording_resumes_where_it_stopped(tables, tmp_path):
     assert not (tmp_path / "r.npz").exists()
     with np.load(tmp_path / "r.partial.npz") as f:
         assert int(f["__done__"].sum()) == 39  # every glance before the interrupt, saved
+    with pytest.raises(HamError, match="is a partial recording that record_glances has not"):
+        import_recorded(tmp_path / "r.partial.npz", tmp_path / "p.h5")
     record_glances(robot(table, calls), table.objects, 5, tmp_path / "r.npz", heights=True,
                    save_every=7, progress=False)  # fmt: skip
     # no pose asked twice but the interrupted one, and the table's order: object by object

@@ -1009,6 +1009,10 @@ def import_recorded(
             stored = {k_: f[k_] for k_ in f.files}
     except (OSError, ValueError, EOFError) as exc:  # zipfile.BadZipFile is an OSError
         raise HamError(f"cannot read recorded glances {str(src)!r}: {exc}; {accepted}") from None
+    if "__done__" in stored:  # record_glances' progress file, not its recording
+        raise HamError(f"recorded glances {str(src)!r} is a partial recording that record_glances "
+                       "has not finished; accepted: the finished recording (OUT.npz, written when "
+                       "every glance is in)")  # fmt: skip
     names = [n for n in stored if not n.endswith(".height") and not n.startswith("__")]
     if not names:
         raise HamError(f"{str(src)!r} holds no object's images; accepted: one ({axes}, N, N) "
