@@ -3,15 +3,18 @@
     python docs/examples/sim_to_real.py SIM_RUN OUT [--grid 11] [--steps 1000] [--episodes 640]
         [--sensor gazebo|taxels] [--seed 0] [--pose-noise 0] [--json]
 
-SIM_RUN: a run trained in simulation on the paper's objects (e.g. `make demo`'s runs/demo/ham).
-The "real" pad is MuJoCo here, with the Gazebo plugin's read-out by default (a few contact
-points, each spread by 5 mm: a world the fast simulator's runs read poorly); for a real pad,
-replace `Pad.glance` with your robot's. The loop, each step a function of ham's:
+SIM_RUN: a run trained in simulation (e.g. `make demo`'s runs/demo/ham; any objects and pose
+dims MuJoCo can glance: the paper's, or the next world's height fields with poses x, y, ...).
+The "real" pad is MuJoCo here, over the run's objects and poses, with the Gazebo plugin's
+read-out by default (a few contact points, each spread by 5 mm: a world the fast simulator's
+runs read poorly); for a real pad, replace `Pad.glance` with your robot's. The loop, each step a
+function of ham's:
 
 1. SIM_RUN explores the pad live (`Explorer`): `--episodes` episodes, each of a hidden object
    drawn from `--seed`, every glance the pad's at the pose the agent asks for.
-2. The pad records a `--grid` x `--grid` grid of glances per object (`record_glances`:
-   OUT/recorded.npz, resumable), imported as a glance table (`import_recorded`: OUT/recorded.h5).
+2. The pad records `--grid` poses per pose dim of glances per object, with their contact heights
+   (`record_glances`: OUT/recorded.npz, resumable), imported as a glance table
+   (`import_recorded`: OUT/recorded.h5).
 3. SIM_RUN fine-tuned on that table (`train` with `init_from`: OUT/fine_tuned, `--steps` steps,
    `--pose-noise` on each training glance's pose, SIM_RUN's other settings).
 4. The fine-tuned run explores the pad live, on the same hidden objects.
@@ -34,22 +37,32 @@ from ham.learn.explorer import Explorer
 from ham.learn.train import read_run_config, train
 from ham.world.config import WorldConfig, make_simulator
 from ham.world.files import write_json
-from ham.world.poses import simulate, world_pose_dims
+from ham.world.poses import result_height, simulate, world_pose_dims
 from ham.world.recorder import record_glances
-from ham.world.table import import_recorded
+from ham.world.table import import_recorded, table_info
 
 
 class Pad:
-    """The pad on the robot: MuJoCo over the paper's objects (swap in your robot's glance)."""
+    """The pad on the robot: MuJoCo over the run's objects and poses (swap in your robot)."""
 
-    def __init__(self, sensor: str) -> None:
-        self.world = WorldConfig(simulator="mujoco", mujoco={"readout": sensor})
+    def __init__(self, world: WorldConfig, sensor: str) -> None:
+        self.world = replace(world, simulator="mujoco", mujoco={"readout": sensor})
         self.names = [o.name for o in self.world.resolve_objects()]
         self.sim = make_simulator(self.world)
 
-    def glance(self, ids: torch.Tensor, q: torch.Tensor):
-        """Move to the normalized poses ``q`` ``(B, 2)`` over objects ``ids``, press to 2 N."""
-        return simulate(self.sim, ids, q, world_pose_dims(self.world))
+    def glance(self, ids: torch.Tensor, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Move to the normalized poses ``q`` ``(B, k)`` over objects ``ids``, press to 2 N:
+        the raw images ``(B, N, N)`` and the contact heights ``(B,)`` (m)."""
+        r = simulate(self.sim, ids, q, world_pose_dims(self.world))
+        return r.pressure, result_height(r)
+
+
+def run_world(run: Path) -> WorldConfig:
+    """The world a run trained in: its glance table's, or its online world."""
+    config = read_run_config(run)
+    if config.table is None:
+        return config.world
+    return WorldConfig.from_dict(table_info(config.table).world)
 
 
 def explore(run: Path, pad: Pad, hidden: torch.Tensor, seed: int) -> float:
@@ -57,10 +70,12 @@ def explore(run: Path, pad: Pad, hidden: torch.Tensor, seed: int) -> float:
     explorer = Explorer.from_run(run, episodes=len(hidden), seed=seed)
     if explorer.objects != pad.names:
         raise HamError(f"the run classifies {explorer.objects}, the pad's world holds "
-                       f"{pad.names}; accepted: a run of the paper's objects")  # fmt: skip
+                       f"{pad.names}; accepted: a run of the pad's objects")  # fmt: skip
+    reads_height = explorer.agent.config.height_input
     q = explorer.reset()
     while q is not None:
-        q = explorer.observe(pad.glance(hidden, q).pressure)
+        image, height = pad.glance(hidden, q)
+        q = explorer.observe(image, height if reads_height else None)
     return (explorer.prediction == hidden).double().mean().item()
 
 
@@ -82,20 +97,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", action="store_true", help="also write OUT/live.json")
     args = ap.parse_args(argv)
 
-    pad = Pad(args.sensor)
+    pad = Pad(run_world(args.sim_run), args.sensor)
     hidden = torch.randint(len(pad.names), (args.episodes,),
                            generator=torch.Generator().manual_seed(args.seed))  # fmt: skip
     before = explore(args.sim_run, pad, hidden, args.seed)
 
     def glance(name: str, q: np.ndarray):  # one glance at a time, as a robot records them
-        r = pad.glance(torch.tensor([pad.names.index(name)]), torch.tensor(q).view(1, -1))
-        return r.pressure[0].numpy(), float(r.z[0])
+        image, height = pad.glance(torch.tensor([pad.names.index(name)]), torch.tensor(q)[None])
+        return image[0].numpy(), float(height[0])
 
     recorded = args.out / "recorded.npz"  # a rerun asks the pad nothing: it is recorded
-    record_glances(glance, pad.names, args.grid, recorded, heights=True, progress=False)
+    dims = world_pose_dims(pad.world)
+    record_glances(glance, pad.names, args.grid, recorded, pose_dims=dims, heights=True,
+                   progress=False)  # fmt: skip
     table = args.out / "recorded.h5"
     if not table.exists():
-        import_recorded(recorded, table)
+        import_recorded(recorded, table, pose_dims=dims)
     tuned = args.out / "fine_tuned"
     if not (tuned / "metrics.json").exists():
         config = replace(read_run_config(args.sim_run), table=str(table.resolve()),
@@ -104,8 +121,9 @@ def main(argv: list[str] | None = None) -> int:
         train(config, tuned, progress=False)
     after = explore(tuned, pad, hidden, args.seed)
     print(f"{args.episodes} live episodes on the pad (MuJoCo, {args.sensor} read-out): "
-          f"{before:.3f} trained in simulation, {after:.3f} fine-tuned on {args.grid} x "
-          f"{args.grid} recorded glances per object ({args.steps} steps)")  # fmt: skip
+          f"{before:.3f} trained in simulation, {after:.3f} fine-tuned on "
+          f"{' x '.join([str(args.grid)] * len(dims))} recorded glances per object "
+          f"({args.steps} steps)")  # fmt: skip
     if args.json:
         write_json(args.out / "live.json", {"before": before, "after": after, **{
             k: getattr(args, k) for k in ("grid", "steps", "episodes", "sensor", "seed",
