@@ -1,7 +1,7 @@
 """From simulation to a pad of its own: record a few glances, fine-tune on them, explore live.
 
     python docs/examples/sim_to_real.py SIM_RUN OUT [--grid 11] [--steps 1000] [--episodes 640]
-        [--sensor gazebo|taxels] [--seed 0] [--pose-noise 0] [--json]
+        [--sensor gazebo|taxels] [--seed 0] [--pose-noise 0] [--policy-lr-scale S] [--json]
 
 SIM_RUN: a run trained in simulation (e.g. `make demo`'s runs/demo/ham; any objects and pose
 dims MuJoCo can glance: the paper's, or the next world's height fields with poses x, y, ...).
@@ -16,7 +16,8 @@ function of ham's:
    (`record_glances`: OUT/recorded.npz, resumable), imported as a glance table
    (`import_recorded`: OUT/recorded.h5).
 3. SIM_RUN fine-tuned on that table (`train` with `init_from`: OUT/fine_tuned, `--steps` steps,
-   `--pose-noise` on each training glance's pose, SIM_RUN's other settings).
+   `--pose-noise` on each training glance's pose, `--policy-lr-scale` the location network's
+   rate against the rest's, SIM_RUN's other settings).
 4. The fine-tuned run explores the pad live, on the same hidden objects.
 
 Prints the accuracy after the last glance before and after (`--json`: also into OUT/live.json);
@@ -94,6 +95,9 @@ def main(argv: list[str] | None = None) -> int:
         default=0.0,
         help="fine-tuning: Gaussian noise on each glance's pose (normalized units)",
     )
+    ap.add_argument("--policy-lr-scale", type=float, default=None,
+                    help="fine-tuning: the location network's learning rate relative to the "
+                    "rest's (default SIM_RUN's; small: the simulation's policy kept)")  # fmt: skip
     ap.add_argument("--json", action="store_true", help="also write OUT/live.json")
     args = ap.parse_args(argv)
 
@@ -118,6 +122,8 @@ def main(argv: list[str] | None = None) -> int:
         config = replace(read_run_config(args.sim_run), table=str(table.resolve()),
                          init_from=str(args.sim_run), steps=args.steps,
                          pose_noise=args.pose_noise)  # fmt: skip
+        if args.policy_lr_scale is not None:
+            config = replace(config, policy_lr_scale=args.policy_lr_scale)
         train(config, tuned, progress=False)
     after = explore(tuned, pad, hidden, args.seed)
     print(f"{args.episodes} live episodes on the pad (MuJoCo, {args.sensor} read-out): "
@@ -127,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         write_json(args.out / "live.json", {"before": before, "after": after, **{
             k: getattr(args, k) for k in ("grid", "steps", "episodes", "sensor", "seed",
-                                          "pose_noise")}})  # fmt: skip
+                                          "pose_noise", "policy_lr_scale")}})  # fmt: skip
     return 0
 
 
