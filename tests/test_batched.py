@@ -22,7 +22,7 @@ from ham.learn import batched, stacked_ham
 from ham.learn.batched import BatchedRuns, _open_runs, train_batched
 from ham.learn.evaluation import evaluate
 from ham.learn.train import TrainConfig, load_run, resume, stream_seed, train
-from ham.model.agent import HamConfig
+from ham.model.agent import HamConfig, HapticAttentionModel
 from ham.world.config import WorldConfig
 from ham.world.table import build_table
 
@@ -149,6 +149,7 @@ def test_runs_of_other_momenta_and_policy_rates_share_a_batch(tmp_path, device):
         tiny(2, steps=6, momentum=0.5, nesterov=False),
         tiny(3, steps=6, policy_lr_scale=0.3),
         tiny(4, steps=6, momentum=0.95, policy_lr_scale=3.0, lr=2e-3),
+        tiny(5, steps=6, policy_lr_scale=0.0),  # the policy kept as it is
     ]
     configs = [replace(c, device=device) for c in configs]
     assert len({batched.shape_key(c) for c in configs}) == 1
@@ -161,6 +162,11 @@ def test_runs_of_other_momenta_and_policy_rates_share_a_batch(tmp_path, device):
         assert a.keys() == b.keys() and (len(a) == 0) == (c.momentum == 0)
         for k in a:
             assert torch.allclose(a[k]["momentum_buffer"], b[k]["momentum_buffer"], atol=atol)
+    kept = load_run(tmp_path / "b5").agent.location.state_dict()
+    with torch.random.fork_rng():
+        torch.manual_seed(5)  # run 5's initial weights
+        start = HapticAttentionModel(configs[5].model).location.state_dict()
+    assert all(torch.equal(kept[k].cpu(), start[k]) for k in start)
 
 
 @pytest.mark.parametrize(

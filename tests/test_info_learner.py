@@ -207,7 +207,7 @@ def test_env_steps_define_the_steps():
 
 @pytest.mark.parametrize(
     "kw",
-    [{"env_steps": 0}, {"env_steps": 1.5}, {"policy_lr_scale": 0.0},
+    [{"env_steps": 0}, {"env_steps": 1.5}, {"policy_lr_scale": -0.1}, {"policy_lr_scale": True},
      {"policy_lr_scale": float("inf")}, {"gamma": 2.0}, {"entropy_coef": -1.0},
      {"learner": "ppo"}, {"optimizer": "rmsprop"}],
 )  # fmt: skip
@@ -233,6 +233,26 @@ def test_policy_lr_scale_gives_the_location_network_its_own_rate(tmp_path):
     run = Run.create(tiny())
     try:
         assert len(run.optimizer.param_groups) == 1
+    finally:
+        run.close()
+
+
+@pytest.mark.parametrize("optimizer", ["sgd", "adam"])
+def test_a_policy_lr_scale_of_0_keeps_the_policy(optimizer):
+    """policy_lr_scale = 0: the location network stays as it was, bit for bit, while the rest
+    learns (fine-tuning a run's reader on a new pad, docs/sim_to_real.md)."""
+    from ham.learn.train import Run, train_step
+
+    run = Run.create(tiny(policy_lr_scale=0.0, optimizer=optimizer, learner="hybrid"))
+    try:
+        before = {n: p.detach().clone() for n, p in run.agent.named_parameters()}
+        for _ in range(3):
+            train_step(run)
+        after = dict(run.agent.named_parameters())
+        moved = {n for n in before if not torch.equal(before[n], after[n])}
+        location = {f"location.{n}" for n, _ in run.agent.location.named_parameters()}
+        assert location and not moved & location
+        assert moved == set(before) - location  # everything else learned
     finally:
         run.close()
 

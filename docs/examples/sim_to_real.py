@@ -97,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--policy-lr-scale", type=float, default=None,
                     help="fine-tuning: the location network's learning rate relative to the "
-                    "rest's (default SIM_RUN's; small: the simulation's policy kept)")  # fmt: skip
+                    "rest's (default SIM_RUN's; 0: the simulation's policy kept)")  # fmt: skip
     ap.add_argument("--json", action="store_true", help="also write OUT/live.json")
     args = ap.parse_args(argv)
 

@@ -168,8 +168,10 @@ class TrainConfig:
             deviation over the batch (default ``False``: raw advantages in nats; normalized,
             the noise of a solved batch is blown up to unit size, docs/learners.md).
         policy_lr_scale: the location network's learning rate relative to ``lr`` (1: one rate
-            for all weights; with separate encoders the policy's encoder's too). Under Adam a loss weight cannot slow a part down (its steps are
-            scale-free); this can: a fast classifier, a slower policy.
+            for all weights; with separate encoders the policy's encoder's too). Under Adam a
+            loss weight cannot slow a part down (its steps are scale-free); this can: a fast
+            classifier, a slower policy. 0 keeps the policy as it is (fine-tuning a run's
+            reader on a new pad's glances, docs/sim_to_real.md).
         first_pose_lr_scale: the learning rate of the first glance's own pose distribution
             (``HamConfig.first_glance = "own"``) relative to ``lr``, on the same schedule (10:
             in the recipe's decaying schedule its sigma shrinks from 1 to 0.04-0.2; at 3 to
@@ -357,8 +359,9 @@ class TrainConfig:
                 and self.entropy_coef >= 0):  # fmt: skip
             raise HamError(f"entropy_coef = {self.entropy_coef!r}; accepted: a finite number >= 0")
         v = self.policy_lr_scale
-        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-            raise HamError(f"policy_lr_scale = {v!r}; accepted: a finite number > 0")
+        if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            raise HamError(f"policy_lr_scale = {v!r}; accepted: a finite number >= 0 (0: the "
+                           "location network kept as it is)")  # fmt: skip
         v = self.first_pose_lr_scale
         if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
             raise HamError(f"first_pose_lr_scale = {v!r}; accepted: a finite number > 0")
