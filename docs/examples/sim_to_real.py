@@ -12,7 +12,8 @@ function of ham's:
 
 1. SIM_RUN explores the pad live (`Explorer`): `--episodes` episodes, each of a hidden object
    drawn from `--seed`, every glance the pad's at the pose the agent asks for.
-2. The pad records `--grid` poses per pose dim of glances per object, with their contact heights
+2. The pad records `--grid` poses per pose dim (one number, or one per dim: 9,5) of glances per
+   object, with their contact heights
    (`record_glances`: OUT/recorded.npz, resumable), imported as a glance table
    (`import_recorded`: OUT/recorded.h5).
 3. SIM_RUN fine-tuned on that table (`train` with `init_from`: OUT/fine_tuned, `--steps` steps,
@@ -40,7 +41,7 @@ from ham.world.config import WorldConfig, make_simulator
 from ham.world.files import write_json
 from ham.world.poses import result_height, simulate, world_pose_dims
 from ham.world.recorder import record_glances
-from ham.world.table import import_recorded, table_info
+from ham.world.table import grid_shape_for, import_recorded, table_info
 
 
 class Pad:
@@ -84,7 +85,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("sim_run", type=Path)
     ap.add_argument("out", type=Path)
-    ap.add_argument("--grid", type=int, default=11, help="recorded poses per axis (default 11)")
+    ap.add_argument("--grid", default="11", help="recorded poses per pose dim: one number for "
+                    "all (default 11), or one per dim, e.g. 9,5 (x, phi)")  # fmt: skip
     ap.add_argument("--steps", type=int, default=1000, help="fine-tuning steps (default 1000)")
     ap.add_argument("--episodes", type=int, default=640, help="live episodes (default 640)")
     ap.add_argument("--sensor", choices=["gazebo", "taxels"], default="gazebo")
@@ -114,6 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     dims = world_pose_dims(pad.world)
     record_glances(glance, pad.names, args.grid, recorded, pose_dims=dims, heights=True,
                    progress=False)  # fmt: skip
+    shape = grid_shape_for(args.grid, dims)
     table = args.out / "recorded.h5"
     if not table.exists():
         import_recorded(recorded, table, pose_dims=dims)
@@ -128,12 +131,13 @@ def main(argv: list[str] | None = None) -> int:
     after = explore(tuned, pad, hidden, args.seed)
     print(f"{args.episodes} live episodes on the pad (MuJoCo, {args.sensor} read-out): "
           f"{before:.3f} trained in simulation, {after:.3f} fine-tuned on "
-          f"{' x '.join([str(args.grid)] * len(dims))} recorded glances per object "
+          f"{' x '.join(map(str, shape))} recorded glances per object "
           f"({args.steps} steps)")  # fmt: skip
     if args.json:
-        write_json(args.out / "live.json", {"before": before, "after": after, **{
-            k: getattr(args, k) for k in ("grid", "steps", "episodes", "sensor", "seed",
-                                          "pose_noise", "policy_lr_scale")}})  # fmt: skip
+        grid = int(args.grid) if args.grid.isdigit() else list(shape)
+        write_json(args.out / "live.json", {"before": before, "after": after, "grid": grid, **{
+            k: getattr(args, k) for k in ("steps", "episodes", "sensor", "seed", "pose_noise",
+                                          "policy_lr_scale")}})  # fmt: skip
     return 0
 
 

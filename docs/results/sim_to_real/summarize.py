@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -32,29 +33,32 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--title", default="the pad: MuJoCo, Gazebo read-out (3 seeds)")
     args = ap.parse_args(argv)
     runs = [json.loads((r / "live.json").read_text()) | {"run": r.name} for r in args.runs]
-    grids = sorted({r["grid"] for r in runs})
+    for r in runs:  # one number for every pose dim (2 here), or one per dim
+        r["shape"] = [r["grid"]] * 2 if isinstance(r["grid"], int) else r["grid"]
+    shapes = sorted({tuple(r["shape"]) for r in runs}, key=lambda t: (math.prod(t), t))
     rows = {}
     print("| recorded glances per object | before (live) | after (live) | seeds (after) |")
     # (the grid's size per pose dim; a run over k pose dims recorded g^k glances per object)
     print("|---|---|---|---|")
-    for g in grids:
-        mine = sorted((r for r in runs if r["grid"] == g), key=lambda r: r["seed"])
+    for shape in shapes:
+        mine = sorted((r for r in runs if tuple(r["shape"]) == shape), key=lambda r: r["seed"])
         before, after = mean_sem(r["before"] for r in mine), mean_sem(r["after"] for r in mine)
-        rows[g] = {"before": before, "after": after, "seeds": [r["seed"] for r in mine]}
+        name = " x ".join(map(str, shape))
+        rows[name] = {"before": before, "after": after, "seeds": [r["seed"] for r in mine]}
         seeds = " / ".join(f"{r['after']:.3f}" for r in mine)
-        print(f"| {g} x {g} ({g * g}) | {format_mean_sem(*before)} | "
+        print(f"| {name} ({math.prod(shape)}) | {format_mean_sem(*before)} | "
               f"**{format_mean_sem(*after)}** | {seeds} |")  # fmt: skip
     write_json(args.out, {"command": " ".join(["python", *sys.argv]), "runs": runs,
                           "by_grid": rows})  # fmt: skip
     fig, ax = plt.subplots(figsize=(5.5, 3.6))
-    x = [g * g for g in grids]
+    names, x = [" x ".join(map(str, t)) for t in shapes], [math.prod(t) for t in shapes]
     steps = "/".join(f"{n:,}" for n in sorted({r["steps"] for r in runs}))
     for key, label in (("after", f"fine-tuned on them, {steps} steps"),
                        ("before", "trained in simulation only")):  # fmt: skip
-        ax.errorbar(x, [rows[g][key][0] for g in grids], yerr=[rows[g][key][1] for g in grids],
+        ax.errorbar(x, [rows[n][key][0] for n in names], yerr=[rows[n][key][1] for n in names],
                     marker="o", capsize=3, label=label)  # fmt: skip
     ax.set_xscale("log")
-    ax.set_xticks(x, [f"{g}x{g}" for g in grids], fontsize=7)
+    ax.set_xticks(x, [n.replace(" ", "") for n in names], fontsize=7)
     ax.set_xlabel("recorded glances per object (grid)")
     ax.set_ylabel("live accuracy after the last glance")
     ax.set_title(args.title, fontsize=9)
