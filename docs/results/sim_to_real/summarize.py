@@ -51,15 +51,16 @@ def main(argv: list[str] | None = None) -> int:
     write_json(args.out, {"command": " ".join(["python", *sys.argv]), "runs": runs,
                           "by_grid": rows})  # fmt: skip
     fig, ax = plt.subplots(figsize=(5.5, 3.6))
-    names, x = [" x ".join(map(str, t)) for t in shapes], [math.prod(t) for t in shapes]
+    names, x = [" x ".join(map(str, t)) for t in shapes], list(range(len(shapes)))
     steps = "/".join(f"{n:,}" for n in sorted({r["steps"] for r in runs}))
     for key, label in (("after", f"fine-tuned on them, {steps} steps"),
                        ("before", "trained in simulation only")):  # fmt: skip
         ax.errorbar(x, [rows[n][key][0] for n in names], yerr=[rows[n][key][1] for n in names],
                     marker="o", capsize=3, label=label)  # fmt: skip
-    ax.set_xscale("log")
-    ax.set_xticks(x, [n.replace(" ", "") for n in names], fontsize=7)
-    ax.set_xlabel("recorded glances per object (grid)")
+    ax.set_xticks(x, [f"{n.replace(' ', '')}\n({math.prod(t)})" for n, t in zip(names, shapes,
+                                                                            strict=True)],
+                  fontsize=7)  # fmt: skip
+    ax.set_xlabel("recorded glances per object: grid (count)")
     ax.set_ylabel("live accuracy after the last glance")
     ax.set_title(args.title, fontsize=9)
     ax.legend(fontsize=7)
