@@ -104,6 +104,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     pad = Pad(run_world(args.sim_run), args.sensor)
+    dims = world_pose_dims(pad.world)
+    shape = grid_shape_for(args.grid, dims)  # a bad --grid refused before the pad is touched
     hidden = torch.randint(len(pad.names), (args.episodes,),
                            generator=torch.Generator().manual_seed(args.seed))  # fmt: skip
     before = explore(args.sim_run, pad, hidden, args.seed)
@@ -113,10 +115,8 @@ def main(argv: list[str] | None = None) -> int:
         return image[0].numpy(), float(height[0])
 
     recorded = args.out / "recorded.npz"  # a rerun asks the pad nothing: it is recorded
-    dims = world_pose_dims(pad.world)
     record_glances(glance, pad.names, args.grid, recorded, pose_dims=dims, heights=True,
                    progress=False)  # fmt: skip
-    shape = grid_shape_for(args.grid, dims)
     table = args.out / "recorded.h5"
     if not table.exists():
         import_recorded(recorded, table, pose_dims=dims)
