@@ -500,7 +500,8 @@ def build_parser() -> argparse.ArgumentParser:
                         ".npz of one (G_x, G_phi, N, N) array per object over the paper's (x, phi) "
                         "grid, or over --pose-dims")  # fmt: skip
     p.add_argument("file", help=".npz: an array per object, named by it, in class order "
-                   "(NAME.height: its contact heights, m, optional)")  # fmt: skip
+                   "(NAME.height: its contact heights, m, optional); "
+                   "ham.world.recorder.record_glances writes one")  # fmt: skip
     p.add_argument("--out", required=True, help="HDF5 table to write, .h5 or .hdf5")
     p.add_argument("--pose-dims", default="x,phi", metavar="DIMS",
                    help="the arrays' grid axes, in order: a subset of x,y,phi,phi_y (default x,phi; "
