@@ -64,7 +64,9 @@ def record_glances(
     it is kept in ``OUT.partial.npz``, as it is on any error or interrupt, and a call with the same
     objects, grid and pose dims resumes there (another is refused). A finished recording keeps
     what it recorded (``__spec__``): the same call again returns it without a glance, another
-    records anew over it. Returns ``out``."""
+    records anew over it. Each save writes the whole recording so far (a robot's few thousand
+    glances: megabytes); for a recording of tens of thousands, raise ``save_every``. Returns
+    ``out``."""
     out = check_output(out, (".npz",), what="recorded glances")
     dims = check_pose_dims(pose_dims, "pose_dims")
     if not callable(glance):
