@@ -186,3 +186,35 @@ def test_a_partial_recording_changed_since_it_was_saved_is_refused(tables, tmp_p
                        r"\('convex'\); delete it to start over"):  # fmt: skip
         record_glances(robot(table), ["box", "convex"], 3, tmp_path / "r.npz", heights=True,
                        progress=False)  # fmt: skip
+
+
+def test_objects_recorded_on_different_days_import_as_one_table(tables, tmp_path):
+    """Each object recorded into its own file (record_glances, one call each), imported
+    together: the objects in the order of the files, the table the one recorded at once."""
+    table = tables["paper"]
+    files = []
+    for name in table.objects:
+        files.append(record_glances(robot(table), [name], 5, tmp_path / f"{name}.npz",
+                                    heights=True, progress=False))  # fmt: skip
+    both = GlanceTable.load(import_recorded(files, tmp_path / "all.h5"))
+    assert both.objects == table.objects
+    assert torch.equal(both.pressure, table.pressure) and torch.equal(both.height, table.height)
+    assert both.info.source == "recorded:" + ",".join(f.name for f in files)
+    with pytest.raises(HamError, match=r"box is in both '.*box.npz' and '.*box.npz'; accepted: "
+                       "each object"):  # fmt: skip
+        import_recorded([files[0], files[0]], tmp_path / "twice.h5")
+    np.savez(tmp_path / "bad.npz", cup=np.zeros((3, 3, 16, 16)))
+    with pytest.raises(HamError, match=r"box.npz, .*bad.npz': the objects' arrays differ in shape"):
+        import_recorded([files[0], tmp_path / "bad.npz"], tmp_path / "mixed.h5")
+    with pytest.raises(HamError, match=r"recorded glances \[\]; accepted: an .npz file or a list"):
+        import_recorded([], tmp_path / "none.h5")
+    assert [p.name for p in tmp_path.glob("*.h5")] == ["all.h5"]  # a refused import writes none
+
+
+def test_the_cli_imports_several_recorded_files(tables, tmp_path, ham_cli):
+    table = tables["paper"]
+    files = [str(record_glances(robot(table), [n], 3, tmp_path / f"{n}.npz", heights=True,
+                                progress=False)) for n in table.objects[:2]]  # fmt: skip
+    r = ham_cli("table", "import-recorded", *files, "--out", str(tmp_path / "two.h5"))
+    assert r.returncode == 0, r.stderr
+    assert GlanceTable.load(tmp_path / "two.h5").objects == table.objects[:2]

@@ -351,7 +351,8 @@ def cmd_table_import_recorded(args: argparse.Namespace) -> int:
     from ham.world.table import import_recorded
 
     check_output(args.out, HDF5)
-    out = import_recorded(args.file, args.out, pose_dims=args.pose_dims,
+    files = args.file[0] if len(args.file) == 1 else args.file
+    out = import_recorded(files, args.out, pose_dims=args.pose_dims,
                           compression=args.compression, command=command_line(args))  # fmt: skip
     print(f"wrote {out}")
     return 0
@@ -499,9 +500,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="recorded glances (a real pad's, another simulator's) as a table: an "
                         ".npz of one (G_x, G_phi, N, N) array per object over the paper's (x, phi) "
                         "grid, or over --pose-dims")  # fmt: skip
-    p.add_argument("file", help=".npz: an array per object, named by it, in class order "
-                   "(NAME.height: its contact heights, m, optional); "
-                   "ham.world.recorder.record_glances writes one")  # fmt: skip
+    p.add_argument("file", nargs="+", help=".npz: an array per object, named by it, in class "
+                   "order (NAME.height: its contact heights, m, optional); "
+                   "ham.world.recorder.record_glances writes one; several files: their objects "
+                   "in turn")  # fmt: skip
     p.add_argument("--out", required=True, help="HDF5 table to write, .h5 or .hdf5")
     p.add_argument("--pose-dims", default="x,phi", metavar="DIMS",
                    help="the arrays' grid axes, in order: a subset of x,y,phi,phi_y (default x,phi; "

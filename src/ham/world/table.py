@@ -974,7 +974,7 @@ def import_authors(
 
 @checked_arguments
 def import_recorded(
-    src: str | os.PathLike,
+    src: str | os.PathLike | list | tuple,
     out: str | os.PathLike,
     *,
     pose_dims: str | tuple[str, ...] = PAPER_POSE_DIMS,
@@ -982,14 +982,15 @@ def import_recorded(
     command: str | None = None,
 ) -> Path:
     """A table from recorded glances: a real pad's, or another simulator's. ``src`` is a NumPy
-    ``.npz`` file with one array per object, named by it, in class order: ``(G_1, .., G_k, N,
-    N)``, the ``N x N`` image at each point of a grid over the ``k`` ``pose_dims`` (default the
-    paper's ``x, phi``; e.g. ``x,y,phi,phi_y`` for the extended glance), each axis from -1 to 1
+    ``.npz`` file (or a list of them, their objects in turn: objects recorded on different days)
+    with one array per object, named by it, in class order: ``(G_1, .., G_k, N, N)``, the ``N x
+    N`` image at each point of a grid over the ``k`` ``pose_dims`` (default the paper's ``x,
+    phi``; e.g. ``x,y,phi,phi_y`` for the extended glance), each axis from -1 to 1
     (:func:`grid_values`), pressures >= 0 (any unit: the normalization makes them scale-free).
     An array ``NAME.height`` ``(G_1, .., G_k)`` (m) beside an object's gives its contact
     heights; force is unknown (NaN); names starting with ``__`` are not objects (the recorder's
-    ``__spec__``, :mod:`ham.world.recorder`). A square ``(x, phi)`` grid is written in the paper's format
-    1, any other in format 2 (``compression``: gzip by default, lzf or none, as
+    ``__spec__``, :mod:`ham.world.recorder`). A square ``(x, phi)`` grid is written in the
+    paper's format 1, any other in format 2 (``compression``: gzip by default, lzf or none, as
     :func:`build_table`). Then ``ham train --table``, ``--init-from`` (fine-tuning on it) and
     ``ham evaluate --transfer-table`` take it."""
     out = check_output(out, (".h5", ".hdf5"), what="glance table")
@@ -999,50 +1000,49 @@ def import_recorded(
     accepted = f"accepted: an .npz file of one ({axes}, N, N) array per object"
     if compression is not None and compression not in COMPRESSIONS:
         raise HamError(f"compression = {compression!r}; accepted: {', '.join(COMPRESSIONS)}")
-    if Path(src).is_dir():
-        raise HamError(f"recorded glances {str(src)!r} is a folder; {accepted}")
-    if Path(src).is_file() and not zipfile.is_zipfile(src):  # np.load would read it as a pickle
-        raise HamError(f"recorded glances {str(src)!r} is not an .npz file (a zip of arrays); "
-                       f"{accepted}")  # fmt: skip
-    try:
-        with np.load(src, allow_pickle=False) as f:
-            stored = {k_: f[k_] for k_ in f.files}
-    except (OSError, ValueError, EOFError) as exc:  # zipfile.BadZipFile is an OSError
-        raise HamError(f"cannot read recorded glances {str(src)!r}: {exc}; {accepted}") from None
-    if "__done__" in stored:  # record_glances' progress file, not its recording
-        raise HamError(f"recorded glances {str(src)!r} is a partial recording that record_glances "
-                       "has not finished; accepted: the finished recording (OUT.npz, written when "
-                       "every glance is in)")  # fmt: skip
-    names = [n for n in stored if not n.endswith(".height") and not n.startswith("__")]
+    files = list(src) if isinstance(src, (list, tuple)) else [src]
+    if not files or not all(isinstance(f, (str, os.PathLike)) for f in files):
+        raise HamError(f"recorded glances {src!r}; accepted: an .npz file or a list of them")
+    stored: dict[str, np.ndarray] = {}
+    origin: dict[str, str] = {}  # each array's file, for the messages
+    for one in files:
+        for name, a in _read_recorded(one, accepted).items():
+            if name in stored:
+                raise HamError(f"{name} is in both {origin[name]!r} and {str(one)!r}; accepted: "
+                               "each object (and its NAME.height) in one file")  # fmt: skip
+            stored[name], origin[name] = a, str(one)
+    where = str(files[0]) if len(files) == 1 else ", ".join(map(str, files))
+    names = [n for n in stored if not n.endswith(".height")]
     if not names:
-        raise HamError(f"{str(src)!r} holds no object's images; accepted: one ({axes}, N, N) "
+        raise HamError(f"{where!r} holds no object's images; accepted: one ({axes}, N, N) "
                        "array per object, named by it")  # fmt: skip
     arrays, heights = [], []
     for name in names:
         a = stored[name]
         if a.ndim != k + 2 or a.shape[k] != a.shape[k + 1] or min(a.shape[:k]) < 2:
-            raise HamError(f"{str(src)!r}: {name} has shape {a.shape}; accepted: ({axes}, N, N) "
-                           f"for pose dims {','.join(dims)}, G >= 2 grid points per axis, N x N "
-                           "taxels")  # fmt: skip
+            raise HamError(f"{origin[name]!r}: {name} has shape {a.shape}; accepted: ({axes}, "
+                           f"N, N) for pose dims {','.join(dims)}, G >= 2 grid points per axis, "
+                           "N x N taxels")  # fmt: skip
         if a.dtype.kind not in "biuf":
-            raise HamError(f"{str(src)!r}: {name} holds {a.dtype} values; accepted: real "
+            raise HamError(f"{origin[name]!r}: {name} holds {a.dtype} values; accepted: real "
                            "pressures")  # fmt: skip
         arrays.append(np.ascontiguousarray(a, dtype=np.float32))
-        _check_pressure(str(src), name, arrays[-1])
+        _check_pressure(origin[name], name, arrays[-1])
         h = stored.get(f"{name}.height")
         if h is not None:
             if h.shape != a.shape[:k] or h.dtype.kind not in "biuf" or not np.isfinite(h).all():
-                raise HamError(f"{str(src)!r}: {name}.height has shape {h.shape} ({h.dtype}); "
-                               f"accepted: finite heights (m) of shape {a.shape[:k]}")  # fmt: skip
+                raise HamError(f"{origin[name]!r}: {name}.height has shape {h.shape} "
+                               f"({h.dtype}); accepted: finite heights (m) of shape "
+                               f"{a.shape[:k]}")  # fmt: skip
             h = np.asarray(h, dtype=np.float32)
         heights.append(h)
     stray = [n for n in stored if n.endswith(".height") and n.removesuffix(".height") not in names]
     if stray:
-        raise HamError(f"{str(src)!r}: {stray[0]} belongs to no object's images; accepted: "
-                       "NAME.height beside an array NAME")  # fmt: skip
+        raise HamError(f"{origin[stray[0]]!r}: {stray[0]} belongs to no object's images; "
+                       "accepted: NAME.height beside an array NAME")  # fmt: skip
     if any(a.shape != arrays[0].shape for a in arrays):
         shapes = ", ".join(f"{n} {a.shape}" for n, a in zip(names, arrays, strict=True))
-        raise HamError(f"{str(src)!r}: the objects' arrays differ in shape ({shapes}); "
+        raise HamError(f"{where!r}: the objects' arrays differ in shape ({shapes}); "
                        "accepted: one grid and one pad for all")  # fmt: skip
     shape, taxels = grid_shape_for(arrays[0].shape[:k], dims), arrays[0].shape[k]
     paper = is_paper_layout(dims, shape)
@@ -1052,19 +1052,41 @@ def import_recorded(
             "uncompressed; accepted: a compression for a table over other pose dims (format 2)"
         )
     world = WorldConfig(sensor=SensorConfig(taxels=taxels), pose_dims=dims)
-    call = f"ham.world.table.import_recorded({str(src)!r}, {str(out)!r}"
+    given = repr(str(files[0])) if len(files) == 1 else repr([str(f) for f in files])
+    call = f"ham.world.table.import_recorded({given}, {str(out)!r}"
     if not paper:
         call += f", pose_dims={','.join(dims)!r}"
     command = command or _python_command(call + ")")
-    simulator = {"simulator": "recorded", "file": Path(src).name}
+    file_names = [Path(f).name for f in files]
+    simulator = {"simulator": "recorded", "file": ", ".join(file_names)}
     layout = None if paper else (dims, shape, compression or "gzip")
 
     def write(tmp: Path) -> None:
         with h5py.File(tmp, "w") as g:
             _write_images(g, names, arrays, shape[0], world, simulator,
-                          f"recorded:{Path(src).name}", command, heights, layout)  # fmt: skip
+                          f"recorded:{','.join(file_names)}", command, heights, layout)  # fmt: skip
 
     return atomic_write(out, write, what="glance table")
+
+
+def _read_recorded(src, accepted: str) -> dict[str, np.ndarray]:
+    """The arrays of one recorded-glances ``.npz`` file (not its ``__`` names), or a one-line
+    :class:`HamError` naming it."""
+    if Path(src).is_dir():
+        raise HamError(f"recorded glances {str(src)!r} is a folder; {accepted}")
+    if Path(src).is_file() and not zipfile.is_zipfile(src):  # np.load would read it as a pickle
+        raise HamError(f"recorded glances {str(src)!r} is not an .npz file (a zip of arrays); "
+                       f"{accepted}")  # fmt: skip
+    try:
+        with np.load(src, allow_pickle=False) as f:
+            stored = {k: f[k] for k in f.files}
+    except (OSError, ValueError, EOFError) as exc:  # zipfile.BadZipFile is an OSError
+        raise HamError(f"cannot read recorded glances {str(src)!r}: {exc}; {accepted}") from None
+    if "__done__" in stored:  # record_glances' progress file, not its recording
+        raise HamError(f"recorded glances {str(src)!r} is a partial recording that record_glances "
+                       "has not finished; accepted: the finished recording (OUT.npz, written when "
+                       "every glance is in)")  # fmt: skip
+    return {k: a for k, a in stored.items() if not k.startswith("__")}
 
 
 def _write_images(
