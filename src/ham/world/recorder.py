@@ -34,7 +34,7 @@ from ham.errors import HamError, checked_arguments
 from ham.world.files import atomic_write, check_output
 from ham.world.glance import check_pose_dims
 from ham.world.sensor import MAX_PRESSURE
-from ham.world.table import grid_shape_for, grid_values
+from ham.world.table import bad_pressure, grid_shape_for, grid_values
 
 #: the keys of a partial recording beside the objects' arrays
 _DONE, _SPEC = "__done__", "__spec__"
@@ -166,8 +166,8 @@ def _checked(got, name: str, q: np.ndarray, dims, heights: bool, state: dict):
     if n is not None and image.shape != (n, n):
         raise HamError(f"{at} returned an image of shape {image.shape}; accepted: ({n}, {n}), "
                        "the pad's earlier glances")  # fmt: skip
-    if not (np.isfinite(image).all() and image.min() >= 0 and image.max() <= MAX_PRESSURE):
-        bad = tuple(int(i) for i in np.argwhere(~((image >= 0) & (image <= MAX_PRESSURE)))[0])
+    bad = bad_pressure(image)
+    if bad is not None:
         raise HamError(f"{at} returned {float(image[bad])} at taxel {bad}; accepted: pressures "
                        f"in [0, {MAX_PRESSURE:g}]")  # fmt: skip
     if n is None:  # the first glance: the pad's size, the arrays

@@ -153,14 +153,22 @@ def _python_command(call: str) -> str:
     return f"python {shlex.join(argv)}: {call}" if argv else f"python: {call}"
 
 
-def _check_pressure(path: str, name: str, a: np.ndarray) -> None:
-    """Pressures in ``[0, MAX_PRESSURE]`` Pa, or a :class:`HamError` naming the first bad value."""
+def bad_pressure(a: np.ndarray) -> tuple[int, ...] | None:
+    """The index of the first value of ``a`` outside ``[0, MAX_PRESSURE]`` Pa (NaN included),
+    or ``None`` when every pressure is one."""
     # two reductions (NaN propagates into both, and fails either comparison; so does an inf)
     # instead of a mask over 16 M values, as the simulator-file check does on its tensors
     lo, hi = a.min(initial=0.0), a.max(initial=0.0)
     if lo >= 0 and hi <= MAX_PRESSURE:
+        return None
+    return tuple(int(k) for k in np.argwhere(~((a >= 0) & (a <= MAX_PRESSURE)))[0])
+
+
+def _check_pressure(path: str, name: str, a: np.ndarray) -> None:
+    """Pressures in ``[0, MAX_PRESSURE]`` Pa, or a :class:`HamError` naming the first bad value."""
+    i = bad_pressure(a)
+    if i is None:
         return
-    i = tuple(int(k) for k in np.argwhere(~((a >= 0) & (a <= MAX_PRESSURE)))[0])
     raise HamError(
         f"glance table {path!r} is corrupt: objects/{name}/pressure holds {float(a[i])} at index "
         f"{i}; accepted: pressures in [0, {MAX_PRESSURE:g}] Pa"
