@@ -100,13 +100,13 @@ class Partitions:
             )
         n_poses = int(np.prod(shape))
         images = table.pressure.reshape(k, n_poses, *table.pressure.shape[-2:])
-        heights = table.height.reshape(k, n_poses, 1) if height else None
-        if height and not torch.isfinite(heights).all():
+        if height and not table.knows_heights:
             raise HamError(
                 "height = True on a table that does not know every glance's contact height "
                 "(NaN: imported without heights); accepted: height = False, or a table with "
                 "heights"
             )
+        heights = table.height.reshape(k, n_poses, 1) if height else None
         labels = np.empty((n_poses, k), dtype=np.int64)
         for start in range(0, n_poses, chunk):
             sl = slice(start, start + chunk)

@@ -860,7 +860,7 @@ def _check_env(model: HamConfig, env) -> None:
             "accepted: the haptic world (glances carry h)"
         )
     table = getattr(getattr(env, "source", None), "table", None)
-    if model.height_input and table is not None and not torch.isfinite(table.height).all():
+    if model.height_input and table is not None and not table.knows_heights:
         raise HamError(
             f"the model takes the contact height (height_input) but glance table "
             f"{table.info.path!r} does not know every glance's (NaN: imported without heights); "

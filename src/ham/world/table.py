@@ -742,6 +742,12 @@ class GlanceTable:
         """The images stay on disk (memory-mapped or read per batch)."""
         return self._stream is not None
 
+    @property
+    def knows_heights(self) -> bool:
+        """Whether every glance's contact height is known (glances imported without heights
+        leave them NaN: a model or planner that reads heights is refused such a table)."""
+        return bool(torch.isfinite(self.height).all())
+
     @classmethod
     @checked_arguments
     def load(
