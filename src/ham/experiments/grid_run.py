@@ -149,17 +149,16 @@ def _complete(root: Path, job: GridJob) -> bool:
 def _check_sources(root: Path, jobs: list[GridJob]) -> None:
     """Every run still to train that starts from another run (``init_from``) finds it: refused
     before anything is trained, not run by run."""
-    from ham.learn.train import CONFIG_FILE
+    from ham.learn.train import init_source_problem
 
     for job in jobs:
         source = job.config.get("init_from")
-        if source is None or (Path(source) / CONFIG_FILE).is_file() or _complete(root, job):
-            continue
-        what = "does not exist" if not Path(source).exists() else "holds no ham train run"
-        raise HamError(
-            f"run {job.key} starts from init_from {source!r}, which {what}; accepted: a folder "
-            'of ham train for each seed ("{seed}" in init_from names the seed\'s run)'
-        )
+        problem = None if source is None else init_source_problem(source)
+        if problem is not None and not _complete(root, job):  # a finished run needs it no more
+            raise HamError(
+                f"run {job.key} starts from init_from {source!r}, which {problem}; accepted: a "
+                'folder of ham train for each seed ("{seed}" in init_from names the seed\'s run)'
+            )
 
 
 def _check_existing_runs(root: Path, jobs: list[GridJob]) -> None:

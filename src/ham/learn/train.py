@@ -1094,14 +1094,23 @@ def train(config: TrainConfig, out: str | os.PathLike, *, progress: bool = True)
         run.close()
 
 
+def init_source_problem(source: str | os.PathLike) -> str | None:
+    """Why a fresh run cannot start from folder ``source`` (``"does not exist"``, ``"holds no
+    ham train run"``), or ``None`` when it holds a run (:attr:`TrainConfig.init_from`)."""
+    folder = Path(source)
+    if (folder / CONFIG_FILE).is_file():
+        return None
+    return "does not exist" if not folder.exists() else "holds no ham train run"
+
+
 def start_from(run: Run, source: str) -> None:
     """``run``'s model set to the latest weights of the run in folder ``source``
     (:attr:`TrainConfig.init_from`): the two models alike in every field but ``glances``; only
     the model's weights are taken (a sac learner's critics start afresh)."""
     folder = Path(source)
-    if not (folder / CONFIG_FILE).is_file():
-        what = "does not exist" if not folder.exists() else "holds no ham train run"
-        raise HamError(f"init_from {source!r} {what}; accepted: a folder of ham train")
+    problem = init_source_problem(folder)
+    if problem is not None:
+        raise HamError(f"init_from {source!r} {problem}; accepted: a folder of ham train")
     theirs = read_run_config(folder).model.to_dict()
     ours = run.config.model.to_dict()
     keys = sorted((ours.keys() | theirs.keys()) - {"glances"})
