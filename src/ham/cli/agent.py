@@ -80,13 +80,7 @@ def add_commands(subparsers) -> None:
                    help="evaluate on other objects, one per class in the run's class order "
                    "(e.g. composite:test for a run trained on composite:train: held-out "
                    "instances); online runs only")  # fmt: skip
-    p.add_argument("--table", metavar="FILE",
-                   help="the run's glance table at a new path (accepted only with the sha256 "
-                   "the run's checkpoint kept)")  # fmt: skip
-    p.add_argument("--transfer-table", metavar="FILE",
-                   help="the agent on the glances of another table of the same objects and pose "
-                   "dims (another simulator, read-out, sensor or grid): how what the run learned "
-                   "transfers; prints how that world differs from the run's")  # fmt: skip
+    _add_table_options(p)
     p.add_argument("--confusion", metavar="PNG",
                    help="also plot the confusion matrix after the last glance")  # fmt: skip
     p.add_argument("--swap-last-pose", action="store_true",
@@ -110,6 +104,12 @@ def add_commands(subparsers) -> None:
     p.add_argument("--objects", metavar="SET",
                    help="on other objects, one per class in the run's class order (e.g. "
                    "composite:test); online runs only")  # fmt: skip
+    _add_table_options(p)
+    p.set_defaults(func=cmd_heatmap)
+
+
+def _add_table_options(p: argparse.ArgumentParser) -> None:
+    """``evaluate``'s and ``heatmap``'s glance tables (:func:`_load` reads them)."""
     p.add_argument("--table", metavar="FILE",
                    help="the run's glance table at a new path (accepted only with the sha256 "
                    "the run's checkpoint kept)")  # fmt: skip
@@ -117,7 +117,6 @@ def add_commands(subparsers) -> None:
                    help="the agent on the glances of another table of the same objects and pose "
                    "dims (another simulator, read-out, sensor or grid): how what the run learned "
                    "transfers; prints how that world differs from the run's")  # fmt: skip
-    p.set_defaults(func=cmd_heatmap)
 
 
 def _add_world_options(p: argparse.ArgumentParser) -> None:
