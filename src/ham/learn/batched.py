@@ -48,7 +48,6 @@ import torch
 from torch.nn import functional as F
 
 from ham.errors import HamError
-from ham.learn.environment import HapticEnv
 from ham.learn.evaluation import EvalResult, eval_result, pose_sums
 from ham.learn.hybrid_loss import hybrid_loss
 from ham.learn.stacked_ham import StackedHam
@@ -62,6 +61,7 @@ from ham.learn.train import (
     check_loss,
     check_weights,
     evaluate_run,
+    haptic_env,
     load_checkpoint,
     log_evaluation,
     overflowed,
@@ -1176,10 +1176,7 @@ def _open_runs(configs: list[TrainConfig], outs: list[Path]) -> list[Run]:
     check_model_fits(c0.model.pressure_dim, c0.model.n_objects, source)
     runs: list[Run] = []
     for c in configs:
-        env = HapticEnv(source, c.batch_size, c.normalization, stream_seed(c.seed, 0), device,
-                        pose_noise=c.pose_noise,
-                        augment_sigma=c.spread_augment / world.sensor.pitch)  # fmt: skip
-        runs.append(Run.create(c, env))
+        runs.append(Run.create(c, haptic_env(c, source, world, device)))
     return runs
 
 

@@ -815,6 +815,14 @@ def make_env(config: TrainConfig, device: torch.device | str = "cpu") -> HapticE
             f"{source.description} takes {','.join(source.pose_dims)}; accepted: a model with "
             f"pose_dims = {','.join(source.pose_dims)}"
         )
+    return haptic_env(config, source, world, device)
+
+
+def haptic_env(config: TrainConfig, source, world, device: torch.device | str) -> HapticEnv:
+    """The :class:`HapticEnv` of ``config`` over glance ``source`` of ``world`` (its pad sets
+    the spread augmentation's unit): the run's batch, normalization, object stream (seed stream
+    0), object pose, pose noise and read-out spreads. The batched trainer's runs share one
+    source."""
     return HapticEnv(
         source,
         config.batch_size,
