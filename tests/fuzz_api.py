@@ -87,6 +87,7 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
     from ham.learn.train import TrainConfig, fit_to_ap_gym, load_run, resume, train
     from ham.model.core import register_core
     from ham.model.policy import register_policy
+    from ham.world.calibration import calibrate_table, fit_readout
     from ham.world.config import WorldConfig
     from ham.world.objects import HapticObject, register
     from ham.world.recorder import record_glances
@@ -105,6 +106,9 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
     config = TrainConfig(steps=2, batch_size=4, eval_every=2, eval_batches=1, table=str(table))
     recorded = tmp / "rec.npz"
     np.savez(recorded, box=np.zeros((3, 3, 16, 16)), cup=np.ones((3, 3, 16, 16)))
+    calibration = tmp / "cal.npz"  # the pad's glances of the table's objects
+    np.savez(calibration, **{n: np.arange(9 * 256.0).reshape(3, 3, 16, 16) for n in
+                             ("box", "ramp_up", "convex", "ramp_down")})  # fmt: skip
     run_out = tmp / "run"
     (tmp / "g.toml").write_text('name = "g"\n[base]\nsteps = 2\nbatch_size = 4\n[axes]\n'
                                 '"model.glances" = [1, 2]\n')  # fmt: skip
@@ -136,6 +140,18 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
         "verify_table": (verify_table, {"path": table}),
         "import_authors": (import_authors, {"src": tmp / "none.h5", "out": "imp.h5"}),
         "import_recorded": (import_recorded, {"src": recorded, "out": "rec.h5"}),
+        "calibrate_table": (
+            calibrate_table,
+            {"table": table, "recorded": calibration, "out": "cal.h5", "kernel": 3},
+        ),  # fmt: skip
+        "fit_readout": (
+            fit_readout,
+            {
+                "simulated": np.ones((2, 4, 4)),
+                "recorded": np.arange(32.0).reshape(2, 4, 4),
+                "kernel": 3,
+            },
+        ),  # fmt: skip
         "record_glances": (
             record_glances,
             {

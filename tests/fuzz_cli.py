@@ -84,10 +84,15 @@ def _fixtures(root: Path) -> dict[str, str]:
     recorded = root / "rec.npz"
     np.savez(recorded, cup=rng.random((3, 3, 2, 2, 4, 4)), ball=rng.random((3, 3, 2, 2, 4, 4)),
              **{"cup.height": rng.random((3, 3, 2, 2)) * 0.01})  # fmt: skip
-    return {"TABLE": str(t), "RUN": str(run), "GRID": str(grid), "RECORDED": str(recorded)}
+    calibration = root / "cal.npz"  # the pad's 3 x 3 glances of TABLE's objects
+    np.savez(calibration, **{n: rng.random((3, 3, 16, 16)) for n in
+                             ("box", "ramp_up", "convex", "ramp_down")})  # fmt: skip
+    return {"TABLE": str(t), "RUN": str(run), "GRID": str(grid), "RECORDED": str(recorded),
+            "CALIBRATION": str(calibration)}  # fmt: skip
 
 
-#: valid base commands (shell words); TABLE, RUN, GRID, RECORDED are replaced by the fixtures' paths
+#: valid base commands (shell words); TABLE, RUN, GRID, RECORDED, CALIBRATION are replaced by
+#: the fixtures' paths
 _SHORT = "--glances 2 --steps 2 --eval-every 2 --eval-batches 1 --no-progress --out r"
 BASE: dict[str, list[str]] = {
     name: shlex.split(words)
@@ -124,6 +129,7 @@ BASE: dict[str, list[str]] = {
         "table-verify": "table verify TABLE",
         "table-import-recorded": "table import-recorded RECORDED --pose-dims x,y,phi,phi_y "
         "--compression lzf --out i.h5",
+        "table-calibrate": "table calibrate TABLE CALIBRATION --kernel 3 --out c.h5",
         "render": "render --object 0 --x 0 --phi 0 --out r.png --width 64 --height 64",
     }.items()
 }

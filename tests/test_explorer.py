@@ -19,7 +19,7 @@ from ham.learn.train import TrainConfig, load_run, train
 from ham.model.agent import HamConfig, HapticAttentionModel
 from ham.world.config import WorldConfig
 from ham.world.source import make_source
-from ham.world.table import build_table
+from ham.world.table import build_table, table_info
 
 
 @pytest.fixture(scope="module")
@@ -185,6 +185,33 @@ def test_the_sim_to_real_example_records_fine_tunes_and_explores(trained, tmp_pa
     assert config["init_from"] == str(trained) and config["steps"] == 2
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert again.returncode == 0 and again.stdout == r.stdout
+
+
+def test_the_sim_to_real_example_fine_tunes_on_the_calibrated_table(trained, tmp_path):
+    """--calibrate K: the run's own table carried onto the pad by a read-out fitted to the
+    recorded glances is what it fine-tunes on; a run trained online gets its world's table
+    first (--sim-grid)."""
+    import json
+
+    script = Path(__file__).resolve().parents[1] / "docs" / "examples" / "sim_to_real.py"
+    online = tmp_path / "online"
+    train(TrainConfig(model=HamConfig(glances=2), steps=2, batch_size=4, eval_every=2,
+                      eval_batches=1), online, progress=False)  # fmt: skip
+    for run, grid in ((trained, 11), (online, 5)):
+        out = tmp_path / f"s2r_{run.name}"
+        cmd = [sys.executable, str(script), str(run), str(out), "--grid", "3", "--steps", "2",
+               "--episodes", "8", "--calibrate", "3", "--sim-grid", "5", "--json"]  # fmt: skip
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr
+        assert re.match(r"a 3 x 3 read-out fitted to 36 recorded glances explains 0\.\d{3} ",
+                        r.stdout), r.stdout  # fmt: skip
+        assert "(2 steps, calibrated)" in r.stdout
+        info = table_info(out / "calibrated.h5")
+        assert info.simulator["simulator"] == "calibrated" and info.grid == grid
+        assert (out / "simulated.h5").exists() == (run == online)
+        config = json.loads((out / "fine_tuned" / "config.json").read_text())
+        assert config["table"] == str((out / "calibrated.h5").resolve())
+        assert json.loads((out / "live.json").read_text())["calibrate"] == 3
 
 
 def test_a_run_on_ap_gym_is_refused_before_its_world_loads(tmp_path):

@@ -1,7 +1,8 @@
 """From simulation to a pad of its own: record a few glances, fine-tune on them, explore live.
 
     python docs/examples/sim_to_real.py SIM_RUN OUT [--grid 11] [--steps 1000] [--episodes 640]
-        [--sensor gazebo|taxels] [--seed 0] [--pose-noise 0] [--policy-lr-scale S] [--json]
+        [--sensor gazebo|taxels] [--seed 0] [--pose-noise 0] [--policy-lr-scale S]
+        [--calibrate K] [--sim-grid 21] [--json]
 
 SIM_RUN: a run trained in simulation (e.g. `make demo`'s runs/demo/ham; any objects and pose
 dims MuJoCo can glance: the paper's, or the next world's height fields with poses x, y, ...).
@@ -18,7 +19,10 @@ function of ham's:
    (`import_recorded`: OUT/recorded.h5).
 3. SIM_RUN fine-tuned on that table (`train` with `init_from`: OUT/fine_tuned, `--steps` steps,
    `--pose-noise` on each training glance's pose, `--policy-lr-scale` the location network's
-   rate against the rest's, SIM_RUN's other settings).
+   rate against the rest's, SIM_RUN's other settings). With `--calibrate K` it is fine-tuned
+   instead on SIM_RUN's own table carried onto the pad by a K x K read-out fitted to the
+   recorded glances (`calibrate_table`: OUT/calibrated.h5); a run trained online gets a table
+   of its world first, `--sim-grid` points per pose dim (OUT/simulated.h5).
 4. The fine-tuned run explores the pad live, on the same hidden objects.
 
 Prints the accuracy after the last glance before and after (`--json`: also into OUT/live.json);
@@ -37,11 +41,12 @@ import torch
 from ham.errors import HamError
 from ham.learn.explorer import Explorer
 from ham.learn.train import read_run_config, train
+from ham.world.calibration import calibrate_table, describe
 from ham.world.config import WorldConfig, make_simulator
 from ham.world.files import write_json
 from ham.world.poses import result_height, simulate, world_pose_dims
 from ham.world.recorder import record_glances
-from ham.world.table import grid_shape_for, import_recorded, table_info
+from ham.world.table import build_table, grid_shape_for, import_recorded, table_info
 
 
 class Pad:
@@ -100,6 +105,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--policy-lr-scale", type=float, default=None,
                     help="fine-tuning: the location network's learning rate relative to the "
                     "rest's (default SIM_RUN's; 0: the simulation's policy kept)")  # fmt: skip
+    ap.add_argument("--calibrate", type=int, default=None, metavar="K",
+                    help="fine-tune on SIM_RUN's table carried onto the pad by a K x K read-out "
+                    "fitted to the recorded glances, not on the recorded glances alone")  # fmt: skip
+    ap.add_argument("--sim-grid", default="21", help="with --calibrate, a run trained online: "
+                    "its world's table, points per pose dim (default 21)")  # fmt: skip
     ap.add_argument("--json", action="store_true", help="also write OUT/live.json")
     args = ap.parse_args(argv)
 
@@ -120,6 +130,16 @@ def main(argv: list[str] | None = None) -> int:
     table = args.out / "recorded.h5"
     if not table.exists():
         import_recorded(recorded, table, pose_dims=dims)
+    if args.calibrate is not None:
+        simulated = read_run_config(args.sim_run).table
+        if simulated is None:  # trained online: a table of its world
+            simulated = args.out / "simulated.h5"
+            if not simulated.exists():
+                build_table(run_world(args.sim_run), args.sim_grid, simulated, progress=False)
+        table = args.out / "calibrated.h5"
+        if not table.exists():
+            _, readout = calibrate_table(simulated, recorded, table, kernel=args.calibrate)
+            print(describe(readout))
     tuned = args.out / "fine_tuned"
     if not (tuned / "metrics.json").exists():
         config = replace(read_run_config(args.sim_run), table=str(table.resolve()),
@@ -132,12 +152,12 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{args.episodes} live episodes on the pad (MuJoCo, {args.sensor} read-out): "
           f"{before:.3f} trained in simulation, {after:.3f} fine-tuned on "
           f"{' x '.join(map(str, shape))} recorded glances per object "
-          f"({args.steps} steps)")  # fmt: skip
+          f"({args.steps} steps{', calibrated' if args.calibrate else ''})")  # fmt: skip
     if args.json:
         grid = int(args.grid) if args.grid.isdigit() else list(shape)
         write_json(args.out / "live.json", {"before": before, "after": after, "grid": grid, **{
             k: getattr(args, k) for k in ("steps", "episodes", "sensor", "seed", "pose_noise",
-                                          "policy_lr_scale")}})  # fmt: skip
+                                          "policy_lr_scale", "calibrate")}})  # fmt: skip
     return 0
 
 

@@ -358,6 +358,17 @@ def cmd_table_import_recorded(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_table_calibrate(args: argparse.Namespace) -> int:
+    from ham.world.calibration import calibrate_table, describe
+
+    check_output(args.out, HDF5)
+    files = args.recorded[0] if len(args.recorded) == 1 else args.recorded
+    out, readout = calibrate_table(args.table, files, args.out, kernel=args.kernel,
+                                   command=command_line(args))  # fmt: skip
+    print(f"{describe(readout)}; wrote {out}")
+    return 0
+
+
 # --------------------------------------------------------------------------- demo
 def cmd_demo(args: argparse.Namespace) -> int:
     from ham.experiments.demo import run_demo
@@ -512,6 +523,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="of a table over other pose dims than x,phi or a grid that is not "
                    "square (format 2; default gzip)")  # fmt: skip
     p.set_defaults(func=cmd_table_import_recorded)
+
+    p = tsub.add_parser("calibrate",
+                        help="a simulator's table carried onto a pad: a read-out (a k x k "
+                        "convolution and an offset) fitted to the pad's recorded glances, applied "
+                        "to every glance of the table")  # fmt: skip
+    p.add_argument("table", help="the simulator's glance table (HDF5)")
+    p.add_argument("recorded", nargs="+", help=".npz of the pad's recorded glances, as "
+                   "import-recorded reads them: the table's objects in its order, over a grid of "
+                   "its pose dims")  # fmt: skip
+    p.add_argument("--out", required=True, help="HDF5 table to write, .h5 or .hdf5")
+    p.add_argument("--kernel", type=int, default=9, metavar="K",
+                   help="the read-out's kernel side, odd (default 9; 1: a gain and an offset)")  # fmt: skip
+    p.set_defaults(func=cmd_table_calibrate)
 
     p = sub.add_parser("demo", help="the main job on built-in defaults (what `make demo` runs)")
     p.add_argument("--out", default="runs/demo", help="output folder (default runs/demo)")

@@ -1010,10 +1010,44 @@ def import_recorded(
     out = check_output(out, (".h5", ".hdf5"), what="glance table")
     dims = check_pose_dims(pose_dims, "pose_dims")
     k = len(dims)
-    axes = ", ".join(f"G_{d}" for d in dims)
-    accepted = f"accepted: an .npz file of one ({axes}, N, N) array per object"
     if compression is not None and compression not in COMPRESSIONS:
         raise HamError(f"compression = {compression!r}; accepted: {', '.join(COMPRESSIONS)}")
+    names, arrays, heights, files = load_recorded(src, dims)
+    shape, taxels = grid_shape_for(arrays[0].shape[:k], dims), arrays[0].shape[k]
+    paper = is_paper_layout(dims, shape)
+    if paper and compression is not None:  # said, not silently ignored
+        raise HamError(
+            f"compression = {compression!r} for the paper's (x, phi) table, which is stored "
+            "uncompressed; accepted: a compression for a table over other pose dims (format 2)"
+        )
+    world = WorldConfig(sensor=SensorConfig(taxels=taxels), pose_dims=dims)
+    given = repr(str(files[0])) if len(files) == 1 else repr([str(f) for f in files])
+    call = f"ham.world.table.import_recorded({given}, {str(out)!r}"
+    if not paper:
+        call += f", pose_dims={','.join(dims)!r}"
+    command = command or _python_command(call + ")")
+    file_names = [Path(f).name for f in files]
+    simulator = {"simulator": "recorded", "file": ", ".join(file_names)}
+    layout = None if paper else (dims, shape, compression or "gzip")
+
+    def write(tmp: Path) -> None:
+        with h5py.File(tmp, "w") as g:
+            _write_images(g, names, arrays, shape[0], world, simulator,
+                          f"recorded:{','.join(file_names)}", command, heights, layout)  # fmt: skip
+
+    return atomic_write(out, write, what="glance table")
+
+
+def load_recorded(
+    src, dims: tuple[str, ...]
+) -> tuple[list[str], list[np.ndarray], list[np.ndarray | None], list]:
+    """The recorded glances of one ``.npz`` file or a list of them (module doc of
+    :func:`import_recorded`), checked: the objects' names in file order, their ``(G_1, .., G_k,
+    N, N)`` float32 images over the ``dims`` grid, their heights (``None`` where not recorded)
+    and the files; a one-line :class:`HamError` names what is wrong."""
+    k = len(dims)
+    axes = ", ".join(f"G_{d}" for d in dims)
+    accepted = f"accepted: an .npz file of one ({axes}, N, N) array per object"
     files = list(src) if isinstance(src, (list, tuple)) else [src]
     if not files or not all(isinstance(f, (str, os.PathLike)) for f in files):
         raise HamError(f"recorded glances {src!r}; accepted: an .npz file or a list of them")
@@ -1058,29 +1092,7 @@ def import_recorded(
         shapes = ", ".join(f"{n} {a.shape}" for n, a in zip(names, arrays, strict=True))
         raise HamError(f"{where!r}: the objects' arrays differ in shape ({shapes}); "
                        "accepted: one grid and one pad for all")  # fmt: skip
-    shape, taxels = grid_shape_for(arrays[0].shape[:k], dims), arrays[0].shape[k]
-    paper = is_paper_layout(dims, shape)
-    if paper and compression is not None:  # said, not silently ignored
-        raise HamError(
-            f"compression = {compression!r} for the paper's (x, phi) table, which is stored "
-            "uncompressed; accepted: a compression for a table over other pose dims (format 2)"
-        )
-    world = WorldConfig(sensor=SensorConfig(taxels=taxels), pose_dims=dims)
-    given = repr(str(files[0])) if len(files) == 1 else repr([str(f) for f in files])
-    call = f"ham.world.table.import_recorded({given}, {str(out)!r}"
-    if not paper:
-        call += f", pose_dims={','.join(dims)!r}"
-    command = command or _python_command(call + ")")
-    file_names = [Path(f).name for f in files]
-    simulator = {"simulator": "recorded", "file": ", ".join(file_names)}
-    layout = None if paper else (dims, shape, compression or "gzip")
-
-    def write(tmp: Path) -> None:
-        with h5py.File(tmp, "w") as g:
-            _write_images(g, names, arrays, shape[0], world, simulator,
-                          f"recorded:{','.join(file_names)}", command, heights, layout)  # fmt: skip
-
-    return atomic_write(out, write, what="glance table")
+    return names, arrays, heights, files
 
 
 def _read_recorded(src, accepted: str) -> dict[str, np.ndarray]:
@@ -1104,10 +1116,21 @@ def _read_recorded(src, accepted: str) -> dict[str, np.ndarray]:
 
 
 def _write_images(
-    g, names, arrays, grid, world, simulator, source, command, heights=None, layout=None
+    g,
+    names,
+    arrays,
+    grid,
+    world,
+    simulator,
+    source,
+    command,
+    heights=None,
+    layout=None,
+    forces=None,
 ) -> None:
     """Images over a pose grid as a ham table in the open HDF5 file ``g`` (the authors' data
-    set, recorded glances); force unknown (NaN), heights where given. ``layout``: ``None``, the
+    set, recorded glances, a calibrated table); forces and heights where given, else unknown
+    (NaN). ``layout``: ``None``, the
     paper's ``grid x grid`` (format 1), or ``(pose_dims, grid_shape, compression)`` (format 2,
     the images stored flat over the lattice as :func:`build_table` stores them)."""
     attrs = dict(format=FORMAT, format_version=FORMAT_VERSION, grid=grid)
@@ -1145,7 +1168,8 @@ def _write_images(
             grp.create_dataset("pressure", data=a, chunks=(rows, n, n), compression=comp)
         else:
             grp.create_dataset("pressure", data=a)
-        grp.create_dataset("force", data=np.full(poses, np.nan, np.float32), **opts)
+        force = np.full(poses, np.nan, np.float32) if forces is None else forces[i].reshape(poses)
+        grp.create_dataset("force", data=force, **opts)
         grp.create_dataset(key, data=np.full(poses, np.nan, np.float32) if h is None else h,
                            **opts)  # fmt: skip
         grp.create_dataset("contact", data=a.reshape(*poses, -1).max(-1) > 0, **opts)

@@ -1,0 +1,218 @@
+"""Read-out calibration: a simulator's glance table carried onto a pad by a read-out fitted to
+a few of the pad's recorded glances (``ham table calibrate``).
+
+A simulator and a pad feel the same contact but read it out in their own ways: the fast
+simulator's foam taxels, the Gazebo plugin's few contact points spread by 5 mm, a real pad's
+foam, cross-talk and gain. A read-out that is linear and the same at every taxel is a
+convolution, so the pad's image is modelled as ``K * s + b``: the simulator's image ``s`` at the
+same pose, convolved with a ``k x k`` kernel ``K`` (zero padding), plus a constant ``b``, read
+as no less than 0 (a pad reads no negative pressure). ``K`` and ``b`` are fitted by least
+squares over every taxel of every recorded glance, paired with the simulator's glance at the
+table's grid point nearest the recorded pose. The fitted read-out then carries every glance of
+the table to the pad, between the recorded poses too: what a coarse recorded grid alone
+cannot give (docs/sim_to_real.md).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+import torch
+
+from ham.errors import HamError, brief, checked_arguments
+from ham.world.config import WorldConfig
+from ham.world.files import atomic_write, check_output
+from ham.world.table import (
+    FORMAT_VERSION,
+    MAX_MEMORY,
+    _open,
+    _python_command,
+    _read_info,
+    _write_images,
+    grid_values,
+    load_recorded,
+)
+
+#: Images per block when a read-out is fitted or applied (bounds the patch matrices' memory).
+BLOCK = 2048
+
+
+@dataclass(frozen=True)
+class Readout:
+    """A pad's read-out of a simulator's images: ``max(K * s + b, 0)``.
+
+    ``kernel`` is ``(k, k)``, ``bias`` in the pad's unit; ``r2``: the share of the recorded
+    glances' variance (over all their taxels) that the fitted read-out explains; ``glances``:
+    how many recorded glances it was fitted to."""
+
+    kernel: np.ndarray
+    bias: float
+    r2: float
+    glances: int
+
+    def apply(self, images: np.ndarray) -> np.ndarray:
+        """The pad's images ``(..., N, N)`` (float32) of the simulator's ``images``."""
+        shape = images.shape
+        flat = np.asarray(images, dtype=np.float64).reshape(-1, 1, *shape[-2:])
+        k = self.kernel.shape[0]
+        weight = torch.from_numpy(self.kernel)[None, None]
+        out = np.empty(flat.shape, np.float32)
+        for i in range(0, len(flat), BLOCK):
+            x = torch.from_numpy(flat[i : i + BLOCK])
+            y = torch.nn.functional.conv2d(x, weight, padding=k // 2) + self.bias
+            out[i : i + BLOCK] = y.clamp_min(0).numpy()
+        return out.reshape(shape)
+
+    def to_dict(self) -> dict:
+        return {"kernel": self.kernel.tolist(), "bias": self.bias, "r2": self.r2,
+                "glances": self.glances}  # fmt: skip
+
+
+def _patches(images: np.ndarray, k: int) -> np.ndarray:
+    """Each taxel's ``k x k`` neighbourhood (zero padded) as a row: ``(M*N*N, k*k)``."""
+    x = torch.from_numpy(np.ascontiguousarray(images, dtype=np.float64))[:, None]
+    cols = torch.nn.functional.unfold(x, k, padding=k // 2)  # (M, k*k, N*N)
+    return cols.transpose(1, 2).reshape(-1, k * k).numpy()
+
+
+def check_kernel(kernel, taxels: int) -> int:
+    """``kernel`` as an odd int from 1 to ``2 * taxels - 1``, or a HamError naming it."""
+    top = 2 * taxels - 1
+    if isinstance(kernel, bool) or not isinstance(kernel, (int, np.integer)):
+        raise HamError(f"kernel = {kernel!r}; accepted: an odd integer from 1 to {top}")
+    if not (1 <= kernel <= top and kernel % 2 == 1):
+        raise HamError(f"kernel = {kernel}; accepted: an odd integer from 1 to {top} (the "
+                       f"pad's {taxels} x {taxels} taxels)")  # fmt: skip
+    return int(kernel)
+
+
+@checked_arguments
+def fit_readout(simulated: np.ndarray, recorded: np.ndarray, kernel: int = 9) -> Readout:
+    """The least-squares read-out (module doc) taking ``simulated`` images ``(M, N, N)`` to the
+    ``recorded`` ones at the same poses: the normal equations summed block by block, solved in
+    float64 (a minimum-norm solution where they are singular)."""
+    for name, a in (("simulated", simulated), ("recorded", recorded)):
+        if not isinstance(a, np.ndarray) or a.dtype.kind not in "biuf" or a.ndim != 3:
+            raise HamError(f"{name} = {brief(a)}; accepted: a real (M, N, N) array of images")
+        if not np.isfinite(a).all():
+            raise HamError(f"{name} images hold NaN or infinite values; accepted: finite ones")
+    if simulated.shape != recorded.shape:
+        raise HamError(f"simulated images {simulated.shape} and recorded {recorded.shape}; "
+                       "accepted: two (M, N, N) arrays of the same shape")  # fmt: skip
+    kernel = check_kernel(kernel, simulated.shape[-1])
+    n = kernel * kernel + 1
+    gram, moment = np.zeros((n, n)), np.zeros(n)
+    total, square, count = 0.0, 0.0, 0
+    for i in range(0, len(simulated), BLOCK):
+        x = _patches(simulated[i : i + BLOCK], kernel)
+        x = np.concatenate([x, np.ones((len(x), 1))], 1)
+        y = np.asarray(recorded[i : i + BLOCK], dtype=np.float64).reshape(-1)
+        gram += x.T @ x
+        moment += x.T @ y
+        total, square, count = total + y.sum(), square + y @ y, count + len(y)
+    variance = square - total * total / count
+    if not variance > 0:
+        raise HamError("the recorded glances are all the same value (no contact read?); "
+                       "accepted: glances that press the objects")  # fmt: skip
+    w = np.linalg.lstsq(gram, moment, rcond=None)[0]
+    # the residual sum of squares from the normal equations: |y|^2 - 2 w.X'y + w.X'X w
+    residual = max(square - 2 * w @ moment + w @ gram @ w, 0.0)
+    return Readout(kernel=w[:-1].reshape(kernel, kernel), bias=float(w[-1]),
+                   r2=float(1 - residual / variance), glances=len(simulated))  # fmt: skip
+
+
+@checked_arguments
+def calibrate_table(
+    table: str | os.PathLike,
+    recorded: str | os.PathLike | list | tuple,
+    out: str | os.PathLike,
+    *,
+    kernel: int = 9,
+    command: str | None = None,
+) -> tuple[Path, Readout]:
+    """The simulator's ``table`` carried onto a pad (module doc): a read-out fitted to the
+    pad's ``recorded`` glances (an ``.npz`` file or a list of them, as
+    :func:`ham.world.table.import_recorded` reads them, of the table's objects in its order,
+    over a grid of the table's pose dims), applied to every glance of the table. The new table
+    ``out`` has the table's grid, world, forces and heights and the pad's images, its
+    ``simulator`` attribute names the read-out; returns it with the :class:`Readout`."""
+    out = check_output(out, (".h5", ".hdf5"), what="glance table")
+    with _open(table) as f:
+        info = _read_info(f, str(table))
+        kernel = check_kernel(kernel, info.taxels)
+        size = info.poses * len(info.objects) * info.pressure_dim * 4
+        if size > MAX_MEMORY:
+            raise HamError(f"glance table {str(table)!r} holds {size / 1024**3:.1f} GiB of "
+                           f"images; accepted: tables up to {MAX_MEMORY / 1024**3:.0f} GiB "
+                           "(calibrate holds one in memory)")  # fmt: skip
+        names, pad, _, files = load_recorded(recorded, info.pose_dims)
+        if names != info.objects:
+            raise HamError(f"recorded glances of {', '.join(names)}; accepted: the objects of "
+                           f"{str(table)!r} in its order: {', '.join(info.objects)}")  # fmt: skip
+        if pad[0].shape[-1] != info.taxels:
+            n = pad[0].shape[-1]
+            raise HamError(f"recorded {n} x {n} images; accepted: the {info.taxels} x "
+                           f"{info.taxels} of {str(table)!r}")  # fmt: skip
+        heights_key = "z" if info.format_version == FORMAT_VERSION else "height"
+        grid = tuple(info.grid_shape)
+        sim, forces, heights = [], [], []
+        for name in names:
+            group = f[f"objects/{name}"]
+            sim.append(group["pressure"][...].reshape(*grid, info.taxels, info.taxels))
+            forces.append(group["force"][...].reshape(grid))
+            heights.append(group[heights_key][...].reshape(grid))
+    # each recorded pose's nearest grid point of the table, and how far it lies from it
+    recorded_grid = pad[0].shape[: len(grid)]
+    nearest, offset = [], 0.0
+    for g, s in zip(recorded_grid, grid, strict=True):
+        q, table_q = grid_values(g), grid_values(s)
+        i = np.abs(q[:, None] - table_q[None, :]).argmin(1)
+        nearest.append(i)
+        offset = max(offset, float(np.abs(table_q[i] - q).max()))
+    at = np.ix_(*nearest)
+    simulated = np.concatenate([a[at].reshape(-1, info.taxels, info.taxels) for a in sim])
+    pads = np.concatenate([a.reshape(-1, info.taxels, info.taxels) for a in pad])
+    readout = fit_readout(simulated, pads, kernel)
+    images = [readout.apply(a) for a in sim]
+
+    file_names = [Path(p).name for p in files]
+    simulator = {
+        "simulator": "calibrated",
+        "table": info.simulator,
+        "table_source": info.source,
+        "recorded": ", ".join(file_names),
+        "recorded_grid": list(recorded_grid),
+        "pose_offset": offset,
+        "readout": readout.to_dict(),
+    }
+    given = repr(str(files[0])) if len(files) == 1 else repr([str(p) for p in files])
+    command = command or _python_command(
+        f"ham.world.calibration.calibrate_table({str(table)!r}, {given}, {str(out)!r}, "
+        f"kernel={kernel})"
+    )
+    world = WorldConfig.from_dict(info.world)
+    layout = None
+    if info.format_version != FORMAT_VERSION:
+        layout = (tuple(info.pose_dims), grid, info.compression)
+
+    def write(tmp: Path) -> None:
+        with h5py.File(tmp, "w") as g:
+            _write_images(g, names, images, info.grid, world, simulator,
+                          f"calibrated:{Path(table).name}+{','.join(file_names)}", command,
+                          heights, layout, forces)  # fmt: skip
+
+    return atomic_write(out, write, what="glance table"), readout
+
+
+def describe(readout: Readout) -> str:
+    """One line on a fitted read-out (what the CLI prints)."""
+    k = readout.kernel.shape[0]
+    return (f"a {k} x {k} read-out fitted to {readout.glances} recorded glances explains "
+            f"{readout.r2:.3f} of their variance")  # fmt: skip
+
+
+__all__ = ["Readout", "calibrate_table", "check_kernel", "describe", "fit_readout"]

@@ -1,0 +1,141 @@
+"""Read-out calibration (``ham table calibrate``): a simulator's glance table carried onto a pad
+by a read-out fitted to a few of the pad's recorded glances."""
+
+import h5py
+import numpy as np
+import pytest
+import torch
+
+from ham.errors import HamError
+from ham.world.calibration import Readout, calibrate_table, fit_readout
+from ham.world.table import GlanceTable, table_info, verify_table
+from tests.conftest import ok, one_line_error, run_ham_inprocess
+
+RECORDED = [0, 2, 4, 6, 8]  # a 5 x 5 grid's points on the 9 x 9 table's
+
+
+def _gaussian(k: int, sigma: float, gain: float) -> np.ndarray:
+    u = np.arange(k) - k // 2
+    g = np.exp(-(u[:, None] ** 2 + u[None, :] ** 2) / (2 * sigma**2))
+    return gain * g / g.sum()
+
+
+def _record(images: np.ndarray, names: list[str], path, at=RECORDED) -> None:
+    """``images`` ``(objects, 9, 9, N, N)`` at the grid points ``at`` as recorded glances."""
+    np.savez(path, **{n: images[i][np.ix_(at, at)] for i, n in enumerate(names)})
+
+
+def _cosine(a: torch.Tensor, b: torch.Tensor) -> float:
+    """Mean cosine of the images (as the L2-normalizing model compares them)."""
+    a, b = a.reshape(-1, a.shape[-1] ** 2).double(), b.reshape(-1, b.shape[-1] ** 2).double()
+    n = torch.nn.functional.normalize
+    return (n(a, dim=1) * n(b, dim=1)).sum(1).mean().item()
+
+
+def test_a_known_readout_is_recovered_everywhere(small_table, tmp_path):
+    table = GlanceTable.load(small_table)
+    truth = Readout(_gaussian(5, 1.2, 3.0), 0.0, 1.0, 0)
+    pad = truth.apply(table.pressure.numpy())
+    _record(pad, table.objects, tmp_path / "rec.npz")
+    out, readout = calibrate_table(small_table, tmp_path / "rec.npz", tmp_path / "cal.h5",
+                                   kernel=5)  # fmt: skip
+    assert readout.glances == 4 * 25 and readout.r2 > 1 - 1e-9
+    assert np.allclose(readout.kernel, truth.kernel, atol=1e-9) and abs(readout.bias) < 1e-6
+    info = verify_table(out)
+    assert info.simulator["simulator"] == "calibrated" and info.simulator["pose_offset"] == 0
+    assert info.simulator["readout"]["glances"] == 100 and info.objects == table.objects
+    cal = GlanceTable.load(out)  # every glance, the 56 of 81 poses not recorded too
+    scale = float(pad.max())
+    assert torch.allclose(cal.pressure, torch.from_numpy(pad), atol=1e-4 * scale)
+    with h5py.File(small_table) as a, h5py.File(out) as b:  # the simulator's forces and heights
+        for key in ("force", "z"):
+            assert np.array_equal(a[f"objects/convex/{key}"][...], b[f"objects/convex/{key}"][...])
+    # a gain and an offset alone cannot explain the blur
+    _, gain = calibrate_table(small_table, tmp_path / "rec.npz", tmp_path / "k1.h5", kernel=1)
+    assert gain.r2 < 0.95
+
+
+def test_the_fit_solves_the_least_squares_problem():
+    rng = np.random.default_rng(0)
+    sim = rng.random((6, 8, 8))
+    pad = Readout(rng.normal(size=(3, 3)), 0.5, 1.0, 0).apply(sim) + rng.normal(0, 0.1, sim.shape)
+    readout = fit_readout(sim, pad, kernel=3)
+    x = torch.nn.functional.unfold(torch.from_numpy(sim)[:, None], 3, padding=1)
+    x = np.concatenate([x.transpose(1, 2).reshape(-1, 9).numpy(), np.ones((6 * 64, 1))], 1)
+    w, *_ = np.linalg.lstsq(x, pad.reshape(-1).astype(np.float64), rcond=None)
+    assert np.allclose(readout.kernel.reshape(-1), w[:-1]) and np.isclose(readout.bias, w[-1])
+    y = pad.reshape(-1).astype(np.float64)
+    r2 = 1 - ((x @ w - y) ** 2).sum() / ((y - y.mean()) ** 2).sum()
+    assert np.isclose(readout.r2, r2)
+
+
+def test_calibration_carries_the_fast_table_toward_mujoco_gazebo(small_table, tmp_path):
+    """The real engine: the fast simulator's taxels and MuJoCo's Gazebo read-out (a few contact
+    points spread by 5 mm) differ most; 9 MuJoCo glances per object make the fast table's
+    other 72 poses read as MuJoCo's."""
+    gazebo = tmp_path / "gz.h5"
+    ok(run_ham_inprocess("table", "build", "--grid", "9", "--simulator", "mujoco", "--sensor",
+                         "gazebo", "--out", str(gazebo), "--quiet"))  # fmt: skip
+    pad, fast = GlanceTable.load(gazebo), GlanceTable.load(small_table)
+    at = [0, 4, 8]
+    _record(pad.pressure.numpy(), pad.objects, tmp_path / "rec.npz", at)
+    out, readout = calibrate_table(small_table, tmp_path / "rec.npz", tmp_path / "cal.h5")
+    cal = GlanceTable.load(out)
+    unseen = torch.ones(9, 9, dtype=torch.bool)
+    unseen[np.ix_(at, at)] = False
+    before = _cosine(pad.pressure[:, unseen], fast.pressure[:, unseen])
+    after = _cosine(pad.pressure[:, unseen], cal.pressure[:, unseen])
+    assert after > before + 0.25, (before, after)
+    assert 0.5 < readout.r2 < 1
+
+
+def test_the_cli_calibrates_and_says_the_fit(ham_cli, small_table, tmp_path):
+    table = GlanceTable.load(small_table)
+    _record(Readout(_gaussian(3, 1.0, 1.0), 0.0, 1.0, 0).apply(table.pressure.numpy()),
+            table.objects, tmp_path / "rec.npz", [0, 8])  # fmt: skip
+    r = ok(ham_cli("table", "calibrate", small_table, str(tmp_path / "rec.npz"), "--kernel", "3",
+                   "--out", str(tmp_path / "cal.h5")))  # fmt: skip
+    assert "a 3 x 3 read-out fitted to 16 recorded glances explains 1.000" in r.stdout
+    info = table_info(tmp_path / "cal.h5")
+    assert info.command.startswith("ham table calibrate") and info.grid == 9
+    assert info.simulator["recorded_grid"] == [2, 2]
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"kernel": 4}, "kernel = 4; accepted: an odd integer from 1 to 31"),
+        ({"kernel": 0}, "kernel = 0; accepted: an odd integer"),
+        ({"kernel": 33}, "kernel = 33; accepted: an odd integer from 1 to 31"),
+        ({"kernel": True}, "kernel = True; accepted: an integer"),
+        ({"kernel": 3.0}, "kernel = 3.0; accepted: an integer"),
+        (
+            {"order": True},
+            "recorded glances of ramp_up, box, convex, ramp_down; accepted: the objects of",
+        ),  # fmt: skip
+        ({"taxels": 8}, "recorded 8 x 8 images; accepted: the 16 x 16"),
+        ({"dims": 3}, "has shape (2, 2, 2, 16, 16); accepted: (G_x, G_phi, N, N)"),
+        ({"zeros": True}, "the recorded glances are all the same value"),
+        ({"out": "cal.txt"}, "cal.txt' ends in '.txt'; accepted: a path ending in .h5"),
+    ],
+)
+def test_bad_calibrations_are_refused_in_one_line(small_table, tmp_path, change, message):
+    names = ["box", "ramp_up", "convex", "ramp_down"]
+    if change.get("order"):
+        names = ["ramp_up", "box", "convex", "ramp_down"]
+    n = change.get("taxels", 16)
+    shape = (2,) * change.get("dims", 2) + (n, n)
+    value = 0.0 if change.get("zeros") else 1.0
+    np.savez(tmp_path / "rec.npz", **{name: np.full(shape, value) for name in names})
+    out = tmp_path / change.get("out", "cal.h5")
+    with pytest.raises(HamError, match=None) as info:
+        calibrate_table(small_table, tmp_path / "rec.npz", out, kernel=change.get("kernel", 3))
+    assert message in str(info.value) and "\n" not in str(info.value)
+    assert not out.exists() and list(tmp_path.iterdir()) == [tmp_path / "rec.npz"]
+
+
+def test_the_cli_refuses_a_bad_kernel_in_one_line(ham_main, small_table, tmp_path):
+    np.savez(tmp_path / "rec.npz", box=np.ones((2, 2, 16, 16)))
+    r = ham_main("table", "calibrate", small_table, str(tmp_path / "rec.npz"), "--kernel", "2",
+                 "--out", str(tmp_path / "cal.h5"))  # fmt: skip
+    assert r.returncode != 0 and "kernel = 2; accepted: an odd integer" in one_line_error(r)
