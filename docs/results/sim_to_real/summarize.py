@@ -5,8 +5,9 @@ runs of docs/examples/sim_to_real.py.
 
 Each RUN: an OUT folder of `sim_to_real.py SIM_RUN OUT --grid G --seed S --json`, holding its
 `live.json` (live accuracy on the pad before and after fine-tuning). Prints a Markdown table
-(mean ± s.e.m. over the seeds of each grid); OUT.json keeps every run's numbers, OUT.png draws
-the accuracy against the recorded glances per object.
+(mean ± s.e.m. over the seeds of each grid, and of each `--calibrate K` where runs differ in
+it); OUT.json keeps every run's numbers, OUT.png draws the accuracy against the recorded
+glances per object.
 """
 
 from __future__ import annotations
@@ -36,27 +37,46 @@ def main(argv: list[str] | None = None) -> int:
     for r in runs:  # one number for every pose dim (2 here), or one per dim
         r["shape"] = [r["grid"]] * 2 if isinstance(r["grid"], int) else r["grid"]
     shapes = sorted({tuple(r["shape"]) for r in runs}, key=lambda t: (math.prod(t), t))
+    kernels = sorted({r.get("calibrate") for r in runs}, key=lambda k: -1 if k is None else k)
+    tuned_on = len(kernels) > 1 or kernels != [None]  # a column only where runs differ in it
     rows = {}
-    print("| recorded glances per object | before (live) | after (live) | seeds (after) |")
+    column = " fine-tuned on |" if tuned_on else ""
+    print(f"| recorded glances per object |{column} before (live) | after (live) | seeds (after) |")
     # (the grid's size per pose dim; a run over k pose dims recorded g^k glances per object)
-    print("|---|---|---|---|")
-    for shape in shapes:
-        mine = sorted((r for r in runs if tuple(r["shape"]) == shape), key=lambda r: r["seed"])
-        before, after = mean_sem(r["before"] for r in mine), mean_sem(r["after"] for r in mine)
-        name = " x ".join(map(str, shape))
-        rows[name] = {"before": before, "after": after, "seeds": [r["seed"] for r in mine]}
-        seeds = " / ".join(f"{r['after']:.3f}" for r in mine)
-        print(f"| {name} ({math.prod(shape)}) | {format_mean_sem(*before)} | "
-              f"**{format_mean_sem(*after)}** | {seeds} |")  # fmt: skip
+    print("|---|---|---|---|" + ("---|" if tuned_on else ""))
+    for k in kernels:
+        for shape in shapes:
+            mine = sorted((r for r in runs if tuple(r["shape"]) == shape
+                           and r.get("calibrate") == k), key=lambda r: r["seed"])  # fmt: skip
+            if not mine:
+                continue
+            before = mean_sem(r["before"] for r in mine)
+            after = mean_sem(r["after"] for r in mine)
+            name = " x ".join(map(str, shape)) + ("" if k is None else f", calibrated {k} x {k}")
+            rows[name] = {"before": before, "after": after, "seeds": [r["seed"] for r in mine]}
+            seeds = " / ".join(f"{r['after']:.3f}" for r in mine)
+            what = ""
+            if tuned_on:
+                what = (" the recorded glances |" if k is None
+                        else f" the table calibrated by a {k} x {k} read-out |")  # fmt: skip
+            print(f"| {' x '.join(map(str, shape))} ({math.prod(shape)}) |{what} "
+                  f"{format_mean_sem(*before)} | **{format_mean_sem(*after)}** | {seeds} |")  # fmt: skip
     write_json(args.out, {"command": " ".join(["python", *sys.argv]), "runs": runs,
                           "by_grid": rows})  # fmt: skip
     fig, ax = plt.subplots(figsize=(5.5, 3.6))
     names, x = [" x ".join(map(str, t)) for t in shapes], list(range(len(shapes)))
     steps = "/".join(f"{n:,}" for n in sorted({r["steps"] for r in runs}))
-    for key, label in (("after", f"fine-tuned on them, {steps} steps"),
-                       ("before", "trained in simulation only")):  # fmt: skip
-        ax.errorbar(x, [rows[n][key][0] for n in names], yerr=[rows[n][key][1] for n in names],
-                    marker="o", capsize=3, label=label)  # fmt: skip
+    them = "the recorded glances" if tuned_on else "them"
+    lines = [(k, "after", f"fine-tuned on {them}, {steps} steps" if k is None else
+              f"fine-tuned on the table calibrated by a {k} x {k} read-out fitted to them")
+             for k in kernels]  # fmt: skip
+    for k, key, label in [*lines, (kernels[0], "before", "trained in simulation only")]:
+        at = [(i, f"{n}" + ("" if k is None else f", calibrated {k} x {k}"))
+              for i, n in zip(x, names, strict=True)]  # fmt: skip
+        at = [(i, n) for i, n in at if n in rows]
+        ax.errorbar([i for i, _ in at], [rows[n][key][0] for _, n in at],
+                    yerr=[rows[n][key][1] for _, n in at], marker="o", capsize=3,
+                    label=label)  # fmt: skip
     ax.set_xticks(x, [f"{n.replace(' ', '')}\n({math.prod(t)})" for n, t in zip(names, shapes,
                                                                             strict=True)],
                   fontsize=7)  # fmt: skip
