@@ -185,6 +185,13 @@ def test_the_sim_to_real_example_records_fine_tunes_and_explores(trained, tmp_pa
     assert config["init_from"] == str(trained) and config["steps"] == 2
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert again.returncode == 0 and again.stdout == r.stdout
+    other = [*cmd[:-1], "gazebo"]  # the first call's files are not the gazebo pad's: refused
+    refused = subprocess.run(other, capture_output=True, text=True, timeout=300)
+    assert refused.returncode == 1 and refused.stdout == ""
+    assert refused.stderr.strip().endswith("was made with other arguments (sensor: 'taxels' -> "
+                                           "'gazebo'); accepted: the same SIM_RUN and arguments, "
+                                           "or another OUT")  # fmt: skip
+    assert len(refused.stderr.strip().splitlines()) == 1
 
 
 def test_the_sim_to_real_example_fine_tunes_on_the_calibrated_table(trained, tmp_path):

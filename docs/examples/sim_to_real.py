@@ -26,12 +26,15 @@ function of ham's:
 4. The fine-tuned run explores the pad live, on the same hidden objects.
 
 Prints the accuracy after the last glance before and after (`--json`: also into OUT/live.json);
-each step's output stays in OUT, and a second call reuses it (an interrupted recording resumes).
+each step's output stays in OUT, and a second call reuses it (an interrupted recording resumes);
+a second call with another SIM_RUN or other arguments (but `--episodes` and `--json`) is refused
+(OUT/made_by.json), not answered with the first call's files.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -86,6 +89,29 @@ def explore(run: Path, pad: Pad, hidden: torch.Tensor, seed: int) -> float:
     return (explorer.prediction == hidden).double().mean().item()
 
 
+#: the arguments OUT's files depend on (not --episodes or --json: only the live episodes)
+MADE_BY = ("grid", "steps", "sensor", "seed", "pose_noise", "policy_lr_scale", "calibrate",
+           "sim_grid")  # fmt: skip
+
+
+def check_made_by(args: argparse.Namespace) -> None:
+    """OUT/made_by.json: the run and arguments OUT's files were made with. A rerun reuses
+    them, so a rerun with others is refused, not answered with the first call's files."""
+    made_by = {"sim_run": str(args.sim_run.resolve()),
+               **{k: getattr(args, k) for k in MADE_BY}}  # fmt: skip
+    path = args.out / "made_by.json"
+    if path.exists():
+        before = json.loads(path.read_text())
+        if before != made_by:
+            changed = ", ".join(f"{k}: {before.get(k)!r} -> {v!r}" for k, v in made_by.items()
+                                if before.get(k) != v)  # fmt: skip
+            raise HamError(f"{str(args.out)!r} was made with other arguments ({changed}); "
+                           "accepted: the same SIM_RUN and arguments, or another OUT")  # fmt: skip
+    else:
+        args.out.mkdir(parents=True, exist_ok=True)
+        write_json(path, made_by)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("sim_run", type=Path)
@@ -116,6 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     pad = Pad(run_world(args.sim_run), args.sensor)
     dims = world_pose_dims(pad.world)
     shape = grid_shape_for(args.grid, dims)  # a bad --grid refused before the pad is touched
+    check_made_by(args)
     hidden = torch.randint(len(pad.names), (args.episodes,),
                            generator=torch.Generator().manual_seed(args.seed))  # fmt: skip
     before = explore(args.sim_run, pad, hidden, args.seed)
