@@ -39,7 +39,7 @@ def test_a_known_readout_is_recovered_everywhere(small_table, tmp_path):
     _record(pad, table.objects, tmp_path / "rec.npz")
     out, readout = calibrate_table(small_table, tmp_path / "rec.npz", tmp_path / "cal.h5",
                                    kernel=5)  # fmt: skip
-    assert readout.glances == 4 * 25 and readout.r2 > 1 - 1e-9
+    assert readout.glances == 4 * 25 and min(readout.r2, readout.r2_held_out) > 1 - 1e-9
     assert np.allclose(readout.kernel, truth.kernel, atol=1e-9) and abs(readout.bias) < 1e-6
     info = verify_table(out)
     assert info.simulator["simulator"] == "calibrated" and info.simulator["pose_offset"] == 0
@@ -67,6 +67,15 @@ def test_the_fit_solves_the_least_squares_problem():
     y = pad.reshape(-1).astype(np.float64)
     r2 = 1 - ((x @ w - y) ** 2).sum() / ((y - y.mean()) ** 2).sum()
     assert np.isclose(readout.r2, r2)
+    # held out: 6 glances, 6 folds of one; each predicted by the fit to the other five
+    glance = np.repeat(np.arange(6), 64)
+    errors = 0.0
+    for j in range(6):
+        fit, *_ = np.linalg.lstsq(x[glance != j], y[glance != j], rcond=None)
+        errors += ((x[glance == j] @ fit - y[glance == j]) ** 2).sum()
+    held_out = 1 - errors / ((y - y.mean()) ** 2).sum()
+    assert np.isclose(readout.r2_held_out, held_out) and held_out < readout.r2
+    assert fit_readout(sim[:1], pad[:1], kernel=3).r2_held_out is None  # one glance: no fold
 
 
 def test_calibration_carries_the_fast_table_toward_mujoco_gazebo(small_table, tmp_path):
@@ -95,7 +104,10 @@ def test_the_cli_calibrates_and_says_the_fit(ham_cli, small_table, tmp_path):
             table.objects, tmp_path / "rec.npz", [0, 8])  # fmt: skip
     r = ok(ham_cli("table", "calibrate", small_table, str(tmp_path / "rec.npz"), "--kernel", "3",
                    "--out", str(tmp_path / "cal.h5")))  # fmt: skip
-    assert "a 3 x 3 read-out fitted to 16 recorded glances explains 1.000" in r.stdout
+    assert (
+        "a 3 x 3 read-out fitted to 16 recorded glances explains 1.000 of their variance "
+        "(1.000 held out); wrote " in r.stdout
+    )
     info = table_info(tmp_path / "cal.h5")
     assert info.command.startswith("ham table calibrate") and info.grid == 9
     assert info.simulator["recorded_grid"] == [2, 2]

@@ -39,6 +39,8 @@ from ham.world.table import (
 
 #: Images per block when a read-out is fitted or applied (bounds the patch matrices' memory).
 BLOCK = 2048
+#: Folds of the read-out's cross-validation (fewer when fewer glances are recorded).
+FOLDS = 10
 
 
 @dataclass(frozen=True)
@@ -47,12 +49,16 @@ class Readout:
 
     ``kernel`` is ``(k, k)``, ``bias`` in the pad's unit; ``r2``: the share of the recorded
     glances' variance (over all their taxels) that the fitted read-out explains; ``glances``:
-    how many recorded glances it was fitted to."""
+    how many recorded glances it was fitted to; ``r2_held_out``: the same share with each
+    glance predicted by a read-out fitted without it (``FOLDS``-fold cross-validation, glance
+    ``j`` in fold ``j % FOLDS``; ``None`` for one glance): how well the read-out carries to
+    poses not recorded."""
 
     kernel: np.ndarray
     bias: float
     r2: float
     glances: int
+    r2_held_out: float | None = None
 
     def apply(self, images: np.ndarray) -> np.ndarray:
         """The pad's images ``(..., N, N)`` (float32) of the simulator's ``images``."""
@@ -69,7 +75,7 @@ class Readout:
 
     def to_dict(self) -> dict:
         return {"kernel": self.kernel.tolist(), "bias": self.bias, "r2": self.r2,
-                "glances": self.glances}  # fmt: skip
+                "r2_held_out": self.r2_held_out, "glances": self.glances}  # fmt: skip
 
 
 def _patches(images: np.ndarray, k: int) -> np.ndarray:
@@ -104,25 +110,44 @@ def fit_readout(simulated: np.ndarray, recorded: np.ndarray, kernel: int = 9) ->
         raise HamError(f"simulated images {simulated.shape} and recorded {recorded.shape}; "
                        "accepted: two (M, N, N) arrays of the same shape")  # fmt: skip
     kernel = check_kernel(kernel, simulated.shape[-1])
-    n = kernel * kernel + 1
-    gram, moment = np.zeros((n, n)), np.zeros(n)
-    total, square, count = 0.0, 0.0, 0
-    for i in range(0, len(simulated), BLOCK):
+    n, m = kernel * kernel + 1, len(simulated)
+    folds = min(m, FOLDS)
+    # the normal equations per fold (glance j in fold j % folds), summed for the fit
+    gram, moment, square = np.zeros((folds, n, n)), np.zeros((folds, n)), np.zeros(folds)
+    total, count = 0.0, 0
+    pixels = simulated.shape[-1] * simulated.shape[-2]
+    for i in range(0, m, BLOCK):
         x = _patches(simulated[i : i + BLOCK], kernel)
         x = np.concatenate([x, np.ones((len(x), 1))], 1)
         y = np.asarray(recorded[i : i + BLOCK], dtype=np.float64).reshape(-1)
-        gram += x.T @ x
-        moment += x.T @ y
-        total, square, count = total + y.sum(), square + y @ y, count + len(y)
-    variance = square - total * total / count
+        fold = np.repeat((np.arange(i, i + len(x) // pixels)) % folds, pixels)
+        for f in np.unique(fold):
+            rows = fold == f
+            gram[f] += x[rows].T @ x[rows]
+            moment[f] += x[rows].T @ y[rows]
+            square[f] += y[rows] @ y[rows]
+        total, count = total + y.sum(), count + len(y)
+    variance = square.sum() - total * total / count
     if not variance > 0:
         raise HamError("the recorded glances are all the same value (no contact read?); "
                        "accepted: glances that press the objects")  # fmt: skip
-    w = np.linalg.lstsq(gram, moment, rcond=None)[0]
-    # the residual sum of squares from the normal equations: |y|^2 - 2 w.X'y + w.X'X w
-    residual = max(square - 2 * w @ moment + w @ gram @ w, 0.0)
-    return Readout(kernel=w[:-1].reshape(kernel, kernel), bias=float(w[-1]),
-                   r2=float(1 - residual / variance), glances=len(simulated))  # fmt: skip
+
+    def residual(w: np.ndarray, g: np.ndarray, mo: np.ndarray, sq: float) -> float:
+        """The residual sum of squares from normal equations: |y|^2 - 2 w.X'y + w.X'X w."""
+        return max(sq - 2 * w @ mo + w @ g @ w, 0.0)
+
+    w = np.linalg.lstsq(gram.sum(0), moment.sum(0), rcond=None)[0]
+    r2 = 1 - residual(w, gram.sum(0), moment.sum(0), square.sum()) / variance
+    held_out = None
+    if folds > 1:  # each fold predicted by the read-out fitted to the others
+        errors = 0.0
+        for f in range(folds):
+            rest = np.linalg.lstsq(gram.sum(0) - gram[f], moment.sum(0) - moment[f],
+                                   rcond=None)[0]  # fmt: skip
+            errors += residual(rest, gram[f], moment[f], square[f])
+        held_out = float(1 - errors / variance)
+    return Readout(kernel=w[:-1].reshape(kernel, kernel), bias=float(w[-1]), r2=float(r2),
+                   glances=m, r2_held_out=held_out)  # fmt: skip
 
 
 @checked_arguments
@@ -211,8 +236,11 @@ def calibrate_table(
 def describe(readout: Readout) -> str:
     """One line on a fitted read-out (what the CLI prints)."""
     k = readout.kernel.shape[0]
+    held_out = ""
+    if readout.r2_held_out is not None:
+        held_out = f" ({readout.r2_held_out:.3f} held out)"
     return (f"a {k} x {k} read-out fitted to {readout.glances} recorded glances explains "
-            f"{readout.r2:.3f} of their variance")  # fmt: skip
+            f"{readout.r2:.3f} of their variance{held_out}")  # fmt: skip
 
 
 __all__ = ["Readout", "calibrate_table", "check_kernel", "describe", "fit_readout"]
