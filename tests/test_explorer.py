@@ -19,7 +19,7 @@ from ham.learn.train import TrainConfig, load_run, train
 from ham.model.agent import HamConfig, HapticAttentionModel
 from ham.world.config import WorldConfig
 from ham.world.source import make_source
-from ham.world.table import build_table, table_info
+from ham.world.table import GlanceTable, build_table, table_info
 
 
 @pytest.fixture(scope="module")
@@ -167,8 +167,6 @@ def test_the_sim_to_real_example_records_fine_tunes_and_explores(trained, tmp_pa
     explore the pad live; a second call reuses what the first made."""
     import json
 
-    from ham.world.table import GlanceTable
-
     script = Path(__file__).resolve().parents[1] / "docs" / "examples" / "sim_to_real.py"
     cmd = [sys.executable, str(script), str(trained), str(tmp_path / "s2r"), "--grid", "3",
            "--steps", "2", "--episodes", "8", "--sensor", "taxels"]  # fmt: skip
@@ -219,6 +217,37 @@ def test_the_sim_to_real_example_fine_tunes_on_the_calibrated_table(trained, tmp
         config = json.loads((out / "fine_tuned" / "config.json").read_text())
         assert config["table"] == str((out / "calibrated.h5").resolve())
         assert json.loads((out / "live.json").read_text())["calibrate"] == 3
+
+
+def test_the_sim_to_real_example_misses_poses_as_a_robot_would(trained, tmp_path):
+    """--pad-pose-noise S: the pad glances near the poses asked for, the same errors for the
+    same seed (a second OUT gives the same numbers); a negative S is refused in one line."""
+    import numpy as np
+
+    script = Path(__file__).resolve().parents[1] / "docs" / "examples" / "sim_to_real.py"
+    runs = []
+    for out in ("a", "b"):
+        cmd = [sys.executable, str(script), str(trained), str(tmp_path / out), "--grid", "3",
+               "--steps", "2", "--episodes", "8", "--sensor", "taxels", "--pad-pose-noise",
+               "0.2"]  # fmt: skip
+        runs.append(subprocess.run(cmd, capture_output=True, text=True, timeout=300))
+        assert runs[-1].returncode == 0, runs[-1].stderr
+    assert runs[0].stdout == runs[1].stdout
+    built = build_table(WorldConfig(simulator="mujoco"), 3, tmp_path / "mj3.h5", progress=False)
+    exact = GlanceTable.load(built).pressure
+    with (
+        np.load(tmp_path / "a" / "recorded.npz") as a,
+        np.load(tmp_path / "b" / "recorded.npz") as b,
+    ):
+        assert np.array_equal(a["box"], b["box"])
+        missed = [not np.array_equal(a[n], exact[i].numpy()) for i, n in enumerate(("box",
+                  "ramp_up", "convex", "ramp_down"))]  # fmt: skip
+    assert all(missed)
+    cmd[-1], cmd[3] = "-0.1", str(tmp_path / "c")
+    refused = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert refused.returncode == 1 and not (tmp_path / "c").exists()
+    assert refused.stderr.strip() == ("sim_to_real: error: --pad-pose-noise -0.1; accepted: a "
+                                      "finite number >= 0")  # fmt: skip
 
 
 def test_a_run_on_ap_gym_is_refused_before_its_world_loads(tmp_path):

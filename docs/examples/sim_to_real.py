@@ -2,7 +2,7 @@
 
     python docs/examples/sim_to_real.py SIM_RUN OUT [--grid 11] [--steps 1000] [--episodes 640]
         [--sensor gazebo|taxels] [--seed 0] [--pose-noise 0] [--policy-lr-scale S]
-        [--calibrate K] [--sim-grid 21] [--json]
+        [--calibrate K] [--sim-grid 21] [--pad-pose-noise 0] [--json]
 
 SIM_RUN: a run trained in simulation (e.g. `make demo`'s runs/demo/ham; any objects and pose
 dims MuJoCo can glance: the paper's, or the next world's height fields with poses x, y, ...).
@@ -12,7 +12,9 @@ runs read poorly); for a real pad, replace `Pad.glance` with your robot's. The l
 function of ham's:
 
 1. SIM_RUN explores the pad live (`Explorer`): `--episodes` episodes, each of a hidden object
-   drawn from `--seed`, every glance the pad's at the pose the agent asks for.
+   drawn from `--seed`, every glance the pad's at the pose the agent asks for (with
+   `--pad-pose-noise S`, a robot that misses it: Gaussian errors of S normalized units on each
+   pose dim, kept within -1..1; the same errors in every live exploration of a seed).
 2. The pad records `--grid` poses per pose dim (one number, or one per dim: 9,5) of glances per
    object, with their contact heights
    (`record_glances`: OUT/recorded.npz, resumable), imported as a glance table
@@ -53,16 +55,26 @@ from ham.world.table import build_table, grid_shape_for, import_recorded, table_
 
 
 class Pad:
-    """The pad on the robot: MuJoCo over the run's objects and poses (swap in your robot)."""
+    """The pad on the robot: MuJoCo over the run's objects and poses (swap in your robot).
+    ``pose_noise``: the robot's pose error, Gaussian, per normalized pose dim (0: none)."""
 
-    def __init__(self, world: WorldConfig, sensor: str) -> None:
+    def __init__(self, world: WorldConfig, sensor: str, pose_noise: float = 0.0) -> None:
         self.world = replace(world, simulator="mujoco", mujoco={"readout": sensor})
         self.names = [o.name for o in self.world.resolve_objects()]
         self.sim = make_simulator(self.world)
+        self.pose_noise, self.errors = pose_noise, torch.Generator()
+
+    def reseed(self, seed: int) -> None:
+        """Restart the pose errors (the same errors for the same seed)."""
+        self.errors.manual_seed(seed)
 
     def glance(self, ids: torch.Tensor, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Move to the normalized poses ``q`` ``(B, k)`` over objects ``ids``, press to 2 N:
-        the raw images ``(B, N, N)`` and the contact heights ``(B,)`` (m)."""
+        """Move to the normalized poses ``q`` ``(B, k)`` over objects ``ids`` (missed by the
+        pose error), press to 2 N: the raw images ``(B, N, N)`` and the contact heights
+        ``(B,)`` (m)."""
+        if self.pose_noise > 0:
+            error = torch.randn(q.shape, generator=self.errors, dtype=torch.float64)
+            q = (q.double() + self.pose_noise * error).clamp(-1.0, 1.0)
         r = simulate(self.sim, ids, q, world_pose_dims(self.world))
         return r.pressure, result_height(r)
 
@@ -78,6 +90,7 @@ def run_world(run: Path) -> WorldConfig:
 def explore(run: Path, pad: Pad, hidden: torch.Tensor, seed: int) -> float:
     """``run`` driven by the pad's live glances on the ``hidden`` objects: its accuracy."""
     explorer = Explorer.from_run(run, episodes=len(hidden), seed=seed)
+    pad.reseed(seed)  # before and after fine-tuning: the same pose errors
     if explorer.objects != pad.names:
         raise HamError(f"the run classifies {explorer.objects}, the pad's world holds "
                        f"{pad.names}; accepted: a run of the pad's objects")  # fmt: skip
@@ -91,7 +104,7 @@ def explore(run: Path, pad: Pad, hidden: torch.Tensor, seed: int) -> float:
 
 #: the arguments OUT's files depend on (not --episodes or --json: only the live episodes)
 MADE_BY = ("grid", "steps", "sensor", "seed", "pose_noise", "policy_lr_scale", "calibrate",
-           "sim_grid")  # fmt: skip
+           "sim_grid", "pad_pose_noise")  # fmt: skip
 
 
 def check_made_by(args: argparse.Namespace) -> None:
@@ -136,10 +149,15 @@ def main(argv: list[str] | None = None) -> int:
                     "fitted to the recorded glances, not on the recorded glances alone")  # fmt: skip
     ap.add_argument("--sim-grid", default="21", help="with --calibrate, a run trained online: "
                     "its world's table, points per pose dim (default 21)")  # fmt: skip
+    ap.add_argument("--pad-pose-noise", type=float, default=0.0, metavar="S",
+                    help="the robot's pose error: Gaussian, S normalized units per pose dim, "
+                    "while recording and live (default 0)")  # fmt: skip
     ap.add_argument("--json", action="store_true", help="also write OUT/live.json")
     args = ap.parse_args(argv)
 
-    pad = Pad(run_world(args.sim_run), args.sensor)
+    if not (args.pad_pose_noise >= 0 and np.isfinite(args.pad_pose_noise)):
+        raise HamError(f"--pad-pose-noise {args.pad_pose_noise}; accepted: a finite number >= 0")
+    pad = Pad(run_world(args.sim_run), args.sensor, args.pad_pose_noise)
     dims = world_pose_dims(pad.world)
     shape = grid_shape_for(args.grid, dims)  # a bad --grid refused before the pad is touched
     check_made_by(args)
@@ -152,6 +170,7 @@ def main(argv: list[str] | None = None) -> int:
         return image[0].numpy(), float(height[0])
 
     recorded = args.out / "recorded.npz"  # a rerun asks the pad nothing: it is recorded
+    pad.reseed(args.seed + 1)  # the recording's pose errors (another stream than the live ones)
     record_glances(glance, pad.names, args.grid, recorded, pose_dims=dims, heights=True,
                    progress=False)  # fmt: skip
     table = args.out / "recorded.h5"
@@ -184,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
         grid = int(args.grid) if args.grid.isdigit() else list(shape)
         write_json(args.out / "live.json", {"before": before, "after": after, "grid": grid, **{
             k: getattr(args, k) for k in ("steps", "episodes", "sensor", "seed", "pose_noise",
-                                          "policy_lr_scale", "calibrate")}})  # fmt: skip
+                                          "policy_lr_scale", "calibrate", "pad_pose_noise")}})  # fmt: skip
     return 0
 
 
