@@ -110,6 +110,8 @@ def test_the_cli_calibrates_and_says_the_fit(ham_cli, small_table, tmp_path):
     )
     info = table_info(tmp_path / "cal.h5")
     assert info.command.startswith("ham table calibrate") and info.grid == 9
+    shown = ok(ham_cli("table", "info", str(tmp_path / "cal.h5"))).stdout
+    assert "  read-out:  a 3 x 3 read-out fitted to 16 recorded glances explains 1.000" in shown
     assert info.simulator["recorded_grid"] == [2, 2]
 
 
@@ -151,3 +153,26 @@ def test_the_cli_refuses_a_bad_kernel_in_one_line(ham_main, small_table, tmp_pat
     r = ham_main("table", "calibrate", small_table, str(tmp_path / "rec.npz"), "--kernel", "2",
                  "--out", str(tmp_path / "cal.h5"))  # fmt: skip
     assert r.returncode != 0 and "kernel = 2; accepted: an odd integer" in one_line_error(r)
+
+
+def test_a_table_over_other_pose_dims_keeps_its_layout_and_heights(tmp_path):
+    """The next world's kind of table (format 2: poses x, y, with contact heights): the
+    calibrated table has its grid, compression and heights, and the read-out's images."""
+    from ham.world.config import WorldConfig
+    from ham.world.table import build_table
+
+    world = WorldConfig(objects="curvature2d", pose_dims=("x", "y"))
+    sim = build_table(world, "5,7", tmp_path / "xy.h5", progress=False, compression="lzf")
+    table = GlanceTable.load(sim)
+    truth = Readout(_gaussian(3, 0.8, 2.0), 1.5, 1.0, 0)
+    pad = truth.apply(table.pressure.numpy())
+    np.savez(tmp_path / "rec.npz", **{n: pad[i][np.ix_([0, 2, 4], [0, 3, 6])]
+                                      for i, n in enumerate(table.objects)})  # fmt: skip
+    out, readout = calibrate_table(sim, tmp_path / "rec.npz", tmp_path / "cal.h5", kernel=3)
+    info = table_info(out)
+    assert info.format_version == 2 and info.grid_shape == (5, 7) and info.compression == "lzf"
+    assert info.pose_dims == ("x", "y") and info.simulator["recorded_grid"] == [3, 3]
+    cal = GlanceTable.load(out)
+    assert torch.allclose(cal.pressure, torch.from_numpy(pad), atol=1e-4 * float(pad.max()))
+    assert torch.equal(cal.height, table.height) and cal.knows_heights
+    assert abs(readout.bias - 1.5) < 1e-6
