@@ -176,3 +176,18 @@ def test_a_table_over_other_pose_dims_keeps_its_layout_and_heights(tmp_path):
     assert torch.allclose(cal.pressure, torch.from_numpy(pad), atol=1e-4 * float(pad.max()))
     assert torch.equal(cal.height, table.height) and cal.knows_heights
     assert abs(readout.bias - 1.5) < 1e-6
+
+
+def test_a_corrupt_table_is_refused_in_one_line(small_table, tmp_path):
+    import shutil
+
+    bad = tmp_path / "bad.h5"
+    shutil.copyfile(small_table, bad)
+    with h5py.File(bad, "r+") as f:
+        f["objects/convex/pressure"][3, 4, 5, 6] = np.nan
+    np.savez(tmp_path / "rec.npz", **{n: np.ones((2, 2, 16, 16)) for n in
+                                      ("box", "ramp_up", "convex", "ramp_down")})  # fmt: skip
+    with pytest.raises(HamError) as info:
+        calibrate_table(bad, tmp_path / "rec.npz", tmp_path / "cal.h5", kernel=3)
+    assert "objects/convex/pressure holds nan at index (3, 4, 5, 6)" in str(info.value)
+    assert not (tmp_path / "cal.h5").exists()

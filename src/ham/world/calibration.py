@@ -29,10 +29,13 @@ from ham.world.files import atomic_write, check_output
 from ham.world.table import (
     FORMAT_VERSION,
     MAX_MEMORY,
+    MAX_PRESSURE,
+    _check_pressure,
     _open,
     _python_command,
     _read_info,
     _write_images,
+    bad_pressure,
     grid_values,
     load_recorded,
 )
@@ -188,6 +191,7 @@ def calibrate_table(
         for name in names:
             group = f[f"objects/{name}"]
             sim.append(group["pressure"][...].reshape(*grid, info.taxels, info.taxels))
+            _check_pressure(str(table), name, sim[-1])  # a corrupt table is refused
             forces.append(group["force"][...].reshape(grid))
             heights.append(group[heights_key][...].reshape(grid))
     # each recorded pose's nearest grid point of the table, and how far it lies from it
@@ -203,6 +207,11 @@ def calibrate_table(
     pads = np.concatenate([a.reshape(-1, info.taxels, info.taxels) for a in pad])
     readout = fit_readout(simulated, pads, kernel)
     images = [readout.apply(a) for a in sim]
+    for name, a in zip(names, images, strict=True):
+        if (i := bad_pressure(a)) is not None:
+            raise HamError(f"the fitted read-out gives {name} a pressure of {float(a[i]):g} at "
+                           f"{i}; accepted: pressures in [0, {MAX_PRESSURE:g}] (recorded "
+                           "glances in a smaller unit)")  # fmt: skip
 
     file_names = [Path(p).name for p in files]
     simulator = {
