@@ -202,21 +202,32 @@ def test_the_sim_to_real_example_fine_tunes_on_the_calibrated_table(trained, tmp
     online = tmp_path / "online"
     train(TrainConfig(model=HamConfig(glances=2), steps=2, batch_size=4, eval_every=2,
                       eval_batches=1), online, progress=False)  # fmt: skip
-    for run, grid in ((trained, 11), (online, 5)):
-        out = tmp_path / f"s2r_{run.name}"
+    for run, grid, only in ((trained, 11, None), (online, 5, None), (trained, 11, "convex,box")):
+        out = tmp_path / f"s2r_{run.name}_{only}"
         cmd = [sys.executable, str(script), str(run), str(out), "--grid", "3", "--steps", "2",
                "--episodes", "8", "--calibrate", "3", "--sim-grid", "5", "--json"]  # fmt: skip
+        cmd += [] if only is None else ["--record-objects", only]
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
         assert r.returncode == 0, r.stderr
-        assert re.match(r"a 3 x 3 read-out fitted to 36 recorded glances explains 0\.\d{3} ",
-                        r.stdout), r.stdout  # fmt: skip
+        glances = 36 if only is None else 18  # 9 per object recorded
+        assert re.match(rf"a 3 x 3 read-out fitted to {glances} recorded glances explains "
+                        r"0\.\d{3} ", r.stdout), r.stdout  # fmt: skip
         assert "(2 steps, calibrated)" in r.stdout
         info = table_info(out / "calibrated.h5")
         assert info.simulator["simulator"] == "calibrated" and info.grid == grid
+        assert len(info.objects) == 4 and (out / "recorded.h5").exists() == (only is None)
+        if only:
+            assert info.simulator["recorded_objects"] == ["convex", "box"]
         assert (out / "simulated.h5").exists() == (run == online)
         config = json.loads((out / "fine_tuned" / "config.json").read_text())
         assert config["table"] == str((out / "calibrated.h5").resolve())
         assert json.loads((out / "live.json").read_text())["calibrate"] == 3
+    alone = [*cmd[:3], str(tmp_path / "alone"), "--record-objects", "box"]
+    refused = subprocess.run(alone, capture_output=True, text=True, timeout=300)
+    assert refused.returncode == 1 and not (tmp_path / "alone").exists()
+    assert refused.stderr.strip() == ("sim_to_real: error: --record-objects without --calibrate; "
+                                      "accepted: it with --calibrate (fine-tuning on the "
+                                      "recorded glances alone needs every object)")  # fmt: skip
 
 
 def test_the_sim_to_real_example_misses_poses_as_a_robot_would(trained, tmp_path):

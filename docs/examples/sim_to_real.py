@@ -2,7 +2,7 @@
 
     python docs/examples/sim_to_real.py SIM_RUN OUT [--grid 11] [--steps 1000] [--episodes 640]
         [--sensor gazebo|taxels] [--seed 0] [--pose-noise 0] [--policy-lr-scale S]
-        [--calibrate K] [--sim-grid 21] [--pad-pose-noise 0] [--json]
+        [--calibrate K [--record-objects A,B]] [--sim-grid 21] [--pad-pose-noise 0] [--json]
 
 SIM_RUN: a run trained in simulation (e.g. `make demo`'s runs/demo/ham; any objects and pose
 dims MuJoCo can glance: the paper's, or the next world's height fields with poses x, y, ...).
@@ -24,7 +24,8 @@ function of ham's:
    rate against the rest's, SIM_RUN's other settings). With `--calibrate K` it is fine-tuned
    instead on SIM_RUN's own table carried onto the pad by a K x K read-out fitted to the
    recorded glances (`calibrate_table`: OUT/calibrated.h5); a run trained online gets a table
-   of its world first, `--sim-grid` points per pose dim (OUT/simulated.h5).
+   of its world first, `--sim-grid` points per pose dim (OUT/simulated.h5). `--record-objects`
+   records only those objects: the read-out fitted to them carries the others too.
 4. The fine-tuned run explores the pad live, on the same hidden objects.
 
 Prints the accuracy after the last glance before and after (`--json`: also into OUT/live.json);
@@ -104,7 +105,7 @@ def explore(run: Path, pad: Pad, hidden: torch.Tensor, seed: int) -> float:
 
 #: the arguments OUT's files depend on (not --episodes or --json: only the live episodes)
 MADE_BY = ("grid", "steps", "sensor", "seed", "pose_noise", "policy_lr_scale", "calibrate",
-           "sim_grid", "pad_pose_noise")  # fmt: skip
+           "sim_grid", "pad_pose_noise", "record_objects")  # fmt: skip
 
 
 def check_made_by(args: argparse.Namespace) -> None:
@@ -147,6 +148,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--calibrate", type=int, default=None, metavar="K",
                     help="fine-tune on SIM_RUN's table carried onto the pad by a K x K read-out "
                     "fitted to the recorded glances, not on the recorded glances alone")  # fmt: skip
+    ap.add_argument("--record-objects", default=None, metavar="A,B",
+                    help="with --calibrate: record only these objects (default all)")  # fmt: skip
     ap.add_argument("--sim-grid", default="21", help="with --calibrate, a run trained online: "
                     "its world's table, points per pose dim (default 21)")  # fmt: skip
     ap.add_argument("--pad-pose-noise", type=float, default=0.0, metavar="S",
@@ -160,6 +163,15 @@ def main(argv: list[str] | None = None) -> int:
     pad = Pad(run_world(args.sim_run), args.sensor, args.pad_pose_noise)
     dims = world_pose_dims(pad.world)
     shape = grid_shape_for(args.grid, dims)  # a bad --grid refused before the pad is touched
+    recorded_names = pad.names
+    if args.record_objects is not None:
+        recorded_names = args.record_objects.split(",")
+        if args.calibrate is None:
+            raise HamError("--record-objects without --calibrate; accepted: it with --calibrate "
+                           "(fine-tuning on the recorded glances alone needs every object)")  # fmt: skip
+        if not recorded_names or not set(recorded_names) <= set(pad.names):
+            raise HamError(f"--record-objects {args.record_objects!r}; accepted: a comma list "
+                           f"of the run's objects: {','.join(pad.names)}")  # fmt: skip
     check_made_by(args)
     hidden = torch.randint(len(pad.names), (args.episodes,),
                            generator=torch.Generator().manual_seed(args.seed))  # fmt: skip
@@ -171,10 +183,10 @@ def main(argv: list[str] | None = None) -> int:
 
     recorded = args.out / "recorded.npz"  # a rerun asks the pad nothing: it is recorded
     pad.reseed(args.seed + 1)  # the recording's pose errors (another stream than the live ones)
-    record_glances(glance, pad.names, args.grid, recorded, pose_dims=dims, heights=True,
+    record_glances(glance, recorded_names, args.grid, recorded, pose_dims=dims, heights=True,
                    progress=False)  # fmt: skip
     table = args.out / "recorded.h5"
-    if not table.exists():
+    if not table.exists() and recorded_names == pad.names:
         import_recorded(recorded, table, pose_dims=dims)
     if args.calibrate is not None:
         simulated = read_run_config(args.sim_run).table
@@ -203,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
         grid = int(args.grid) if args.grid.isdigit() else list(shape)
         write_json(args.out / "live.json", {"before": before, "after": after, "grid": grid, **{
             k: getattr(args, k) for k in ("steps", "episodes", "sensor", "seed", "pose_noise",
-                                          "policy_lr_scale", "calibrate", "pad_pose_noise")}})  # fmt: skip
+                                          "policy_lr_scale", "calibrate", "pad_pose_noise", "record_objects")}})  # fmt: skip
     return 0
 
 

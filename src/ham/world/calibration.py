@@ -164,10 +164,12 @@ def calibrate_table(
 ) -> tuple[Path, Readout]:
     """The simulator's ``table`` carried onto a pad (module doc): a read-out fitted to the
     pad's ``recorded`` glances (an ``.npz`` file or a list of them, as
-    :func:`ham.world.table.import_recorded` reads them, of the table's objects in its order,
-    over a grid of the table's pose dims), applied to every glance of the table. The new table
-    ``out`` has the table's grid, world, forces and heights and the pad's images, its
-    ``simulator`` attribute names the read-out; returns it with the :class:`Readout`."""
+    :func:`ham.world.table.import_recorded` reads them, over a grid of the table's pose dims),
+    applied to every glance of the table. The glances may be of some of the table's objects
+    only, each named by it: the read-out is the pad's, and it carries the objects never
+    recorded too. The new table ``out`` has the table's objects, grid, world, forces and
+    heights and the pad's images, its ``simulator`` attribute names the read-out; returns it
+    with the :class:`Readout`."""
     out = check_output(out, (".h5", ".hdf5"), what="glance table")
     with _open(table) as f:
         info = _read_info(f, str(table))
@@ -178,9 +180,11 @@ def calibrate_table(
                            f"images; accepted: tables up to {MAX_MEMORY / 1024**3:.0f} GiB "
                            "(calibrate holds one in memory)")  # fmt: skip
         names, pad, _, files = load_recorded(recorded, info.pose_dims)
-        if names != info.objects:
-            raise HamError(f"recorded glances of {', '.join(names)}; accepted: the objects of "
-                           f"{str(table)!r} in its order: {', '.join(info.objects)}")  # fmt: skip
+        unknown = [n for n in names if n not in info.objects]
+        if unknown:
+            raise HamError(f"recorded glances of {', '.join(unknown)}, which {str(table)!r} "
+                           f"does not hold; accepted: objects of it: "
+                           f"{', '.join(info.objects)}")  # fmt: skip
         if pad[0].shape[-1] != info.taxels:
             n = pad[0].shape[-1]
             raise HamError(f"recorded {n} x {n} images; accepted: the {info.taxels} x "
@@ -188,7 +192,7 @@ def calibrate_table(
         heights_key = "z" if info.format_version == FORMAT_VERSION else "height"
         grid = tuple(info.grid_shape)
         sim, forces, heights = [], [], []
-        for name in names:
+        for name in info.objects:
             group = f[f"objects/{name}"]
             sim.append(group["pressure"][...].reshape(*grid, info.taxels, info.taxels))
             _check_pressure(str(table), name, sim[-1])  # a corrupt table is refused
@@ -203,11 +207,13 @@ def calibrate_table(
         nearest.append(i)
         offset = max(offset, float(np.abs(table_q[i] - q).max()))
     at = np.ix_(*nearest)
-    simulated = np.concatenate([a[at].reshape(-1, info.taxels, info.taxels) for a in sim])
+    simulated = np.concatenate([sim[info.objects.index(n)][at].reshape(-1, info.taxels,
+                                                                      info.taxels)
+                                for n in names])  # fmt: skip
     pads = np.concatenate([a.reshape(-1, info.taxels, info.taxels) for a in pad])
     readout = fit_readout(simulated, pads, kernel)
     images = [readout.apply(a) for a in sim]
-    for name, a in zip(names, images, strict=True):
+    for name, a in zip(info.objects, images, strict=True):
         if (i := bad_pressure(a)) is not None:
             raise HamError(f"the fitted read-out gives {name} a pressure of {float(a[i]):g} at "
                            f"{i}; accepted: pressures in [0, {MAX_PRESSURE:g}] (recorded "
@@ -219,6 +225,7 @@ def calibrate_table(
         "table": info.simulator,
         "table_source": info.source,
         "recorded": ", ".join(file_names),
+        "recorded_objects": names,
         "recorded_grid": list(recorded_grid),
         "pose_offset": offset,
         "readout": readout.to_dict(),
@@ -235,7 +242,7 @@ def calibrate_table(
 
     def write(tmp: Path) -> None:
         with h5py.File(tmp, "w") as g:
-            _write_images(g, names, images, info.grid, world, simulator,
+            _write_images(g, info.objects, images, info.grid, world, simulator,
                           f"calibrated:{Path(table).name}+{','.join(file_names)}", command,
                           heights, layout, forces)  # fmt: skip
 
