@@ -27,6 +27,26 @@ from ham.experiments.reproduce import format_mean_sem, mean_sem  # noqa: E402
 from ham.world.files import write_json  # noqa: E402
 
 
+def _way(run: dict) -> tuple:
+    return run.get("calibrate"), run.get("record_objects")
+
+
+def _suffix(way: tuple) -> str:
+    """A row's name after its grid: nothing for the recorded glances alone."""
+    k, only = way
+    if k is None:
+        return ""
+    return f", calibrated {k} x {k}" + ("" if only is None else f" from {only}")
+
+
+def _what(way: tuple) -> str:
+    k, only = way
+    if k is None:
+        return "the recorded glances"
+    fitted = "" if only is None else f" fitted to {only.replace(',', ', ')} only"
+    return f"the table calibrated by a {k} x {k} read-out{fitted}"
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("out", type=Path)
@@ -37,28 +57,27 @@ def main(argv: list[str] | None = None) -> int:
     for r in runs:  # one number for every pose dim (2 here), or one per dim
         r["shape"] = [r["grid"]] * 2 if isinstance(r["grid"], int) else r["grid"]
     shapes = sorted({tuple(r["shape"]) for r in runs}, key=lambda t: (math.prod(t), t))
-    kernels = sorted({r.get("calibrate") for r in runs}, key=lambda k: -1 if k is None else k)
-    tuned_on = len(kernels) > 1 or kernels != [None]  # a column only where runs differ in it
+    # how each run was fine-tuned: on the recorded glances (None), or calibrated (--calibrate
+    # K, fitted to the --record-objects only where given)
+    ways = sorted({_way(r) for r in runs}, key=lambda w: (-1 if w[0] is None else w[0], w[1] or ""))
+    tuned_on = ways != [(None, None)]  # a column only where runs differ in it
     rows = {}
     column = " fine-tuned on |" if tuned_on else ""
     print(f"| recorded glances per object |{column} before (live) | after (live) | seeds (after) |")
     # (the grid's size per pose dim; a run over k pose dims recorded g^k glances per object)
     print("|---|---|---|---|" + ("---|" if tuned_on else ""))
-    for k in kernels:
+    for way in ways:
         for shape in shapes:
             mine = sorted((r for r in runs if tuple(r["shape"]) == shape
-                           and r.get("calibrate") == k), key=lambda r: r["seed"])  # fmt: skip
+                           and _way(r) == way), key=lambda r: r["seed"])  # fmt: skip
             if not mine:
                 continue
             before = mean_sem(r["before"] for r in mine)
             after = mean_sem(r["after"] for r in mine)
-            name = " x ".join(map(str, shape)) + ("" if k is None else f", calibrated {k} x {k}")
+            name = " x ".join(map(str, shape)) + _suffix(way)
             rows[name] = {"before": before, "after": after, "seeds": [r["seed"] for r in mine]}
             seeds = " / ".join(f"{r['after']:.3f}" for r in mine)
-            what = ""
-            if tuned_on:
-                what = (" the recorded glances |" if k is None
-                        else f" the table calibrated by a {k} x {k} read-out |")  # fmt: skip
+            what = f" {_what(way)} |" if tuned_on else ""
             print(f"| {' x '.join(map(str, shape))} ({math.prod(shape)}) |{what} "
                   f"{format_mean_sem(*before)} | **{format_mean_sem(*after)}** | {seeds} |")  # fmt: skip
     write_json(args.out, {"command": " ".join(["python", *sys.argv]), "runs": runs,
@@ -67,12 +86,10 @@ def main(argv: list[str] | None = None) -> int:
     names, x = [" x ".join(map(str, t)) for t in shapes], list(range(len(shapes)))
     steps = "/".join(f"{n:,}" for n in sorted({r["steps"] for r in runs}))
     them = "the recorded glances" if tuned_on else "them"
-    lines = [(k, "after", f"fine-tuned on {them}, {steps} steps" if k is None else
-              f"fine-tuned on the table calibrated by a {k} x {k} read-out fitted to them")
-             for k in kernels]  # fmt: skip
-    for k, key, label in [*lines, (kernels[0], "before", "trained in simulation only")]:
-        at = [(i, f"{n}" + ("" if k is None else f", calibrated {k} x {k}"))
-              for i, n in zip(x, names, strict=True)]  # fmt: skip
+    lines = [(way, "after", f"fine-tuned on {them}, {steps} steps" if way[0] is None else
+              f"fine-tuned on {_what(way)}") for way in ways]  # fmt: skip
+    for way, key, label in [*lines, (ways[0], "before", "trained in simulation only")]:
+        at = [(i, f"{n}{_suffix(way)}") for i, n in zip(x, names, strict=True)]
         at = [(i, n) for i, n in at if n in rows]
         ax.errorbar([i for i, _ in at], [rows[n][key][0] for _, n in at],
                     yerr=[rows[n][key][1] for _, n in at], marker="o", capsize=3,
