@@ -87,7 +87,7 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
     from ham.learn.train import TrainConfig, fit_to_ap_gym, load_run, resume, train
     from ham.model.core import register_core
     from ham.model.policy import register_policy
-    from ham.world.calibration import calibrate_table, fit_readout
+    from ham.world.calibration import calibrate_table, carry_readout, fit_readout
     from ham.world.config import WorldConfig
     from ham.world.objects import HapticObject, register
     from ham.world.recorder import record_glances
@@ -109,6 +109,9 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
     calibration = tmp / "cal.npz"  # the pad's glances of the table's objects
     np.savez(calibration, **{n: np.arange(9 * 256.0).reshape(3, 3, 16, 16) for n in
                              ("box", "ramp_up", "convex", "ramp_down")})  # fmt: skip
+    calibrated = tmp / "calibrated.h5"
+    if not only or "carry_readout" in only:
+        calibrate_table(table, calibration, calibrated, kernel=3)
     run_out = tmp / "run"
     (tmp / "g.toml").write_text('name = "g"\n[base]\nsteps = 2\nbatch_size = 4\n[axes]\n'
                                 '"model.glances" = [1, 2]\n')  # fmt: skip
@@ -144,6 +147,10 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
             calibrate_table,
             {"table": table, "recorded": calibration, "out": "cal.h5", "kernel": 3},
         ),  # fmt: skip
+        "carry_readout": (
+            carry_readout,
+            {"table": table, "calibrated": calibrated, "out": "carried.h5"},
+        ),
         "fit_readout": (
             fit_readout,
             {

@@ -1,6 +1,8 @@
 """Read-out calibration (``ham table calibrate``): a simulator's glance table carried onto a pad
 by a read-out fitted to a few of the pad's recorded glances."""
 
+import json
+
 import h5py
 import numpy as np
 import pytest
@@ -203,3 +205,50 @@ def test_a_corrupt_table_is_refused_in_one_line(small_table, tmp_path):
         calibrate_table(bad, tmp_path / "rec.npz", tmp_path / "cal.h5", kernel=3)
     assert "objects/convex/pressure holds nan at index (3, 4, 5, 6)" in str(info.value)
     assert not (tmp_path / "cal.h5").exists()
+
+
+def test_a_readout_fitted_once_carries_other_objects(small_table, tmp_path, ham_cli):
+    """--readout-from: the read-out of one calibration applied to a table of other objects
+    (here the next world's, over x, y), with no glance of them recorded."""
+    from ham.world.calibration import carry_readout
+    from ham.world.config import WorldConfig
+    from ham.world.sensor import SensorConfig
+    from ham.world.table import build_table
+
+    table = GlanceTable.load(small_table)
+    truth = Readout(_gaussian(5, 1.1, 1.7), 0.0, 1.0, 0)
+    _record(truth.apply(table.pressure.numpy()), table.objects, tmp_path / "rec.npz")
+    first, fitted = calibrate_table(small_table, tmp_path / "rec.npz", tmp_path / "cal.h5",
+                                    kernel=5)  # fmt: skip
+    others = build_table(WorldConfig(objects="curvature2d", pose_dims=("x", "y")), 4,
+                         tmp_path / "xy.h5", progress=False)  # fmt: skip
+    r = ok(ham_cli("table", "calibrate", str(others), "--readout-from", str(first), "--out",
+                   str(tmp_path / "xy_cal.h5")))  # fmt: skip
+    assert (
+        f"fitted to 100 recorded glances explains 1.000 of their variance (1.000 held out) "
+        f"(from {first}); wrote" in r.stdout
+    )
+    carried = GlanceTable.load(tmp_path / "xy_cal.h5")
+    want = truth.apply(GlanceTable.load(others).pressure.numpy())
+    assert torch.allclose(carried.pressure, torch.from_numpy(want), atol=1e-4 * float(want.max()))
+    info = table_info(tmp_path / "xy_cal.h5")
+    assert info.simulator["readout_from"] == "cal.h5" and info.simulator["recorded"] == "rec.npz"
+    assert info.simulator["table"]["simulator"] == "fast" and info.pose_dims == ("x", "y")
+    # another pad's table is refused: 8 x 8 taxels
+    small = build_table(WorldConfig(sensor=SensorConfig(taxels=8)), 3, tmp_path / "t8.h5",
+                        progress=False)  # fmt: skip
+    with pytest.raises(HamError, match="reads 16 x 16 images; accepted: a table of that pad"):
+        carry_readout(small, first, tmp_path / "no.h5")
+    assert not (tmp_path / "no.h5").exists()
+    # a read-out changed in the file is refused, not applied: the record checksum, then (for a
+    # table without one, from before it) the read-out's own check
+    with h5py.File(first, "r+") as f:
+        made = json.loads(f.attrs["simulator"])
+        made["readout"]["kernel"] = [[1.0, 2.0]]
+        f.attrs["simulator"] = json.dumps(made)
+    with pytest.raises(HamError, match="is corrupt: its attributes or force/height/contact"):
+        carry_readout(others, first, tmp_path / "no.h5")
+    with h5py.File(first, "r+") as f:
+        del f.attrs["record_checksum"]
+    with pytest.raises(HamError, match="its read-out's kernel \\(1, 2\\) or bias"):
+        carry_readout(others, first, tmp_path / "no.h5")

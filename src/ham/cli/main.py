@@ -369,11 +369,25 @@ def cmd_table_import_recorded(args: argparse.Namespace) -> int:
 
 
 def cmd_table_calibrate(args: argparse.Namespace) -> int:
-    from ham.world.calibration import calibrate_table, describe
+    from ham.world.calibration import calibrate_table, carry_readout, describe
 
     check_output(args.out, HDF5)
+    if args.readout_from is not None:
+        if args.recorded or args.kernel is not None:
+            given = "recorded glances" if args.recorded else "--kernel"
+            raise HamError(f"{given} with --readout-from; accepted: recorded glances to fit a "
+                           "read-out to (and --kernel), or --readout-from CALIBRATED.h5 to take "
+                           "one fitted before")  # fmt: skip
+        out, readout = carry_readout(args.table, args.readout_from, args.out,
+                                     command=command_line(args))  # fmt: skip
+        print(f"{describe(readout)} (from {args.readout_from}); wrote {out}")
+        return 0
+    if not args.recorded:
+        raise HamError("ham table calibrate needs the pad's recorded glances (GLANCES.npz), or "
+                       "--readout-from CALIBRATED.h5")  # fmt: skip
     files = args.recorded[0] if len(args.recorded) == 1 else args.recorded
-    out, readout = calibrate_table(args.table, files, args.out, kernel=args.kernel,
+    kernel = 9 if args.kernel is None else args.kernel
+    out, readout = calibrate_table(args.table, files, args.out, kernel=kernel,
                                    command=command_line(args))  # fmt: skip
     print(f"{describe(readout)}; wrote {out}")
     return 0
@@ -539,12 +553,15 @@ def build_parser() -> argparse.ArgumentParser:
                         "convolution and an offset) fitted to the pad's recorded glances, applied "
                         "to every glance of the table")  # fmt: skip
     p.add_argument("table", help="the simulator's glance table (HDF5)")
-    p.add_argument("recorded", nargs="+", help=".npz of the pad's recorded glances, as "
-                   "import-recorded reads them: the table's objects in its order, over a grid of "
-                   "its pose dims")  # fmt: skip
+    p.add_argument("recorded", nargs="*", help=".npz of the pad's recorded glances, as "
+                   "import-recorded reads them: some or all of the table's objects, over a grid "
+                   "of its pose dims")  # fmt: skip
     p.add_argument("--out", required=True, help="HDF5 table to write, .h5 or .hdf5")
-    p.add_argument("--kernel", type=int, default=9, metavar="K",
+    p.add_argument("--kernel", type=int, default=None, metavar="K",
                    help="the read-out's kernel side, odd (default 9; 1: a gain and an offset)")  # fmt: skip
+    p.add_argument("--readout-from", default=None, metavar="CALIBRATED",
+                   help="no fit: the read-out of a table calibrate wrote before (the same pad, "
+                   "other objects)")  # fmt: skip
     p.set_defaults(func=cmd_table_calibrate)
 
     p = sub.add_parser("demo", help="the main job on built-in defaults (what `make demo` runs)")

@@ -31,6 +31,7 @@ from ham.world.table import (
     MAX_MEMORY,
     MAX_PRESSURE,
     _check_pressure,
+    _check_record,
     _open,
     _python_command,
     _read_info,
@@ -79,6 +80,25 @@ class Readout:
     def to_dict(self) -> dict:
         return {"kernel": self.kernel.tolist(), "bias": self.bias, "r2": self.r2,
                 "r2_held_out": self.r2_held_out, "glances": self.glances}  # fmt: skip
+
+    @classmethod
+    def from_dict(cls, d: dict, where: str) -> Readout:
+        """The read-out :meth:`to_dict` wrote (in the table ``where``), or a HamError."""
+        try:
+            kernel = np.asarray(d["kernel"], dtype=np.float64)
+            bias, r2, glances = float(d["bias"]), float(d["r2"]), int(d["glances"])
+            held = d.get("r2_held_out")
+            held = None if held is None else float(held)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise HamError(f"glance table {where!r}: its read-out is incomplete ({exc}); "
+                           "accepted: a table written by ham table calibrate") from None  # fmt: skip
+        k = kernel.shape[0] if kernel.ndim == 2 else 0
+        if kernel.shape != (k, k) or k % 2 == 0 or not (np.isfinite(kernel).all()
+                                                        and np.isfinite(bias)):  # fmt: skip
+            raise HamError(f"glance table {where!r}: its read-out's kernel {kernel.shape} or "
+                           f"bias {bias} is not one; accepted: a finite odd square kernel "
+                           "and bias, as ham table calibrate writes them")  # fmt: skip
+        return cls(kernel, bias, r2, glances, held)
 
 
 def _patches(images: np.ndarray, k: int) -> np.ndarray:
@@ -171,34 +191,21 @@ def calibrate_table(
     heights and the pad's images, its ``simulator`` attribute names the read-out; returns it
     with the :class:`Readout`."""
     out = check_output(out, (".h5", ".hdf5"), what="glance table")
-    with _open(table) as f:
-        info = _read_info(f, str(table))
-        kernel = check_kernel(kernel, info.taxels)
-        size = info.poses * len(info.objects) * info.pressure_dim * 4
-        if size > MAX_MEMORY:
-            raise HamError(f"glance table {str(table)!r} holds {size / 1024**3:.1f} GiB of "
-                           f"images; accepted: tables up to {MAX_MEMORY / 1024**3:.0f} GiB "
-                           "(calibrate holds one in memory)")  # fmt: skip
-        names, pad, _, files = load_recorded(recorded, info.pose_dims)
-        unknown = [n for n in names if n not in info.objects]
-        if unknown:
-            raise HamError(f"recorded glances of {', '.join(unknown)}, which {str(table)!r} "
-                           f"does not hold; accepted: objects of it: "
-                           f"{', '.join(info.objects)}")  # fmt: skip
-        if pad[0].shape[-1] != info.taxels:
-            n = pad[0].shape[-1]
-            raise HamError(f"recorded {n} x {n} images; accepted: the {info.taxels} x "
-                           f"{info.taxels} of {str(table)!r}")  # fmt: skip
-        heights_key = "z" if info.format_version == FORMAT_VERSION else "height"
-        grid = tuple(info.grid_shape)
-        sim, forces, heights = [], [], []
-        for name in info.objects:
-            group = f[f"objects/{name}"]
-            sim.append(group["pressure"][...].reshape(*grid, info.taxels, info.taxels))
-            _check_pressure(str(table), name, sim[-1])  # a corrupt table is refused
-            forces.append(group["force"][...].reshape(grid))
-            heights.append(group[heights_key][...].reshape(grid))
+    info, sim, forces, heights = _read_simulated(table, lambda info: check_kernel(kernel,
+                                                                                  info.taxels))  # fmt: skip
+    kernel = int(kernel)
+    names, pad, _, files = load_recorded(recorded, info.pose_dims)
+    unknown = [n for n in names if n not in info.objects]
+    if unknown:
+        raise HamError(f"recorded glances of {', '.join(unknown)}, which {str(table)!r} "
+                       f"does not hold; accepted: objects of it: "
+                       f"{', '.join(info.objects)}")  # fmt: skip
+    if pad[0].shape[-1] != info.taxels:
+        n = pad[0].shape[-1]
+        raise HamError(f"recorded {n} x {n} images; accepted: the {info.taxels} x "
+                       f"{info.taxels} of {str(table)!r}")  # fmt: skip
     # each recorded pose's nearest grid point of the table, and how far it lies from it
+    grid = tuple(info.grid_shape)
     recorded_grid = pad[0].shape[: len(grid)]
     nearest, offset = [], 0.0
     for g, s in zip(recorded_grid, grid, strict=True):
@@ -212,13 +219,6 @@ def calibrate_table(
                                 for n in names])  # fmt: skip
     pads = np.concatenate([a.reshape(-1, info.taxels, info.taxels) for a in pad])
     readout = fit_readout(simulated, pads, kernel)
-    images = [readout.apply(a) for a in sim]
-    for name, a in zip(info.objects, images, strict=True):
-        if (i := bad_pressure(a)) is not None:
-            raise HamError(f"the fitted read-out gives {name} a pressure of {float(a[i]):g} at "
-                           f"{i}; accepted: pressures in [0, {MAX_PRESSURE:g}] (recorded "
-                           "glances in a smaller unit)")  # fmt: skip
-
     file_names = [Path(p).name for p in files]
     simulator = {
         "simulator": "calibrated",
@@ -235,18 +235,94 @@ def calibrate_table(
         f"ham.world.calibration.calibrate_table({str(table)!r}, {given}, {str(out)!r}, "
         f"kernel={kernel})"
     )
+    source = f"calibrated:{Path(table).name}+{','.join(file_names)}"
+    path = _write_calibrated(out, info, sim, forces, heights, readout, simulator, source, command)
+    return path, readout
+
+
+@checked_arguments
+def carry_readout(
+    table: str | os.PathLike,
+    calibrated: str | os.PathLike,
+    out: str | os.PathLike,
+    *,
+    command: str | None = None,
+) -> tuple[Path, Readout]:
+    """The simulator's ``table`` carried onto a pad by the read-out fitted before, for another
+    table (``calibrated``, written by :func:`calibrate_table`): a pad calibrated once, any
+    objects simulated (``ham table calibrate TABLE --readout-from CALIBRATED``). The pad's
+    taxels must be the table's; returns the new table and the read-out."""
+    out = check_output(out, (".h5", ".hdf5"), what="glance table")
+    with _open(calibrated) as f:
+        theirs = _read_info(f, str(calibrated))
+        _check_record(f, theirs, str(calibrated))  # its read-out is in the checked attributes
+    made = theirs.simulator if isinstance(theirs.simulator, dict) else {}
+    if made.get("simulator") != "calibrated" or not isinstance(made.get("readout"), dict):
+        raise HamError(f"glance table {str(calibrated)!r} was not made by ham table calibrate "
+                       "(no read-out in it); accepted: a calibrated table")  # fmt: skip
+    readout = Readout.from_dict(made["readout"], str(calibrated))
+
+    def check(info) -> None:
+        if info.taxels != theirs.taxels:
+            raise HamError(f"the read-out of {str(calibrated)!r} reads {theirs.taxels} x "
+                           f"{theirs.taxels} images; accepted: a table of that pad, not "
+                           f"{str(table)!r}'s {info.taxels} x {info.taxels}")  # fmt: skip
+
+    info, sim, forces, heights = _read_simulated(table, check)
+    simulator = {key: made[key] for key in made if key not in ("table", "table_source")}
+    simulator.update(table=info.simulator, table_source=info.source,
+                     readout_from=Path(calibrated).name)  # fmt: skip
+    command = command or _python_command(
+        f"ham.world.calibration.carry_readout({str(table)!r}, {str(calibrated)!r}, {str(out)!r})"
+    )
+    source = f"calibrated:{Path(table).name}+{Path(calibrated).name}"
+    path = _write_calibrated(out, info, sim, forces, heights, readout, simulator, source, command)
+    return path, readout
+
+
+def _read_simulated(table, check) -> tuple:
+    """The simulator's ``table``: its info, and each object's images ``(*grid, N, N)``, forces
+    and heights, checked (``check(info)`` first, then the size and every pressure)."""
+    with _open(table) as f:
+        info = _read_info(f, str(table))
+        check(info)
+        size = info.poses * len(info.objects) * info.pressure_dim * 4
+        if size > MAX_MEMORY:
+            raise HamError(f"glance table {str(table)!r} holds {size / 1024**3:.1f} GiB of "
+                           f"images; accepted: tables up to {MAX_MEMORY / 1024**3:.0f} GiB "
+                           "(calibrate holds one in memory)")  # fmt: skip
+        heights_key = "z" if info.format_version == FORMAT_VERSION else "height"
+        grid = tuple(info.grid_shape)
+        sim, forces, heights = [], [], []
+        for name in info.objects:
+            group = f[f"objects/{name}"]
+            sim.append(group["pressure"][...].reshape(*grid, info.taxels, info.taxels))
+            _check_pressure(str(table), name, sim[-1])  # a corrupt table is refused
+            forces.append(group["force"][...].reshape(grid))
+            heights.append(group[heights_key][...].reshape(grid))
+    return info, sim, forces, heights
+
+
+def _write_calibrated(out, info, sim, forces, heights, readout, simulator, source, command):
+    """``readout`` applied to every image of ``sim``, written atomically as a table of
+    ``info``'s objects, grid and world with their forces and heights."""
+    images = [readout.apply(a) for a in sim]
+    for name, a in zip(info.objects, images, strict=True):
+        if (i := bad_pressure(a)) is not None:
+            raise HamError(f"the fitted read-out gives {name} a pressure of {float(a[i]):g} at "
+                           f"{i}; accepted: pressures in [0, {MAX_PRESSURE:g}] (recorded "
+                           "glances in a smaller unit)")  # fmt: skip
     world = WorldConfig.from_dict(info.world)
     layout = None
     if info.format_version != FORMAT_VERSION:
-        layout = (tuple(info.pose_dims), grid, info.compression)
+        layout = (tuple(info.pose_dims), tuple(info.grid_shape), info.compression)
 
     def write(tmp: Path) -> None:
         with h5py.File(tmp, "w") as g:
-            _write_images(g, info.objects, images, info.grid, world, simulator,
-                          f"calibrated:{Path(table).name}+{','.join(file_names)}", command,
-                          heights, layout, forces)  # fmt: skip
+            _write_images(g, info.objects, images, info.grid, world, simulator, source,
+                          command, heights, layout, forces)  # fmt: skip
 
-    return atomic_write(out, write, what="glance table"), readout
+    return atomic_write(out, write, what="glance table")
 
 
 def describe(readout: Readout) -> str:
@@ -259,4 +335,4 @@ def describe(readout: Readout) -> str:
             f"{readout.r2:.3f} of their variance{held_out}")  # fmt: skip
 
 
-__all__ = ["Readout", "calibrate_table", "check_kernel", "describe", "fit_readout"]
+__all__ = ["Readout", "calibrate_table", "carry_readout", "check_kernel", "describe", "fit_readout"]
