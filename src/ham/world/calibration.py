@@ -10,7 +10,9 @@ as no less than 0 (a pad reads no negative pressure). ``K`` and ``b`` are fitted
 squares over every taxel of every recorded glance, paired with the simulator's glance at the
 table's grid point nearest the recorded pose. The fitted read-out then carries every glance of
 the table to the pad, between the recorded poses too: what a coarse recorded grid alone
-cannot give (docs/sim_to_real.md).
+cannot give (docs/sim_to_real.md). The read-out is the pad's, not the objects': the recorded
+glances may be of a few of the table's objects, and :func:`carry_readout` applies a read-out
+fitted before to the table of other objects (``--readout-from``).
 """
 
 from __future__ import annotations
