@@ -222,6 +222,21 @@ def test_the_sim_to_real_example_fine_tunes_on_the_calibrated_table(trained, tmp
         config = json.loads((out / "fine_tuned" / "config.json").read_text())
         assert config["table"] == str((out / "calibrated.h5").resolve())
         assert json.loads((out / "live.json").read_text())["calibrate"] == 3
+    # a read-out fitted before (the trained run's calibration) carries the online run's table
+    fitted = tmp_path / "s2r_run_None" / "calibrated.h5"
+    carried = [*cmd[:2], str(online), str(tmp_path / "carried"), "--grid", "3", "--steps", "2",
+               "--episodes", "8", "--sim-grid", "5", "--readout-from", str(fitted)]  # fmt: skip
+    r = subprocess.run(carried, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "of their variance (0." in r.stdout and f"(from {fitted})" in r.stdout
+    assert "fine-tuned on its table carried by a read-out fitted before (2 steps)" in r.stdout
+    assert not (tmp_path / "carried" / "recorded.npz").exists()
+    assert table_info(tmp_path / "carried" / "calibrated.h5").simulator["readout_from"] == (
+        "calibrated.h5"
+    )
+    both = subprocess.run([*carried[:3], str(tmp_path / "both"), *carried[4:], "--calibrate", "3"],
+                          capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert both.returncode == 1 and "--readout-from with --calibrate" in both.stderr
     alone = [*cmd[:3], str(tmp_path / "alone"), "--record-objects", "box"]
     refused = subprocess.run(alone, capture_output=True, text=True, timeout=300)
     assert refused.returncode == 1 and not (tmp_path / "alone").exists()

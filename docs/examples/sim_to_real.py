@@ -2,7 +2,8 @@
 
     python docs/examples/sim_to_real.py SIM_RUN OUT [--grid 11] [--steps 1000] [--episodes 640]
         [--sensor gazebo|taxels] [--seed 0] [--pose-noise 0] [--policy-lr-scale S]
-        [--calibrate K [--record-objects A,B]] [--sim-grid 21] [--pad-pose-noise 0] [--json]
+        [--calibrate K [--record-objects A,B] | --readout-from CALIBRATED.h5] [--sim-grid 21]
+        [--pad-pose-noise 0] [--json]
 
 SIM_RUN: a run trained in simulation (e.g. `make demo`'s runs/demo/ham; any objects and pose
 dims MuJoCo can glance: the paper's, or the next world's height fields with poses x, y, ...).
@@ -26,6 +27,8 @@ function of ham's:
    recorded glances (`calibrate_table`: OUT/calibrated.h5); a run trained online gets a table
    of its world first, `--sim-grid` points per pose dim (OUT/simulated.h5). `--record-objects`
    records only those objects: the read-out fitted to them carries the others too.
+   `--readout-from CALIBRATED.h5` records nothing: SIM_RUN's table is carried onto the pad by
+   the read-out fitted before (another run's OUT/calibrated.h5, the same pad; `carry_readout`).
 4. The fine-tuned run explores the pad live, on the same hidden objects.
 
 Prints the accuracy after the last glance before and after (`--json`: also into OUT/live.json);
@@ -47,7 +50,7 @@ import torch
 from ham.errors import HamError
 from ham.learn.explorer import Explorer
 from ham.learn.train import read_run_config, train
-from ham.world.calibration import calibrate_table, describe
+from ham.world.calibration import calibrate_table, carry_readout, describe
 from ham.world.config import WorldConfig, make_simulator
 from ham.world.files import write_json
 from ham.world.poses import result_height, simulate, world_pose_dims
@@ -105,14 +108,15 @@ def explore(run: Path, pad: Pad, hidden: torch.Tensor, seed: int) -> float:
 
 #: the arguments OUT's files depend on (not --episodes or --json: only the live episodes)
 MADE_BY = ("grid", "steps", "sensor", "seed", "pose_noise", "policy_lr_scale", "calibrate",
-           "sim_grid", "pad_pose_noise", "record_objects")  # fmt: skip
+           "sim_grid", "pad_pose_noise", "record_objects", "readout_from")  # fmt: skip
 
 
 def check_made_by(args: argparse.Namespace) -> None:
     """OUT/made_by.json: the run and arguments OUT's files were made with. A rerun reuses
     them, so a rerun with others is refused, not answered with the first call's files."""
     made_by = {"sim_run": str(args.sim_run.resolve()),
-               **{k: getattr(args, k) for k in MADE_BY}}  # fmt: skip
+               **{k: str(getattr(args, k)) if isinstance(getattr(args, k), Path)
+                  else getattr(args, k) for k in MADE_BY}}  # fmt: skip
     path = args.out / "made_by.json"
     if path.exists():
         before = json.loads(path.read_text())
@@ -150,6 +154,9 @@ def main(argv: list[str] | None = None) -> int:
                     "fitted to the recorded glances, not on the recorded glances alone")  # fmt: skip
     ap.add_argument("--record-objects", default=None, metavar="A,B",
                     help="with --calibrate: record only these objects (default all)")  # fmt: skip
+    ap.add_argument("--readout-from", type=Path, default=None, metavar="CALIBRATED",
+                    help="record nothing: fine-tune on SIM_RUN's table carried by the read-out "
+                    "of this calibrated table (fitted before, the same pad)")  # fmt: skip
     ap.add_argument("--sim-grid", default="21", help="with --calibrate, a run trained online: "
                     "its world's table, points per pose dim (default 21)")  # fmt: skip
     ap.add_argument("--pad-pose-noise", type=float, default=0.0, metavar="S",
@@ -172,6 +179,10 @@ def main(argv: list[str] | None = None) -> int:
         if not recorded_names or not set(recorded_names) <= set(pad.names):
             raise HamError(f"--record-objects {args.record_objects!r}; accepted: a comma list "
                            f"of the run's objects: {','.join(pad.names)}")  # fmt: skip
+    if args.readout_from is not None and (args.calibrate or args.record_objects):
+        raise HamError("--readout-from with --calibrate or --record-objects; accepted: one way to "
+                       "a calibrated table: a read-out fitted to recorded glances, or one fitted "
+                       "before")  # fmt: skip
     check_made_by(args)
     hidden = torch.randint(len(pad.names), (args.episodes,),
                            generator=torch.Generator().manual_seed(args.seed))  # fmt: skip
@@ -183,19 +194,23 @@ def main(argv: list[str] | None = None) -> int:
 
     recorded = args.out / "recorded.npz"  # a rerun asks the pad nothing: it is recorded
     pad.reseed(args.seed + 1)  # the recording's pose errors (another stream than the live ones)
-    record_glances(glance, recorded_names, args.grid, recorded, pose_dims=dims, heights=True,
-                   progress=False)  # fmt: skip
+    if args.readout_from is None:
+        record_glances(glance, recorded_names, args.grid, recorded, pose_dims=dims,
+                       heights=True, progress=False)  # fmt: skip
     table = args.out / "recorded.h5"
-    if not table.exists() and recorded_names == pad.names:
+    if not table.exists() and recorded_names == pad.names and args.readout_from is None:
         import_recorded(recorded, table, pose_dims=dims)
-    if args.calibrate is not None:
+    if args.calibrate is not None or args.readout_from is not None:
         simulated = read_run_config(args.sim_run).table
         if simulated is None:  # trained online: a table of its world
             simulated = args.out / "simulated.h5"
             if not simulated.exists():
                 build_table(run_world(args.sim_run), args.sim_grid, simulated, progress=False)
         table = args.out / "calibrated.h5"
-        if not table.exists():
+        if not table.exists() and args.readout_from is not None:
+            _, readout = carry_readout(simulated, args.readout_from, table)
+            print(f"{describe(readout)} (from {args.readout_from})")
+        elif not table.exists():
             _, readout = calibrate_table(simulated, recorded, table, kernel=args.calibrate)
             print(describe(readout))
     tuned = args.out / "fine_tuned"
@@ -209,13 +224,17 @@ def main(argv: list[str] | None = None) -> int:
     after = explore(tuned, pad, hidden, args.seed)
     print(f"{args.episodes} live episodes on the pad (MuJoCo, {args.sensor} read-out): "
           f"{before:.3f} trained in simulation, {after:.3f} fine-tuned on "
-          f"{' x '.join(map(str, shape))} recorded glances per object "
-          f"({args.steps} steps{', calibrated' if args.calibrate else ''})")  # fmt: skip
+          + (f"{' x '.join(map(str, shape))} recorded glances per object "
+             if args.readout_from is None else "its table carried by a read-out fitted before ")
+          + f"({args.steps} steps{', calibrated' if args.calibrate else ''})")  # fmt: skip
     if args.json:
         grid = int(args.grid) if args.grid.isdigit() else list(shape)
-        write_json(args.out / "live.json", {"before": before, "after": after, "grid": grid, **{
-            k: getattr(args, k) for k in ("steps", "episodes", "sensor", "seed", "pose_noise",
-                                          "policy_lr_scale", "calibrate", "pad_pose_noise", "record_objects")}})  # fmt: skip
+        kept = ("steps", "episodes", "sensor", "seed", "pose_noise", "policy_lr_scale",
+                "calibrate", "pad_pose_noise", "record_objects")  # fmt: skip
+        readout_from = None if args.readout_from is None else str(args.readout_from)
+        write_json(args.out / "live.json", {"before": before, "after": after, "grid": grid,
+                                            **{k: getattr(args, k) for k in kept},
+                                            "readout_from": readout_from})  # fmt: skip
     return 0
 
 

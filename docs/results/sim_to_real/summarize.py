@@ -28,19 +28,23 @@ from ham.world.files import write_json  # noqa: E402
 
 
 def _way(run: dict) -> tuple:
-    return run.get("calibrate"), run.get("record_objects")
+    return run.get("calibrate"), run.get("record_objects"), run.get("readout_from")
 
 
 def _suffix(way: tuple) -> str:
     """A row's name after its grid: nothing for the recorded glances alone."""
-    k, only = way
+    k, only, carried = way
+    if carried is not None:
+        return f", read-out from {carried}"
     if k is None:
         return ""
     return f", calibrated {k} x {k}" + ("" if only is None else f" from {only}")
 
 
 def _what(way: tuple) -> str:
-    k, only = way
+    k, only, carried = way
+    if carried is not None:
+        return f"the table carried by the read-out of {Path(carried).parent.name} (none recorded)"
     if k is None:
         return "the recorded glances"
     fitted = "" if only is None else f" fitted to {only.replace(',', ', ')} only"
@@ -59,8 +63,9 @@ def main(argv: list[str] | None = None) -> int:
     shapes = sorted({tuple(r["shape"]) for r in runs}, key=lambda t: (math.prod(t), t))
     # how each run was fine-tuned: on the recorded glances (None), or calibrated (--calibrate
     # K, fitted to the --record-objects only where given)
-    ways = sorted({_way(r) for r in runs}, key=lambda w: (-1 if w[0] is None else w[0], w[1] or ""))
-    tuned_on = ways != [(None, None)]  # a column only where runs differ in it
+    ways = sorted({_way(r) for r in runs},
+                  key=lambda w: (-1 if w[0] is None else w[0], w[1] or "", w[2] or ""))  # fmt: skip
+    tuned_on = ways != [(None, None, None)]  # a column only where runs differ in it
     rows = {}
     column = " fine-tuned on |" if tuned_on else ""
     print(f"| recorded glances per object |{column} before (live) | after (live) | seeds (after) |")
@@ -86,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     names, x = [" x ".join(map(str, t)) for t in shapes], list(range(len(shapes)))
     steps = "/".join(f"{n:,}" for n in sorted({r["steps"] for r in runs}))
     them = "the recorded glances" if tuned_on else "them"
-    lines = [(way, "after", f"fine-tuned on {them}, {steps} steps" if way[0] is None else
+    lines = [(way, "after", f"fine-tuned on {them}, {steps} steps" if way == (None,) * 3 else
               f"fine-tuned on {_what(way)}") for way in ways]  # fmt: skip
     for way, key, label in [*lines, (ways[0], "before", "trained in simulation only")]:
         at = [(i, f"{n}{_suffix(way)}") for i, n in zip(x, names, strict=True)]

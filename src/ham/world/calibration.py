@@ -10,9 +10,12 @@ as no less than 0 (a pad reads no negative pressure). ``K`` and ``b`` are fitted
 squares over every taxel of every recorded glance, paired with the simulator's glance at the
 table's grid point nearest the recorded pose. The fitted read-out then carries every glance of
 the table to the pad, between the recorded poses too: what a coarse recorded grid alone
-cannot give (docs/sim_to_real.md). The read-out is the pad's, not the objects': the recorded
-glances may be of a few of the table's objects, and :func:`carry_readout` applies a read-out
-fitted before to the table of other objects (``--readout-from``).
+cannot give (docs/sim_to_real.md). The read-out belongs to the pad and the kind of contact,
+not to one object: the recorded glances may be of a few of the table's objects, and
+:func:`carry_readout` applies a read-out fitted before to another table (``--readout-from``).
+Measured live: it carries across objects that touch the pad alike (one of the paper's four
+profiles for all four; 3 of the next world's 12 height fields for all), not from the paper's
+tilted profiles to the next world's height fields under a flat pad, or back.
 """
 
 from __future__ import annotations
@@ -188,8 +191,8 @@ def calibrate_table(
     pad's ``recorded`` glances (an ``.npz`` file or a list of them, as
     :func:`ham.world.table.import_recorded` reads them, over a grid of the table's pose dims),
     applied to every glance of the table. The glances may be of some of the table's objects
-    only, each named by it: the read-out is the pad's, and it carries the objects never
-    recorded too. The new table ``out`` has the table's objects, grid, world, forces and
+    only, each named by it: the read-out carries the objects never recorded too, where they
+    touch the pad as the recorded ones do (module doc). The new table ``out`` has the table's objects, grid, world, forces and
     heights and the pad's images, its ``simulator`` attribute names the read-out; returns it
     with the :class:`Readout`."""
     out = check_output(out, (".h5", ".hdf5"), what="glance table")
@@ -251,9 +254,10 @@ def carry_readout(
     command: str | None = None,
 ) -> tuple[Path, Readout]:
     """The simulator's ``table`` carried onto a pad by the read-out fitted before, for another
-    table (``calibrated``, written by :func:`calibrate_table`): a pad calibrated once, any
-    objects simulated (``ham table calibrate TABLE --readout-from CALIBRATED``). The pad's
-    taxels must be the table's; returns the new table and the read-out."""
+    table (``calibrated``, written by :func:`calibrate_table`; ``ham table calibrate TABLE
+    --readout-from CALIBRATED``): other objects of the same kind of contact, another grid. The
+    pad's taxels must be the table's; returns the new table and the read-out. Across kinds of
+    contact it does not carry (module doc)."""
     out = check_output(out, (".h5", ".hdf5"), what="glance table")
     with _open(calibrated) as f:
         theirs = _read_info(f, str(calibrated))
