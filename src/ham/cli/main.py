@@ -272,13 +272,9 @@ def cmd_table_info(args: argparse.Namespace) -> int:
     print(f"  simulator: {info.simulator.get('simulator', '?')}  source: {info.source}")
     readout = info.simulator.get("readout")
     if isinstance(readout, dict):  # a calibrated table (ham table calibrate)
-        import numpy as np
-
         from ham.world.calibration import Readout, describe
 
-        kernel = np.asarray(readout.get("kernel", [[0.0]]), dtype=np.float64)
-        fitted = Readout(kernel, float(readout.get("bias", 0.0)), float(readout.get("r2", 0.0)),
-                         int(readout.get("glances", 0)), readout.get("r2_held_out"))  # fmt: skip
+        fitted = Readout.from_dict(readout, info.path)
         print(f"  read-out:  {describe(fitted)}, on {info.simulator.get('recorded')}")
     from ham.world.sensor import SensorConfig
 
