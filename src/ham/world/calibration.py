@@ -72,12 +72,12 @@ class Readout:
     def apply(self, images: np.ndarray) -> np.ndarray:
         """The pad's images ``(..., N, N)`` (float32) of the simulator's ``images``."""
         shape = images.shape
-        flat = np.asarray(images, dtype=np.float64).reshape(-1, 1, *shape[-2:])
+        flat = np.asarray(images).reshape(-1, 1, *shape[-2:])
         k = self.kernel.shape[0]
         weight = torch.from_numpy(self.kernel)[None, None]
         out = np.empty(flat.shape, np.float32)
-        for i in range(0, len(flat), BLOCK):
-            x = torch.from_numpy(flat[i : i + BLOCK])
+        for i in range(0, len(flat), BLOCK):  # float64 a block at a time, not a copy of all
+            x = torch.from_numpy(np.asarray(flat[i : i + BLOCK], dtype=np.float64))
             y = torch.nn.functional.conv2d(x, weight, padding=k // 2) + self.bias
             out[i : i + BLOCK] = y.clamp_min(0).numpy()
         return out.reshape(shape)
