@@ -42,8 +42,10 @@ def weights(out: Path) -> list[torch.Tensor]:
     return [p.detach() for p in load_run(out).agent.parameters()]
 
 
-def assert_same_run(batched: Path, single: Path, atol: float = 1e-6) -> None:
-    """The batched run's numbers are the single run's, to float tolerance."""
+def assert_same_run(batched: Path, single: Path, atol: float = 1e-6, stray: float = 0.0) -> None:
+    """The batched run's numbers are the single run's, to float tolerance; with ``stray``, that
+    fraction of each weight's elements (rounded down) may be apart by up to one step of the
+    learning rate (Adam's normalized update of a gradient near its eps is a matter of rounding)."""
     a, b = metrics(batched), metrics(single)
     assert [h["accuracy"] for h in a["history"]] == [h["accuracy"] for h in b["history"]]
     assert [h["step"] for h in a["history"]] == [h["step"] for h in b["history"]]
@@ -52,8 +54,11 @@ def assert_same_run(batched: Path, single: Path, atol: float = 1e-6) -> None:
         mu_a, mu_b = torch.tensor(ha["mu_mean"] or 0.0), torch.tensor(hb["mu_mean"] or 0.0)
         assert torch.allclose(mu_a, mu_b, atol=1e-5)
     assert a["best_accuracy"] == b["best_accuracy"] and a["steps"] == b["steps"]
+    lr = load_run(single).config.lr
     for p, q in zip(weights(batched), weights(single), strict=True):
-        assert torch.allclose(p, q, rtol=1e-4, atol=atol)
+        apart = ~torch.isclose(p, q, rtol=1e-4, atol=atol)
+        assert int(apart.sum()) <= int(stray * p.numel()), f"{int(apart.sum())} of {p.numel()}"
+        assert (p - q).abs().max() <= lr or not apart.any()
 
 
 def train_both(tmp_path: Path, configs: list[TrainConfig]) -> list:
@@ -64,10 +69,12 @@ def train_both(tmp_path: Path, configs: list[TrainConfig]) -> list:
     return train_batched(configs, [tmp_path / f"b{c.seed}" for c in configs])
 
 
-def assert_same_runs(tmp_path: Path, configs: list[TrainConfig], atol: float = 1e-6) -> None:
+def assert_same_runs(
+    tmp_path: Path, configs: list[TrainConfig], atol: float = 1e-6, stray: float = 0.0
+) -> None:
     """Every batched run of :func:`train_both` is its single run, to float tolerance."""
     for c in configs:
-        assert_same_run(tmp_path / f"b{c.seed}", tmp_path / f"single{c.seed}", atol)
+        assert_same_run(tmp_path / f"b{c.seed}", tmp_path / f"single{c.seed}", atol, stray)
 
 
 @pytest.mark.parametrize(
@@ -299,8 +306,14 @@ def test_cuda_batched_equals_single_runs(tmp_path, kw):
     # runs on the same GPU
     configs = [tiny(s, device="cuda", **kw) for s in range(3)]
     train_both(tmp_path, configs)
-    atol = 1e-4 if kw.get("optimizer") == "adam" else 1e-5
-    assert_same_runs(tmp_path, configs, atol)
+    if kw.get("optimizer") == "adam":
+        # on an H100 one element of core.gates.weight's 524,288 moved 1.19e-4 apart at the first
+        # step: Adam's first update is lr * g / (|g| + eps), and a g near eps rounds its own way
+        # in a bmm; the same single run on the CPU and on CUDA ends 1.6e-3 apart in half of its
+        # tactile.where weights (docs/batched.md)
+        assert_same_runs(tmp_path, configs, 1e-4, stray=1e-5)
+    else:
+        assert_same_runs(tmp_path, configs, 1e-5)
 
 
 def test_the_onednn_path_equals_single_runs(tmp_path, monkeypatch):
@@ -807,13 +820,20 @@ def test_nan_weights_stop_their_run_alone(tmp_path):
     assert_same_run(outs[1], tmp_path / "single1")
 
 
+def _small_table(tmp_path: Path) -> str:
+    # a graph needs a glance table: the online simulator's glance asks the host
+    path = tmp_path / "t5.h5"
+    return str(path if path.exists() else build_table(WorldConfig(), 5, path, progress=False))
+
+
 def _graph_group(tmp_path: Path, tag: str, cuda_graph: bool, device: str = "cpu") -> list:
     # runs at their own rates, momenta (one without) and location-network scales, one of
     # fewer steps (the group's stack changes when it leaves: a new graph), one of 2 glances
     own = ({}, {"lr": 0.01, "momentum": 0.5, "nesterov": False, "policy_lr_scale": 0.3},
            {"momentum": 0.0, "nesterov": False, "steps": 5},
            {"model": HamConfig(glances=2)})  # fmt: skip
-    configs = [tiny(s, device=device, **kw) for s, kw in enumerate(own)]
+    table = _small_table(tmp_path)
+    configs = [tiny(s, device=device, table=table, **kw) for s, kw in enumerate(own)]
     outs = [tmp_path / f"{tag}{s}" for s in range(len(configs))]
     train_batched(configs, outs, cuda_graph=cuda_graph)
     return outs
@@ -882,8 +902,9 @@ def test_a_graph_would_replay_the_steps_own_numbers(tmp_path, cuda_graph, first)
 
 def _two_groups(tmp_path: Path, tag: str, device: str = "cpu", cuda_graph: bool = False):
     # two shapes (3 and 2 glances), one with a run of fewer steps (it leaves its group early)
-    shapes = [[tiny(0, device=device), tiny(1, device=device, steps=5)],
-              [tiny(2, device=device, model=HamConfig(glances=2, policy="random"))]]  # fmt: skip
+    kw = {"device": device, "table": _small_table(tmp_path)}
+    shapes = [[tiny(0, **kw), tiny(1, steps=5, **kw)],
+              [tiny(2, model=HamConfig(glances=2, policy="random"), **kw)]]  # fmt: skip
     outs = [[tmp_path / f"{tag}{c.seed}" for c in cs] for cs in shapes]
     return [BatchedRuns(_open_runs(cs, os_), os_, cuda_graph=cuda_graph)
             for cs, os_ in zip(shapes, outs, strict=True)], [o for os_ in outs for o in os_]  # fmt: skip
@@ -919,6 +940,17 @@ def test_cuda_graphed_step_equals_the_eager_step(tmp_path):
         assert [h["accuracy"] for h in ma["history"]] == [h["accuracy"] for h in mb["history"]]
         for p, q in zip(weights(a), weights(b), strict=True):
             assert torch.allclose(p, q, rtol=1e-4, atol=1e-5)
+
+
+def test_a_graph_is_refused_on_the_online_simulator(tmp_path):
+    # its glance iterates to each contact on the host: a capture would fail mid-step (seen on
+    # an H100), so it is refused before any run is written
+    configs = [tiny(s) for s in range(2)]
+    outs = [tmp_path / f"b{s}" for s in range(2)]
+    with pytest.raises(HamError, match=r"^a CUDA graph on the online fast simulator; accepted: "
+                       r"runs on a glance table \(--table\), or the eager step"):  # fmt: skip
+        train_batched(configs, outs, cuda_graph=True)
+    assert not any(o.exists() for o in outs)
 
 
 def test_a_graph_is_refused_with_adam(tmp_path):

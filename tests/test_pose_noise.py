@@ -99,11 +99,13 @@ def test_the_cli_refuses_a_bad_pose_noise_and_a_graphed_noisy_run(tmp_path, ham_
     assert "pose_noise = 0.1 with env 'ap_gym:CircleSquare-v0'" in line
     assert not (tmp_path / "r").exists()
     from ham.learn.batched import BatchedRuns, _open_runs, check_batchable
+    from ham.world.table import build_table
 
     check_batchable(_tiny())  # batched runs draw each run's noise as its single run
     outs = [tmp_path / "b0"]
+    table = str(build_table(WorldConfig(), 5, tmp_path / "t.h5", progress=False))
     with pytest.raises(HamError, match="pose_noise with a CUDA graph"):
-        BatchedRuns(_open_runs([_tiny()], outs), outs, cuda_graph=True)
+        BatchedRuns(_open_runs([_tiny(table=table)], outs), outs, cuda_graph=True)
 
 
 @pytest.mark.parametrize("bad", [float("nan"), -0.5, 1.5, "0.1", None])

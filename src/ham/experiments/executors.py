@@ -416,8 +416,8 @@ class BatchedOptions:
         merge_glances: runs of other glance counts (2 or more) in one model, which steps its
             longest run's glances; a shape's runs in one model unless batch_runs caps it (fewer
             models: for a GPU, where a step costs its kernel launches; on a CPU it costs more)
-        cuda_graph: each batched step replayed as one CUDA graph (needs the device cuda and
-            SGD; not yet measured on a GPU)
+        cuda_graph: each batched step replayed as one CUDA graph (needs the device cuda, SGD
+            and a glance table; on an H100 5.7-8.6x faster a step than eager, docs/batched.md)
     """
 
     batch_runs: int | None = None

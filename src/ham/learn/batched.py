@@ -74,7 +74,7 @@ from ham.model.location_net import truncated_normal, uniform_locations
 from ham.model.policy import TruncatedGaussian, Uniform
 from ham.world.devices import environment_record, source_commit
 from ham.world.files import atomic_write, folder_lock, write_json
-from ham.world.source import check_model_fits, make_source
+from ham.world.source import OnlineSource, check_model_fits, make_source
 
 STOPPED_KEY = "stopped_at_perfect"
 #: the biases a learned first glance reads (BatchedRuns._first_glance)
@@ -330,6 +330,11 @@ class BatchedRuns:
         if cuda_graph and not (self._sgd and _FUSED_SGD is not None):
             raise HamError(f"optimizer {self.runs[0].config.optimizer!r} with a CUDA graph; "
                            "accepted: sgd (each run's own Adam steps apart)")  # fmt: skip
+        online = [r for r in self.runs if isinstance(r.env.source, OnlineSource)]
+        if cuda_graph and online:  # its glance iterates to each contact, asking the host
+            raise HamError(f"a CUDA graph on {online[0].env.source.description}; accepted: "
+                           "runs on a glance table (--table), or the eager step (no "
+                           "--cuda-graph)")  # fmt: skip
         if cuda_graph and any(r.config.pose_noise > 0 for r in self.runs):
             raise HamError("pose_noise with a CUDA graph (not yet run on a GPU); accepted: "
                            "pose_noise = 0, or the eager step (no --cuda-graph)")  # fmt: skip
@@ -1191,8 +1196,7 @@ def train_batched(
     """Train fresh runs ``configs`` into ``outs`` as one batch, or continue those whose
     directory holds a checkpoint (to the config's ``steps``). Returns per run its metrics (also
     in its metrics.json), or the one-line error that stopped it (NaN/inf). ``cuda_graph``: each
-    step replayed as one CUDA graph (:meth:`BatchedRuns._graphed_step`; not yet measured on a
-    GPU)."""
+    step replayed as one CUDA graph (:meth:`BatchedRuns._graphed_step`; runs on a glance table)."""
     outs = [Path(o) for o in outs]
     _check_outs(configs, outs)
     made = [o for o in outs if not o.exists()]
