@@ -12,10 +12,10 @@ ratio; after the steps, how far the graph group's weights are from the eager gro
 step: equal but for the GPU's atomic sums and the rate's float32 rounding) and whether their
 generators' states are equal; the time to warm up and capture; one evaluation of all N runs,
 per run; and the paper grid's projected GPU-hours one group after another, eager and replayed
-(``bench_batched.py``'s projection; evaluations eager in both). Then ``--together K`` groups of
-the last glance count, replayed, each on its own CUDA stream, stepped as ``train_groups`` steps
+(``bench_batched.py``'s projection; evaluations eager in both). Then, at each glance count,
+``--together K`` groups, replayed, each on its own CUDA stream, stepped as ``train_groups`` steps
 them (every group launched before any is read back): ms per run-step against one replayed group,
-the overlap that one process can get from one GPU.
+the overlap that one process can get from one GPU, and the grid projected with it.
 
     PYTHONPATH=src python benchmarks/bench_cuda_graph.py --table TABLE [--glances 3 10]
         [--runs 10] [--steps 30] [--together 8]
@@ -96,12 +96,12 @@ def measure(glances: int, args, tmp: Path) -> dict:
     }
 
 
-def together(args, tmp: Path) -> tuple[float, float]:
-    """ms per run-step of one replayed group and of ``--together`` groups stepped together."""
+def together(g: int, args, tmp: Path) -> tuple[float, float]:
+    """ms per run-step of one replayed group and of ``--together`` groups stepped together,
+    at ``g`` glances."""
     cuda = args.device.startswith("cuda")
     sync = torch.cuda.synchronize if cuda else (lambda: None)
-    g = args.glances[-1]
-    groups = [group(g, args, tmp / f"k{k}", True) for k in range(args.together)]
+    groups = [group(g, args, tmp / f"k{g}-{k}", True) for k in range(args.together)]
     for k, grp in enumerate(groups):  # other seeds in each group
         for r in grp.runs:
             r.env.generator.manual_seed(1000 * k + r.config.seed)
@@ -137,7 +137,10 @@ def main() -> None:
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as tmp:
         rows = [measure(g, args, Path(tmp)) for g in args.glances]
-        overlap = together(args, Path(tmp)) if args.together > 1 else None
+        for r in rows if args.together > 1 else ():
+            r["one_ms_per_run_step"], r["together_ms_per_run_step"] = together(
+                r["glances"], args, Path(tmp)
+            )
     what = "replayed graph" if args.device.startswith("cuda") else "device step called (CPU)"
     print(f"{args.runs} runs, batch 64, the paper's model, on {args.device}; "
           f"eager step vs {what}; median of {args.steps} alternating steps, wall clock")  # fmt: skip
@@ -154,11 +157,17 @@ def main() -> None:
     print(f"paper grid, one group after another (ms/step linear in G from G = "
           f"{', '.join(map(str, args.glances))}; evaluations eager): {eager:,.2f} {unit} eager, "
           f"{graph:,.2f} replayed ({eager / graph:.2f}x)")  # fmt: skip
-    if overlap is not None:
-        one, many = overlap
-        print(f"{args.together} groups of {args.runs} runs at {args.glances[-1]} glances, "
-              f"replayed on their own streams, stepped together: {many:.3f} ms per run-step "
-              f"against {one:.3f} for one group alone ({one / many:.2f}x its throughput)")  # fmt: skip
+    if args.together > 1:
+        for r in rows:
+            one, many = r["one_ms_per_run_step"], r["together_ms_per_run_step"]
+            print(f"{args.together} groups of {args.runs} runs at {r['glances']} glances, "
+                  f"replayed on their own streams, stepped together: {many:.3f} ms per "
+                  f"run-step against {one:.3f} for one group alone ({one / many:.2f}x its "
+                  "throughput)")  # fmt: skip
+        both = grid_hours(rows, "together_ms_per_run_step", "eval_ms")
+        print(f"paper grid, {args.together} groups at a time replayed on their own streams "
+              f"(evaluations eager, one group after another): {both:,.2f} {unit} "
+              f"({eager / both:.2f}x the eager groups one after another)")  # fmt: skip
     if args.device == "cpu" and not all(r["drift"] == 0 and r["same_generators"] for r in rows):
         raise SystemExit("the called device step is not the eager step: the protocol is broken")
 

@@ -9,34 +9,50 @@
 # session 7's again: bench_batched.py --device cuda (steps, evaluations, the paper grid's
 # projected GPU-hours, one group after another) and bench_side_by_side.py (1 and 15 groups
 # sharing the GPU, as --executor batched --workers 15 runs them). The device machine's python3
-# holds PyTorch with CUDA, h5py, TensorBoard, tqdm and pytest, which is all these need; ham runs
-# from src/. From the device tool:
-#   run(command="bash benchmarks/gpu_check.sh", timeout_s=600)
+# holds PyTorch with CUDA, h5py, TensorBoard, tqdm and pytest; it lacks Gymnasium, which ham's
+# command line imports (the sb3 command's options), so its wheels travel in .whl (ignored by git;
+# made here with `pip download --no-deps --only-binary=:all: --python-version 3.12 -d .whl
+# gymnasium==1.4.0 farama-notifications==0.0.6`) and are installed under /tmp/site. ham runs from
+# src/. Each part has its own time limit (PART_S seconds, default 150), so one that hangs leaves
+# the rest their time. From the device tool:
+#   run(command="bash benchmarks/gpu_check.sh", carry=[".whl"], timeout_s=600)
 # Everything it prints also lands in $OUT/gpu_check.log. PYTHON=... picks another interpreter
 # (on a machine without CUDA it runs the CPU tests and says it skipped the bench).
 set -uo pipefail
 PY=${PYTHON:-python3}
 LOG=${OUT:-/tmp}/gpu_check.log
 TABLE=${TMPDIR:-/tmp}/gpu_check_t201.h5
+PART=${PART_S:-150}
 export PYTHONPATH=src PYTHONUNBUFFERED=1 MPLBACKEND=Agg
+part() { echo "== $*"; SECONDS=0; timeout "$PART" "$@"; echo "== rc $? in ${SECONDS}s"; }
 {
   nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null \
     || echo "no nvidia-smi"
+  if ! "$PY" -c "import gymnasium" 2>/dev/null && ls .whl/*.whl >/dev/null 2>&1; then
+    "$PY" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site \
+      .whl/*.whl && export PYTHONPATH=src:/tmp/site
+  fi
   "$PY" -c "import torch; print('torch', torch.__version__, 'CUDA', torch.cuda.is_available())"
   "$PY" -m ham table build --grid 201 --out "$TABLE" >/dev/null && echo "table: $TABLE"
-  "$PY" -m pytest -q -o addopts="" -p no:cacheprovider tests/test_batched.py -rs
   if "$PY" -c "import sys, torch; sys.exit(not torch.cuda.is_available())"; then
-    # the new measurements first (a device run may be cut short), then session 7's again
-    "$PY" benchmarks/bench_cuda_graph.py --device cuda --runs 10 --glances 3 10 --steps 30 \
+    # the measurements never made on a GPU first (a device run may be cut short), then the
+    # tests, then session 7's again on this card (its numbers were an H200's)
+    part "$PY" benchmarks/bench_cuda_graph.py --device cuda --runs 10 --glances 3 10 --steps 30 \
       --table "$TABLE"
-    "$PY" benchmarks/bench_merge_glances.py --device cuda --runs 10 --repeats 5 --table "$TABLE" \
-      --cuda-graph
-    "$PY" benchmarks/bench_merge_glances.py --device cuda --runs 10 --repeats 5 --table "$TABLE"
-    "$PY" benchmarks/bench_batched.py --device cuda --runs 10 --glances 3 10 --repeats 5 \
+    part "$PY" benchmarks/bench_merge_glances.py --device cuda --runs 10 --repeats 20 \
+      --table "$TABLE" --cuda-graph
+    part "$PY" benchmarks/bench_merge_glances.py --device cuda --runs 10 --repeats 20 \
       --table "$TABLE"
-    "$PY" benchmarks/bench_side_by_side.py --device cuda --groups 1 15 --glances 3 10 \
+  fi
+  part "$PY" -m pytest -q -o addopts="" -p no:cacheprovider -n 4 tests/test_batched.py -rs
+  if "$PY" -c "import sys, torch; sys.exit(not torch.cuda.is_available())"; then
+    part "$PY" benchmarks/bench_batched.py --device cuda --runs 10 --glances 3 10 --repeats 5 \
+      --table "$TABLE" --first-glance learned
+    part "$PY" benchmarks/bench_batched.py --device cuda --runs 10 --glances 3 10 --repeats 5 \
+      --table "$TABLE"
+    part "$PY" benchmarks/bench_side_by_side.py --device cuda --groups 1 15 --glances 3 10 \
       --steps 20 --table "$TABLE"
   else
-    echo "no CUDA: bench_cuda_graph.py, bench_batched.py, bench_side_by_side.py and bench_merge_glances.py --device cuda skipped"
+    echo "no CUDA: the benches with --device cuda skipped"
   fi
 } 2>&1 | tee "$LOG"
