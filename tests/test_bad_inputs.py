@@ -477,6 +477,8 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("reproduce-grid-ray-address-port", ["reproduce", "grid", "docs/grids/example.toml", "--out", "rp", "--executor", "ray", "--ray-address", "head:99999"], "'head:99999'"),
     ("reproduce-out-file", ["reproduce", "table1", "--out", "notes.txt"], "'notes.txt'"),
     ("reproduce-batch-runs-0", ["reproduce", "table1", "--out", "rp", "--executor", "batched", "--batch-runs", "0"], "batch_runs = 0"),
+    ("reproduce-groups-together-0", ["reproduce", "table1", "--out", "rp", "--executor", "batched", "--groups-together", "0"], "groups_together = 0; accepted: an integer >= 1"),
+    ("reproduce-groups-together-local", ["reproduce", "table1", "--out", "rp", "--groups-together", "2"], "--groups-together needs --executor batched"),
     ("reproduce-cuda-graph-local", ["reproduce", "table1", "--out", "rp", "--cuda-graph"], "--cuda-graph needs --executor batched"),
     ("reproduce-cuda-graph-cpu", ["reproduce", "table1", "--out", "rp", "--executor", "batched", "--cuda-graph"], "--cuda-graph needs --device cuda"),
     ("reproduce-grid-cache-dir-unused", ["reproduce", "grid", EXAMPLE_GRID, "--out", "rp", "--cache-dir", "c"], "--cache-dir 'c': grid"),

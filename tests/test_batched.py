@@ -620,15 +620,15 @@ def test_each_run_folder_is_held_while_the_batch_trains(tmp_path, monkeypatch):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["b5"]
     # while the batch trains, each run's folder is held: train() into it is refused
     seen = []
-    real = batched.BatchedRuns.train
+    real = batched.train_groups
 
-    def train_and_try(self, progress=False):
+    def train_and_try(groups, progress=False):
         with pytest.raises(HamError, match="is in use by another ham process"):
             train(configs[0], outs[0], progress=False)
         seen.append(True)
-        return real(self, progress)
+        return real(groups, progress)
 
-    monkeypatch.setattr(batched.BatchedRuns, "train", train_and_try)
+    monkeypatch.setattr(batched, "train_groups", train_and_try)
     train_batched(configs, outs)
     assert seen and all(is_finished(o, 4) for o in outs)
 
@@ -804,6 +804,51 @@ def test_ray_batched_executor_matches_batched(batched_grid, tmp_path, ham_cli):
         for p, q in zip(weights(ours), weights(theirs), strict=True):
             assert torch.equal(p, q), key
     assert "Executor: ray-batched" in (tmp_path / "r/report.md").read_text()
+
+
+def test_the_executor_trains_groups_together(batched_grid, tmp_path, ham_cli):
+    """--groups-together 2: the grid's two batched models (full, rloc) in one worker, each step
+    of both launched before either is read back: on a CPU the same runs, to the bit."""
+    r = ham_cli(*SMALL_GRID, "--executor", "batched", "--workers", "1", "--groups-together",
+                "2", "--out", str(tmp_path / "t"))  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["ran"] == 4
+    for key in SMALL_GRID_KEYS:
+        ours, theirs = tmp_path / "t/runs" / key, batched_grid / "runs" / key
+        assert metrics(ours)["history"] == metrics(theirs)["history"]
+        for p, q in zip(weights(ours), weights(theirs), strict=True):
+            assert torch.equal(p, q), key
+
+
+def test_batches_trained_together_resume_and_fail_alone(tmp_path):
+    # two batches of other shapes together: a run that diverges leaves its batch alone, the
+    # others end as trained alone; a second call resumes the unfinished ones to the bit
+    shapes = [[tiny(0, steps=6), tiny(1, steps=6, lr=3e38)],
+              [tiny(2, steps=6, model=HamConfig(glances=2))]]  # fmt: skip
+    outs = [[tmp_path / f"t{c.seed}" for c in cs] for cs in shapes]
+    results = batched.train_batched_together(list(zip(shapes, outs, strict=True)))
+    assert isinstance(results[0][1], str) and "diverged" in results[0][1]
+    assert [r["steps"] for r in (results[0][0], results[1][0])] == [6, 6]
+    for cs in shapes:
+        for c in cs[:1]:
+            train_batched([c], [tmp_path / f"alone{c.seed}"])
+            assert_same_run(tmp_path / f"t{c.seed}", tmp_path / f"alone{c.seed}")
+    kept = [[shapes[0][0]], shapes[1]]  # the run that diverged left out
+    half = [[replace(c, steps=4) for c in cs] for cs in kept]
+    halves = [[tmp_path / f"h{c.seed}" for c in cs] for cs in half]
+    batched.train_batched_together(list(zip(half, halves, strict=True)))
+    batched.train_batched_together(list(zip(kept, halves, strict=True)))  # from step 4
+    for c in (shapes[0][0], shapes[1][0]):
+        a, b = tmp_path / f"h{c.seed}", tmp_path / f"t{c.seed}"
+        assert metrics(a) == metrics(b)
+        assert all(torch.equal(p, q) for p, q in zip(weights(a), weights(b), strict=True))
+    with pytest.raises(HamError, match="^two runs of the batches share a directory"):
+        batched.train_batched_together(
+            [([tiny(0)], [tmp_path / "x"]), ([tiny(1)], [tmp_path / "x"])]
+        )
+    with pytest.raises(HamError, match="^no batches to train"):
+        batched.train_batched_together([])
+    assert not (tmp_path / "x").exists()
 
 
 def test_nan_weights_stop_their_run_alone(tmp_path):
