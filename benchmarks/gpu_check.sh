@@ -1,14 +1,13 @@
 #!/usr/bin/env bash
-# The batched trainer on a lent GPU in one device run (a few minutes): the GPU's name, the
-# CUDA tests of tests/test_batched.py (CUDA batched runs equal single runs on the GPU, SGD and
-# Adam; the step replayed as one CUDA graph equals the eager step, also from the command line)
-# with the CPU ones beside them; then, not yet run on a GPU: bench_cuda_graph.py (the step
-# replayed as one CUDA graph vs eager: speed, numbers, the grid's GPU-hours with it) and
-# bench_merge_glances.py --device cuda (a Table 1 column's 2-10-glance runs as six models or as
-# one, --merge-glances, docs/batched.md), with every step replayed as a graph and eager; then
-# session 7's again: bench_batched.py --device cuda (steps, evaluations, the paper grid's
-# projected GPU-hours, one group after another) and bench_side_by_side.py (1 and 15 groups
-# sharing the GPU, as --executor batched --workers 15 runs them). The device machine's python3
+# The batched trainer on a lent GPU in one device run (about 5 minutes on an H100): the GPU's
+# name; first the measurements (bench_cuda_graph.py: the step replayed as one CUDA graph vs
+# eager, groups together on their own streams, the grid's GPU-hours; bench_merge_glances.py
+# --device cuda replayed and eager: a Table 1 column's 2-10-glance runs as six models or one);
+# then tests/test_batched.py (CUDA batched runs equal single runs, SGD and Adam; the replayed
+# step equals the eager one, also from the command line) with the CPU tests beside them; then
+# bench_batched.py --device cuda with a learned and a random first glance and
+# bench_side_by_side.py (1 and 15 eager groups sharing the GPU, as --workers 15 runs them).
+# Results of 2026-12-05: docs/batched.md, "On an H100". The device machine's python3
 # holds PyTorch with CUDA, h5py, TensorBoard, tqdm and pytest; it lacks Gymnasium, which ham's
 # command line imports (the sb3 command's options), so its wheels travel in .whl (ignored by git;
 # made here with `pip download --no-deps --only-binary=:all: --python-version 3.12 -d .whl
