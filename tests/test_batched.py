@@ -851,6 +851,17 @@ def test_batches_trained_together_resume_and_fail_alone(tmp_path):
     assert not (tmp_path / "x").exists()
 
 
+def test_batches_trained_together_load_their_table_once(tmp_path, monkeypatch):
+    table = _small_table(tmp_path)
+    made = []
+    real = batched.make_source
+    monkeypatch.setattr(batched, "make_source", lambda *a: made.append(a[0]) or real(*a))
+    shapes = [[tiny(0, table=table, steps=2)], [tiny(1, table=table, steps=2, batch_size=4)],
+              [tiny(2, steps=2)], [tiny(3, steps=2)]]  # fmt: skip
+    batched.train_batched_together([(cs, [tmp_path / f"b{cs[0].seed}"]) for cs in shapes])
+    assert made == [table, None, None]  # the online simulator: a source per batch, as before
+
+
 def test_nan_weights_stop_their_run_alone(tmp_path):
     # one glance: the location heads take no part in the loss, so NaN there shows only in the
     # weights check after the update (the loss stays finite)

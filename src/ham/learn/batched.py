@@ -1162,9 +1162,12 @@ def _check_outs(configs: list[TrainConfig], outs: list[Path]) -> None:
         raise HamError("two runs of one batch share a directory; give each its own")
 
 
-def _open_runs(configs: list[TrainConfig], outs: list[Path]) -> list[Run]:
+def _open_runs(
+    configs: list[TrainConfig], outs: list[Path], tables: dict | None = None
+) -> list[Run]:
     """The runs of ``configs`` (one directory each in ``outs``, checked by
-    :func:`train_batched`) with one shared glance source."""
+    :func:`train_batched`) with one shared glance source; a glance table's source is taken from
+    ``tables`` when another batch opened it (batches trained together load each table once)."""
     for c in configs:
         check_batchable(c)
     keys = {shape_key(c, glances=False) for c in configs}
@@ -1177,7 +1180,13 @@ def _open_runs(configs: list[TrainConfig], outs: list[Path]) -> list[Run]:
     device = torch.device(c0.device)
     if device.type == "cuda" and not torch.cuda.is_available():
         raise HamError("device 'cuda' requested but CUDA is not available; use --device cpu")
-    source, world = make_source(c0.table, c0.world, device)
+    key = (str(c0.table), repr(c0.world), str(device))
+    if tables is not None and c0.table is not None and key in tables:
+        source, world = tables[key]
+    else:
+        source, world = make_source(c0.table, c0.world, device)
+        if tables is not None and c0.table is not None:
+            tables[key] = (source, world)
     check_model_fits(c0.model.pressure_dim, c0.model.n_objects, source)
     runs: list[Run] = []
     for c in configs:
@@ -1225,13 +1234,14 @@ def train_batched_together(
         raise HamError("two runs of the batches share a directory; give each its own")
     made = [o for o in every if not o.exists()]
     opened: list[Run] = []
+    tables: dict = {}  # each glance table loaded once for all batches
     try:
         with contextlib.ExitStack() as locks:
             for out in every:  # each run's folder held, as train and resume hold theirs: a
                 out.mkdir(parents=True, exist_ok=True)  # `ham train --resume` of one of them
                 locks.enter_context(folder_lock(out))  # at the same time is refused
             try:
-                groups = [_open_group(c, o, stop_at_perfect, cuda_graph, opened)
+                groups = [_open_group(c, o, stop_at_perfect, cuda_graph, opened, tables)
                           for c, o in batches]  # fmt: skip
                 return train_groups(groups, progress)
             finally:
@@ -1250,9 +1260,10 @@ def _open_group(
     stop_at_perfect: bool,
     cuda_graph: bool,
     opened: list[Run],
+    tables: dict,
 ) -> BatchedRuns:
     """One batch's runs, fresh or resumed from their checkpoints, as a :class:`BatchedRuns`
-    (its runs added to ``opened``, which the caller closes)."""
+    (its runs added to ``opened``, which the caller closes; its table from ``tables``)."""
     configs = list(configs)
     resumed = []
     for k, (c, out) in enumerate(zip(configs, outs, strict=True)):
@@ -1267,7 +1278,7 @@ def _open_group(
                 )
             configs[k] = saved
             resumed.append(k)
-    runs = _open_runs(configs, outs)
+    runs = _open_runs(configs, outs, tables)
     opened.extend(runs)
     for k, c in enumerate(configs):  # a fresh run's start, as train() makes it
         if k not in resumed and c.init_from is not None:
