@@ -1,13 +1,14 @@
 #!/usr/bin/env bash
-# The batched trainer on a lent GPU in one device run (about 5 minutes on an H100): the GPU's
-# name; first the measurements (bench_cuda_graph.py: the step replayed as one CUDA graph vs
-# eager, groups together on their own streams, the grid's GPU-hours; bench_merge_glances.py
-# --device cuda replayed and eager: a Table 1 column's 2-10-glance runs as six models or one);
-# then tests/test_batched.py (CUDA batched runs equal single runs, SGD and Adam; the replayed
-# step equals the eager one, also from the command line) with the CPU tests beside them; then
-# bench_batched.py --device cuda with a learned and a random first glance and
-# bench_side_by_side.py (1 and 15 eager groups sharing the GPU, as --workers 15 runs them).
-# Results of 2026-12-05: docs/batched.md, "On an H100". The device machine's python3
+# The batched trainer on a lent GPU in one device run (about 6 minutes on an H100): the GPU's
+# name; first the measurements: bench_cuda_graph.py (the step replayed as one CUDA graph vs
+# eager, groups together on their own streams, the grid's GPU-hours), bench_merge_glances.py
+# --device cuda replayed and eager (a Table 1 column's 2-10-glance runs as six models or one),
+# and a 20-run grid from the command line with --cuda-graph, alone and with --groups-together 2
+# (timed; compare_grids.py compares their numbers). Then tests/test_batched.py (its CUDA tests
+# with the CPU ones; PART_TESTS_S, default 240); then bench_batched.py --device cuda with a
+# learned and a random first glance, and bench_side_by_side.py (1 and 15 eager groups sharing
+# the GPU, as --workers 15 runs them). Results of 2026-12-05 (before the grid part):
+# docs/batched.md, "On an H100". The device machine's python3
 # holds PyTorch with CUDA, h5py, TensorBoard, tqdm and pytest; it lacks Gymnasium, which ham's
 # command line imports (the sb3 command's options), so its wheels travel in .whl (ignored by git;
 # made here with `pip download --no-deps --only-binary=:all: --python-version 3.12 -d .whl
@@ -42,8 +43,18 @@ part() { echo "== $*"; SECONDS=0; timeout "$PART" "$@"; echo "== rc $? in ${SECO
       --table "$TABLE" --cuda-graph
     part "$PY" benchmarks/bench_merge_glances.py --device cuda --runs 10 --repeats 20 \
       --table "$TABLE"
+    # a grid end to end from the command line: 20 runs (two batched models) replayed, then the
+    # same with both models stepped together on their own streams (--groups-together 2)
+    GRID="reproduce table1 --profile quick --glances 3 10 --variants full --seeds 10 --steps 1000
+      --executor batched --workers 1 --device cuda --cuda-graph --quiet"
+    E2E=${TMPDIR:-/tmp}/gpu_check_e2e
+    rm -rf "$E2E" && mkdir -p "$E2E"
+    part "$PY" -m ham $GRID --out "$E2E/graph" >/dev/null
+    part "$PY" -m ham $GRID --groups-together 2 --out "$E2E/together" >/dev/null
+    part "$PY" benchmarks/compare_grids.py "$E2E/graph" "$E2E/together"
   fi
-  part "$PY" -m pytest -q -o addopts="" -p no:cacheprovider -n 4 tests/test_batched.py -rs
+  PART=${PART_TESTS_S:-240} part "$PY" -m pytest -q -o addopts="" -p no:cacheprovider -n 4 \
+    tests/test_batched.py -rs
   if "$PY" -c "import sys, torch; sys.exit(not torch.cuda.is_available())"; then
     part "$PY" benchmarks/bench_batched.py --device cuda --runs 10 --glances 3 10 --repeats 5 \
       --table "$TABLE" --first-glance learned
