@@ -791,18 +791,24 @@ def test_merge_glances_trains_a_grid_of_glance_counts_as_one_model(tmp_path, ham
     assert not (tmp_path / "x").exists()
 
 
+def assert_same_grid(r: subprocess.CompletedProcess, out: Path, batched_grid: Path) -> None:
+    """The small grid run into ``out`` (``r``: its command) ran all 4 runs, each the batched
+    executor's own to the bit."""
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["ran"] == 4
+    for key in SMALL_GRID_KEYS:
+        ours, theirs = out / "runs" / key, batched_grid / "runs" / key
+        assert metrics(ours)["history"] == metrics(theirs)["history"]
+        for p, q in zip(weights(ours), weights(theirs), strict=True):
+            assert torch.equal(p, q), key
+
+
 def test_ray_batched_executor_matches_batched(batched_grid, tmp_path, ham_cli):
     """Ray hands each worker a batched model: the same groups, the same numbers, to the bit."""
     pytest.importorskip("ray")
     r = ham_cli(*SMALL_GRID, "--executor", "ray-batched", "--batch-runs", "2", "--out",
                 str(tmp_path / "r"))  # fmt: skip
-    assert r.returncode == 0, r.stderr
-    assert json.loads(r.stdout)["ran"] == 4
-    for key in SMALL_GRID_KEYS:
-        ours, theirs = tmp_path / "r/runs" / key, batched_grid / "runs" / key
-        assert metrics(ours)["history"] == metrics(theirs)["history"]
-        for p, q in zip(weights(ours), weights(theirs), strict=True):
-            assert torch.equal(p, q), key
+    assert_same_grid(r, tmp_path / "r", batched_grid)
     assert "Executor: ray-batched" in (tmp_path / "r/report.md").read_text()
 
 
@@ -811,13 +817,7 @@ def test_the_executor_trains_groups_together(batched_grid, tmp_path, ham_cli):
     of both launched before either is read back: on a CPU the same runs, to the bit."""
     r = ham_cli(*SMALL_GRID, "--executor", "batched", "--workers", "1", "--groups-together",
                 "2", "--out", str(tmp_path / "t"))  # fmt: skip
-    assert r.returncode == 0, r.stderr
-    assert json.loads(r.stdout)["ran"] == 4
-    for key in SMALL_GRID_KEYS:
-        ours, theirs = tmp_path / "t/runs" / key, batched_grid / "runs" / key
-        assert metrics(ours)["history"] == metrics(theirs)["history"]
-        for p, q in zip(weights(ours), weights(theirs), strict=True):
-            assert torch.equal(p, q), key
+    assert_same_grid(r, tmp_path / "t", batched_grid)
 
 
 def test_batches_trained_together_resume_and_fail_alone(tmp_path):
