@@ -80,6 +80,7 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
     from ham.experiments.grid_run import run_grid
     from ham.experiments.reproduce import reproduce
     from ham.learn.ap_adapter import ApGymConfig, ApGymGlanceEnv
+    from ham.learn.batched import train_batched, train_batched_together
     from ham.learn.evaluation import evaluate, heatmap_data
     from ham.learn.explorer import Explorer
     from ham.learn.learners import register_learner
@@ -171,6 +172,11 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
         ),  # fmt: skip
         "load_run": (load_run, {"out": run_out}),
         "train": (train, {"config": config, "out": "fresh", "progress": False}),
+        "train_batched": (train_batched, {"configs": [config], "outs": ["b0"]}),
+        "train_batched_together": (
+            train_batched_together,
+            {"batches": [([config], ["b0"]), ([config], ["b1"])]},
+        ),  # fmt: skip
         "resume": (resume, {"out": run_out, "progress": False}),
         "reproduce": (
             reproduce,
@@ -223,10 +229,11 @@ def _cases(tmp: Path, only: list[str]) -> dict[str, tuple[Callable, dict]]:
 
 @contextlib.contextmanager
 def _sentinels():
-    """The training loops (ours, SB3's) and the executors raise :class:`Accepted` instead of
+    """The training loops (ours, batched, SB3's) and the executors raise :class:`Accepted` instead of
     running."""
     import ham.experiments.grid_run as grid_run
     import ham.experiments.reproduce as reproduce
+    import ham.learn.batched as batched
     import ham.learn.sb3_agents as sb3_agents
     import ham.learn.train as train
 
@@ -235,7 +242,7 @@ def _sentinels():
 
     saved = [(m, n, getattr(m, n)) for m, n in
              ((train, "train_loop"), (reproduce, "execute"), (grid_run, "execute"),
-              (sb3_agents, "_learn"))]  # fmt: skip
+              (sb3_agents, "_learn"), (batched, "train_groups"))]  # fmt: skip
     for m, n, _ in saved:
         setattr(m, n, stop)
     try:

@@ -848,6 +848,14 @@ def test_batches_trained_together_resume_and_fail_alone(tmp_path):
         )
     with pytest.raises(HamError, match="^no batches to train"):
         batched.train_batched_together([])
+    for bad, says in (("abc", r"^batches = 'abc'; accepted: a list of \(configs, outs\) pairs"),
+                      ([([tiny(0)],)], r"^batch 0 = \(\[TrainConfig"),
+                      ([("abc", ["x"])], r"^configs = 'abc'; accepted: a list of TrainConfig"),
+                      ([([tiny(0)], [3])], r"^outs = \[3\]; accepted: a list of paths")):  # fmt: skip
+        with pytest.raises(HamError, match=says):
+            batched.train_batched_together(bad)
+    with pytest.raises(HamError, match="^train_batched: progress = nan; accepted: true or false"):
+        train_batched([tiny(0)], [tmp_path / "x"], progress=float("nan"))
     assert not (tmp_path / "x").exists()
 
 

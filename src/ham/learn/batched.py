@@ -47,7 +47,7 @@ from pathlib import Path
 import torch
 from torch.nn import functional as F
 
-from ham.errors import HamError
+from ham.errors import HamError, brief, checked_arguments
 from ham.learn.evaluation import EvalResult, eval_result, pose_sums
 from ham.learn.hybrid_loss import hybrid_loss
 from ham.learn.stacked_ham import StackedHam
@@ -1194,6 +1194,7 @@ def _open_runs(
     return runs
 
 
+@checked_arguments
 def train_batched(
     configs: list[TrainConfig],
     outs: list[str | os.PathLike],
@@ -1211,6 +1212,7 @@ def train_batched(
     )[0]
 
 
+@checked_arguments
 def train_batched_together(
     batches: list[tuple[list[TrainConfig], list[str | os.PathLike]]],
     *,
@@ -1224,7 +1226,7 @@ def train_batched_together(
     2.5-3x one batch's throughput, docs/batched.md); on a CPU one after another each step, which
     gains nothing. Each batch's numbers are its own, as trained alone. Returns per batch what
     :func:`train_batched` returns."""
-    batches = [(list(c), [Path(o) for o in outs]) for c, outs in batches]
+    batches = _as_batches(batches)
     if not batches:
         raise HamError("no batches to train; accepted: one (configs, outs) pair or more")
     for configs, outs in batches:
@@ -1252,6 +1254,27 @@ def train_batched_together(
             with contextlib.suppress(OSError):  # not empty: the run started
                 f.rmdir()
         raise
+
+
+def _as_batches(batches) -> list[tuple[list[TrainConfig], list[Path]]]:
+    """``batches`` as lists of configs and paths, or a :class:`HamError` naming what is off."""
+    pair = "a list of (configs, outs) pairs: a list of TrainConfig and a list of paths each"
+    if not isinstance(batches, list | tuple):
+        raise HamError(f"batches = {brief(batches)}; accepted: {pair}")
+    out = []
+    for k, batch in enumerate(batches):
+        if not (isinstance(batch, list | tuple) and len(batch) == 2):
+            raise HamError(f"batch {k} = {brief(batch)}; accepted: {pair}")
+        configs, outs = batch
+        if not (isinstance(configs, list | tuple)
+                and all(isinstance(c, TrainConfig) for c in configs)):  # fmt: skip
+            raise HamError(f"configs = {brief(configs)}; accepted: a list of TrainConfig")
+        if not (isinstance(outs, list | tuple)
+                and all(isinstance(o, str | os.PathLike) and str(o) for o in outs)):  # fmt: skip
+            raise HamError(f"outs = {brief(outs)}; accepted: a list of paths (str or "
+                           "os.PathLike), one per config")  # fmt: skip
+        out.append((list(configs), [Path(o) for o in outs]))
+    return out
 
 
 def _open_group(
