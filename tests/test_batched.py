@@ -964,6 +964,24 @@ def test_a_graph_would_replay_the_steps_own_numbers(tmp_path, cuda_graph, first)
     assert (steps[-1] == steps[-2]) is cuda_graph
 
 
+def test_evaluation_draws_are_drawn_once(tmp_path):
+    # a run's evaluation seeds its generators anew each time, so its draws (first glance, later
+    # glances, pose noise) are the same at every evaluation: kept after the first, a second
+    # evaluation draws nothing and counts the same (the counts equal the single run's: above)
+    configs = [tiny(0), tiny(1, pose_noise=0.05), tiny(2, eval_policy="sample")]
+    outs = [tmp_path / f"b{c.seed}" for c in configs]
+    group = BatchedRuns(_open_runs(configs, outs), outs)
+    first = group.evaluate([0, 1, 2])
+    with _Calls() as calls:
+        again = group.evaluate([0, 1, 2])
+    drawn = [c[0] for c in calls.calls if c[0].startswith(("aten.uniform_", "aten.normal_"))]
+    assert drawn == [] and again == first
+    with _Calls() as calls:  # a run's own draws, not another's
+        alone = group.evaluate([1])
+    drawn = [c[0] for c in calls.calls if c[0].startswith(("aten.uniform_", "aten.normal_"))]
+    assert drawn == [] and alone == first[1:2]
+
+
 def _two_groups(tmp_path: Path, tag: str, device: str = "cpu", cuda_graph: bool = False):
     # two shapes (3 and 2 glances), one with a run of fewer steps (it leaves its group early)
     kw = {"device": device, "table": _small_table(tmp_path)}

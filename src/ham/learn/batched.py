@@ -213,6 +213,9 @@ _MALLOPT_DONE = False
 # outgrow the caches (measured at 10 glances, 10 runs: 64 rows 880 ms per run, 256-1024 rows
 # 580-640 ms, 2048 rows 710-810 ms)
 _EVAL_ROWS = 512
+#: a run's evaluation draws kept between evaluations up to this size (the paper's protocol at
+#: 10 glances: about 1.5 MB a run); larger ones are drawn anew each time
+_KEPT_DRAWS_BYTES = 16 * 2**20
 _FUSED_SGD = getattr(torch, "_fused_sgd_", None)
 # elements a run's tensor must come in multiples of to be updated over the whole stack (a
 # multiple of every CPU's vector width): no element of it falls in the fused kernel's scalar tail
@@ -348,6 +351,7 @@ class BatchedRuns:
         self.sums = torch.zeros(2, len(self.active), device=self.runs[0].env.device)
         self.numbers = self.sums.new_zeros(5, len(self.active))
         self._consts: dict[tuple, torch.Tensor] = {}  # _const's tensors
+        self._kept_draws: dict[int, tuple] = {}  # run index -> its evaluation draws
         self.stream: torch.cuda.Stream | None = None  # its own CUDA stream (train_groups)
         self._t_train, self._n_train = 0.0, 0  # the time in launch and land, the steps
         if self.active:
@@ -872,31 +876,8 @@ class BatchedRuns:
         # truncated_normal's draws)
         chosen = self._first_glance(p, 1)
         first_dtype = torch.float32 if chosen is None else torch.float64
-        first = None if chosen is not None and greedy else torch.empty(
-            n, batches, batch, 2, device=device, dtype=first_dtype)  # fmt: skip
-        draws = torch.empty(n, batches, later, batch, 2, device=device, dtype=dtype)
-        for j, r in enumerate(runs):
-            g = torch.Generator(device=device)
-            g.manual_seed(stream_seed(r.config.seed, 2))
-            for b in range(batches):
-                if first is not None:
-                    torch.rand(batch, 2, generator=g, device=device, dtype=first_dtype,
-                               out=first[j, b])  # fmt: skip
-                for s in range(later):
-                    torch.rand(batch, 2, generator=g, device=device, dtype=dtype,
-                               out=draws[j, b, s])  # fmt: skip
-        # pose noise as each run's evaluation draws it: per batch its own generator, a
-        # randn(B, 2) per glance (HapticEnv.eval_noise_generator)
-        noise = None
-        if any(r.env.pose_noise > 0 for r in runs):
-            noise = torch.zeros(n, batches, glances, batch, 2, device=device)
-            for j, r in enumerate(runs):
-                if r.env.pose_noise == 0:
-                    continue  # its noise is never read (HapticEnv.executed returns q)
-                for b in range(batches):
-                    g = r.env.eval_noise_generator(b)
-                    for s in range(glances):
-                        torch.randn(batch, 2, generator=g, device=device, out=noise[j, b, s])
+        want_first = not (chosen is not None and greedy)
+        first, draws, noise = self._eval_draws(idx, later, dtype, first_dtype, want_first)
         correct = torch.zeros(n, glances, device=device)
         accumulated = torch.zeros(n, glances, device=device)
         confusion = torch.zeros(n * glances * k * k, dtype=torch.long, device=device)
@@ -963,6 +944,68 @@ class BatchedRuns:
         confusion = confusion.view(n, -1)
         return [eval_result(env, batches, correct[j], accumulated[j], confusion[j], mu_sum[j],
                             n_obj, path[j], poses[j]) for j in range(n)]  # fmt: skip
+
+    def _eval_draws(
+        self, idx: list[int], later: int, dtype: torch.dtype, first_dtype: torch.dtype,
+        want_first: bool,
+    ) -> tuple[torch.Tensor | None, torch.Tensor, torch.Tensor | None]:  # fmt: skip
+        """The runs ``idx``'s evaluation draws, stacked: the uniforms of the first glance
+        (``want_first``) and of the ``later`` glances, and the pose noise, each run's from its
+        own generators in the order its single evaluation draws them (per batch: the first
+        glance, then each later one; the noise per batch and glance). Those generators are
+        seeded anew at every evaluation (stream 2, :meth:`HapticEnv.eval_noise_generator`), so
+        a run's draws are the same each time: drawn once and kept (up to
+        :data:`_KEPT_DRAWS_BYTES` a run), instead of one small draw per batch and glance at
+        every evaluation (10,000 a group of 10 runs at 10 glances: on a GPU, launches)."""
+        out = []
+        for i in idx:
+            r = self.runs[i]
+            batches, batch, glances = (
+                r.config.eval_batches,
+                r.env.batch_size,
+                r.config.model.glances,
+            )
+            key = (batches, batch, glances, later, dtype, first_dtype if want_first else None)
+            kept = self._kept_draws.get(i)
+            if kept is not None and kept[0] == key:
+                out.append(kept[1])
+                continue
+            device = r.env.device
+            g = torch.Generator(device=device)
+            g.manual_seed(stream_seed(r.config.seed, 2))
+            first = (
+                torch.empty(batches, batch, 2, device=device, dtype=first_dtype)
+                if want_first
+                else None
+            )
+            draws = torch.empty(batches, later, batch, 2, device=device, dtype=dtype)
+            for b in range(batches):
+                if first is not None:
+                    torch.rand(batch, 2, generator=g, device=device, dtype=first_dtype,
+                               out=first[b])  # fmt: skip
+                for s in range(later):
+                    torch.rand(batch, 2, generator=g, device=device, dtype=dtype,
+                               out=draws[b, s])  # fmt: skip
+            noise = None  # its noise is never read without pose noise (HapticEnv.executed)
+            if r.env.pose_noise > 0:
+                noise = torch.empty(batches, glances, batch, 2, device=device)
+                for b in range(batches):
+                    gn = r.env.eval_noise_generator(b)
+                    for s in range(glances):
+                        torch.randn(batch, 2, generator=gn, device=device, out=noise[b, s])
+            made = (first, draws, noise)
+            size = sum(t.numel() * t.element_size() for t in made if t is not None)
+            if size <= _KEPT_DRAWS_BYTES:
+                self._kept_draws[i] = (key, made)
+            out.append(made)
+        first = torch.stack([m[0] for m in out]) if want_first else None
+        draws = torch.stack([m[1] for m in out])
+        noise = None
+        if any(m[2] is not None for m in out):  # zeros for a run without pose noise
+            shape = next(m[2].shape for m in out if m[2] is not None)
+            noise = torch.stack([m[2] if m[2] is not None else draws.new_zeros(
+                shape, dtype=torch.float32) for m in out])  # fmt: skip
+        return first, draws, noise
 
     def _evaluate(self, due: list[tuple[int, float | None, float | None]]) -> dict[int, dict]:
         """Evaluate and record the runs ``due`` (run index, mean train loss and reward since
