@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The batched trainer on a lent GPU in one device run (about 6 minutes on an H100): the GPU's
 # name; first the measurements: bench_cuda_graph.py (the step replayed as one CUDA graph vs
-# eager, groups together on their own streams, the grid's GPU-hours), bench_merge_glances.py
+# eager, groups together on their own streams, the grid's GPU-hours; a first and a later
+# evaluation, with mean and with sampled poses), bench_merge_glances.py
 # --device cuda replayed and eager (a Table 1 column's 2-10-glance runs as six models or one),
 # and a 20-run grid from the command line with --cuda-graph, alone and with --groups-together 2
 # (timed; compare_grids.py compares their numbers). Then tests/test_batched.py (its CUDA tests
@@ -39,6 +40,9 @@ part() { echo "== $*"; SECONDS=0; timeout "$PART" "$@"; echo "== rc $? in ${SECO
     # tests, then session 7's again on this card (its numbers were an H200's)
     part "$PY" benchmarks/bench_cuda_graph.py --device cuda --runs 10 --glances 3 10 --steps 30 \
       --table "$TABLE"
+    # the evaluations with sampled poses (the paper-gazebo preset's), their draws kept
+    part "$PY" benchmarks/bench_cuda_graph.py --device cuda --runs 10 --glances 3 10 --steps 10 \
+      --together 0 --eval-policy sample --table "$TABLE"
     part "$PY" benchmarks/bench_merge_glances.py --device cuda --runs 10 --repeats 20 \
       --table "$TABLE" --cuda-graph
     part "$PY" benchmarks/bench_merge_glances.py --device cuda --runs 10 --repeats 20 \
