@@ -1,21 +1,21 @@
 #!/usr/bin/env bash
-# The batched trainer on a lent GPU in one device run (about 6 minutes on an H100): the GPU's
-# name; first the measurements: bench_cuda_graph.py (the step replayed as one CUDA graph vs
-# eager, groups together on their own streams, the grid's GPU-hours; a first and a later
-# evaluation, with mean and with sampled poses), bench_merge_glances.py
-# --device cuda replayed and eager (a Table 1 column's 2-10-glance runs as six models or one),
-# and a 20-run grid from the command line with --cuda-graph, alone and with --groups-together 2
-# (timed; compare_grids.py compares their numbers). Then tests/test_batched.py (its CUDA tests
-# with the CPU ones; PART_TESTS_S, default 240); then bench_batched.py --device cuda with a
-# learned and a random first glance, and bench_side_by_side.py (1 and 15 eager groups sharing
-# the GPU, as --workers 15 runs them). Results of 2026-12-05 (before the grid part):
-# docs/batched.md, "On an H100". The device machine's python3
-# holds PyTorch with CUDA, h5py, TensorBoard, tqdm and pytest; it lacks Gymnasium, which ham's
-# command line imports (the sb3 command's options), so its wheels travel in .whl (ignored by git;
-# made here with `pip download --no-deps --only-binary=:all: --python-version 3.12 -d .whl
-# gymnasium==1.4.0 farama-notifications==0.0.6`) and are installed under /tmp/site. ham runs from
-# src/. Each part has its own time limit (PART_S seconds, default 150), so one that hangs leaves
-# the rest their time. From the device tool:
+# The batched trainer on a lent GPU in one device run (about 6 minutes on an H100; 4.5 before
+# the grid and sampled-evaluation parts were added): the GPU's name; first the measurements:
+# bench_cuda_graph.py (the step replayed as one CUDA graph vs eager, groups together on their
+# own streams, the grid's GPU-hours; a first and a later evaluation, with mean and with sampled
+# poses), bench_merge_glances.py --device cuda replayed and eager (a Table 1 column's
+# 2-10-glance runs as six models or one), and a 20-run grid from the command line with
+# --cuda-graph, alone and with --groups-together 2 (timed; compare_grids.py compares their
+# numbers). Then tests/test_batched.py (its CUDA tests with the CPU ones; PART_TESTS_S, default
+# 240); then bench_batched.py --device cuda with a learned and a random first glance, and
+# bench_side_by_side.py (1 and 15 eager groups sharing the GPU, as --workers 15 runs them).
+# Results of 2026-12-05 (before the grid part): docs/batched.md, "On an H100". The device
+# machine's python3 holds PyTorch with CUDA, h5py, TensorBoard, tqdm and pytest; it lacks
+# Gymnasium, which ham's command line imports (the sb3 command's options), so its wheels travel
+# in .whl (ignored by git; made here with `pip download --no-deps --only-binary=:all:
+# --python-version 3.12 -d .whl gymnasium==1.4.0 farama-notifications==0.0.6`) and are installed
+# under /tmp/site. ham runs from src/. Each part has its own time limit (PART_S seconds, default
+# 150), so one that hangs leaves the rest their time. From the device tool:
 #   run(command="bash benchmarks/gpu_check.sh", carry=[".whl"], timeout_s=600)
 # Everything it prints also lands in $OUT/gpu_check.log. PYTHON=... picks another interpreter
 # (on a machine without CUDA it runs the CPU tests and says it skipped the bench).
