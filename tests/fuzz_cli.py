@@ -122,6 +122,8 @@ BASE: dict[str, list[str]] = {
         "reproduce-grid": "reproduce grid GRID --out r --quiet",
         "reproduce": "reproduce table1 --profile smoke --seeds 1 --steps 2 --glances 1 "
         "--variants full --out r --quiet",
+        "reproduce-batched": "reproduce table1 --profile smoke --seeds 2 --steps 2 --glances 1 "
+        "--variants full --executor batched --workers 1 --out r --quiet",
         "envs-check": "envs check --table TABLE --glances 2 --num-envs 2",
         "envs-bench": "envs bench --num-envs 1",
         "table-show": "table show TABLE --object 0 --n 2 --out s.png",
