@@ -546,6 +546,38 @@ def test_the_device_step_asks_the_host_nothing(tmp_path, monkeypatch):
     assert flags.shape == (2, 5) and bool(flags.all())
 
 
+@pytest.mark.parametrize(
+    "model",
+    [HamConfig(glances=1), HamConfig(glances=3, policy="random"), HamConfig(glances=3, core="mlp"),
+     HamConfig(glances=3, combiner="mul"), HamConfig(glances=3, combiner="concat1"),
+     HamConfig(glances=3, combiner="add"), HamConfig(glances=3, first_glance="learned"),
+     HamConfig(glances=3, std_activation="sigmoid"), "compiled-cell"],
+    ids=["1-glance", "rloc", "mlp", "mul", "concat1", "add", "first-learned", "sigmoid",
+         "compiled-cell"],
+)  # fmt: skip
+def test_every_shape_of_the_paper_grid_steps_without_asking_the_host(tmp_path, monkeypatch, model):
+    # what a CUDA graph of the whole grid needs: each of its models' device step (Table 1's
+    # variants at their glance counts, Table 2's combiners; the APPLE study's first glance; the
+    # paper-size compiled cell) reads nothing back and makes no tensor of Python values
+    compiled = model == "compiled-cell"
+    if compiled:
+        monkeypatch.setattr(stacked_ham, "_COMPILE_MIN", 0)
+        model = HamConfig(glances=3)
+    table = _small_table(tmp_path)
+    configs = [tiny(s, table=table, model=model) for s in range(2)]
+    outs = [tmp_path / f"b{c.seed}" for c in configs]
+    group = BatchedRuns(_open_runs(configs, outs), outs)
+    group.step()  # the first step makes the group's constants
+    reads: list[str] = []
+    monkeypatch.setattr(torch.Tensor, "tolist", lambda t: reads.append("tolist") or [])
+    with _HostReads() as host:
+        flags = group._device_step([group.runs[i] for i in group.active])
+    assert host.seen + reads == []
+    assert flags.shape == (2, 2) and bool(flags.all())
+    if compiled:
+        assert_compiled()
+
+
 @pytest.mark.parametrize("compiled", [False, True], ids=["eager", "compiled-cell"])
 def test_resume_of_a_batched_group_is_bit_identical(tmp_path, monkeypatch, compiled):
     if compiled:  # the paper's size takes the compiled cell backward
