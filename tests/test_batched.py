@@ -529,12 +529,19 @@ def test_the_device_step_asks_the_host_nothing(tmp_path, monkeypatch):
     # on a glance table (the online simulator iterates to each glance's contact), a group that
     # takes every per-run path: other glance counts (a run past its last glance draws nothing),
     # normalizations, betas, reductions, rates, BPTT truncations and a spread augmentation
-    table = str(build_table(WorldConfig(), 5, tmp_path / "t.h5", progress=False))
+    table = _small_table(tmp_path)
     configs = [tiny(0, table=table),
                tiny(1, table=table, model=HamConfig(glances=2, truncate_bptt=True)),
                tiny(2, table=table, normalization="l1", beta=0.5, lr=0.01),
                tiny(3, table=table, classification_reduction="sum", momentum=0.5),
                tiny(4, table=table, spread_augment=0.005)]  # fmt: skip
+    assert_device_step_asks_nothing(tmp_path, monkeypatch, configs)
+
+
+def assert_device_step_asks_nothing(tmp_path: Path, monkeypatch, configs: list) -> None:
+    """A group of ``configs``' second device step (the first makes the group's constants)
+    reads nothing back to the host, makes no tensor of Python values, and flags every run
+    finite."""
     outs = [tmp_path / f"b{c.seed}" for c in configs]
     group = BatchedRuns(_open_runs(configs, outs), outs)
     group.step()  # the first step makes the group's constants
@@ -543,7 +550,7 @@ def test_the_device_step_asks_the_host_nothing(tmp_path, monkeypatch):
     with _HostReads() as host:
         flags = group._device_step([group.runs[i] for i in group.active])
     assert host.seen + reads == []
-    assert flags.shape == (2, 5) and bool(flags.all())
+    assert flags.shape == (2, len(configs)) and bool(flags.all())
 
 
 @pytest.mark.parametrize(
@@ -564,16 +571,8 @@ def test_every_shape_of_the_paper_grid_steps_without_asking_the_host(tmp_path, m
         monkeypatch.setattr(stacked_ham, "_COMPILE_MIN", 0)
         model = HamConfig(glances=3)
     table = _small_table(tmp_path)
-    configs = [tiny(s, table=table, model=model) for s in range(2)]
-    outs = [tmp_path / f"b{c.seed}" for c in configs]
-    group = BatchedRuns(_open_runs(configs, outs), outs)
-    group.step()  # the first step makes the group's constants
-    reads: list[str] = []
-    monkeypatch.setattr(torch.Tensor, "tolist", lambda t: reads.append("tolist") or [])
-    with _HostReads() as host:
-        flags = group._device_step([group.runs[i] for i in group.active])
-    assert host.seen + reads == []
-    assert flags.shape == (2, 2) and bool(flags.all())
+    assert_device_step_asks_nothing(tmp_path, monkeypatch,
+                                    [tiny(s, table=table, model=model) for s in range(2)])  # fmt: skip
     if compiled:
         assert_compiled()
 
