@@ -11,8 +11,6 @@ s.e.m. over the seeds), OUT.json keeps every run's numbers, OUT.png draws the li
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -24,6 +22,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 from ham.experiments.reproduce import format_mean_sem, mean_sem  # noqa: E402
 from ham.world.files import write_json  # noqa: E402
 
+# summarize.py beside this file: its command line and figure, shared
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from summarize import read_runs, save_figure  # noqa: E402
+
 
 def method(run: dict) -> str:
     grid = run["grid"] if isinstance(run["grid"], int) else "x".join(map(str, run["grid"]))
@@ -33,12 +35,7 @@ def method(run: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("out", type=Path)
-    ap.add_argument("runs", type=Path, nargs="+")
-    ap.add_argument("--title", default="the pad: MuJoCo, Gazebo read-out (3 seeds)")
-    args = ap.parse_args(argv)
-    runs = [json.loads((r / "live.json").read_text()) | {"run": r.name} for r in args.runs]
+    args, runs = read_runs(__doc__, argv)
     for r in runs:
         r["pad_pose_noise"] = r.get("pad_pose_noise", 0.0)
     methods = sorted({method(r) for r in runs})
@@ -73,11 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     ax.errorbar(noises, [v[0] for v in b], yerr=[v[1] for v in b], marker="o", capsize=3,
                 label="trained in simulation only")  # fmt: skip
     ax.set_xlabel("the robot's pose error (std, normalized units per pose dim)")
-    ax.set_ylabel("live accuracy after the last glance")
-    ax.set_title(args.title, fontsize=9)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(args.out.with_suffix(".png"), dpi=110)
+    save_figure(fig, ax, args)
     return 0
 
 

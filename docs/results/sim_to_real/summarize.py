@@ -51,13 +51,29 @@ def _what(way: tuple) -> str:
     return f"the table calibrated by a {k} x {k} read-out{fitted}"
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def read_runs(doc: str, argv: list[str] | None) -> tuple[argparse.Namespace, list[dict]]:
+    """A summary's command line (OUT.json, the RUN folders, --title) and each run's
+    ``live.json``, named by its folder; this script's and pose_error.py's."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
     ap.add_argument("out", type=Path)
     ap.add_argument("runs", type=Path, nargs="+")
     ap.add_argument("--title", default="the pad: MuJoCo, Gazebo read-out (3 seeds)")
     args = ap.parse_args(argv)
     runs = [json.loads((r / "live.json").read_text()) | {"run": r.name} for r in args.runs]
+    return args, runs
+
+
+def save_figure(fig, ax, args: argparse.Namespace) -> None:
+    """The live accuracy's axis, the title and legend, and OUT.png beside OUT.json."""
+    ax.set_ylabel("live accuracy after the last glance")
+    ax.set_title(args.title, fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(args.out.with_suffix(".png"), dpi=110)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args, runs = read_runs(__doc__, argv)
     for r in runs:  # one number for every pose dim (2 here), or one per dim
         r["shape"] = [r["grid"]] * 2 if isinstance(r["grid"], int) else r["grid"]
     shapes = sorted({tuple(r["shape"]) for r in runs}, key=lambda t: (math.prod(t), t))
@@ -103,11 +119,7 @@ def main(argv: list[str] | None = None) -> int:
                                                                             strict=True)],
                   fontsize=7)  # fmt: skip
     ax.set_xlabel("recorded glances per object: grid (count)")
-    ax.set_ylabel("live accuracy after the last glance")
-    ax.set_title(args.title, fontsize=9)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(args.out.with_suffix(".png"), dpi=110)
+    save_figure(fig, ax, args)
     return 0
 
 
